@@ -1,0 +1,286 @@
+"""Pinhole cameras and camera rigs, in the OpenCV convention (stated once, here).
+
+    x_cam = R @ X + t            (world -> camera; `cam_from_world`), z forward, y down
+    (u, v) = (fx x/z + cx, fy y/z + cy)
+
+Pixel (u, v): u right, v down; the *centre* of the top-left pixel is (0, 0), exactly as
+`cv2.projectPoints` computes it. COLMAP puts that centre at (0.5, 0.5); the +0.5 lives only
+in `mvtex.colmap`. Units are meters. Rendering needs zero distortion (`dist`).
+
+A rig is stored as an OpenCV FileStorage YAML (`format: "mvtex-rig"`, `version: 1`, a
+sequence `cameras` of maps with `name`, `width`, `height`, `K` 3x3, `dist` 1x5, `R` 3x3,
+`t` 3x1), read and written with `cv2.FileStorage`.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from .errors import InputError
+
+RIG_FORMAT = "mvtex-rig"
+RIG_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera.
+
+    Attributes:
+        name: unique name within a rig (used for folder names).
+        width, height: image size in pixels.
+        K: (3,3) float64 intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]].
+        R: (3,3) float64 rotation, world -> camera.
+        t: (3,) float64 translation, world -> camera.
+        dist: (5,) float64 OpenCV distortion (k1,k2,p1,p2,k3); must be zero to render.
+    """
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+
+    def __post_init__(self) -> None:
+        for key, shape in (("K", (3, 3)), ("R", (3, 3)), ("t", (3,)), ("dist", (5,))):
+            value = np.asarray(getattr(self, key), dtype=np.float64)
+            if key in ("t", "dist"):
+                value = value.reshape(-1)
+                if key == "dist" and value.size < 5:
+                    value = np.pad(value, (0, 5 - value.size))
+            if value.shape != shape or not np.all(np.isfinite(value)):
+                raise ValueError(f"camera {self.name!r}: {key} must be finite with shape {shape}, got {value.shape}")
+            value.setflags(write=False)
+            object.__setattr__(self, key, value)
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ValueError(f"camera {self.name!r}: image size must be positive, got {self.width}x{self.height}")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+
+    # -- geometry -------------------------------------------------------------------------
+    @property
+    def cam_from_world(self) -> np.ndarray:
+        """(3,4) float64 [R | t]."""
+        return np.hstack([self.R, self.t[:, None]])
+
+    @property
+    def projection(self) -> np.ndarray:
+        """(3,4) float64 P = K [R | t], pixels in the OpenCV convention."""
+        return self.K @ self.cam_from_world
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) float64 camera centre in world coordinates, -R^T t."""
+        return -self.R.T @ self.t
+
+    def to_camera(self, points: np.ndarray) -> np.ndarray:
+        """World points (..., 3) -> camera coordinates (..., 3), float64."""
+        return np.asarray(points, dtype=np.float64) @ self.R.T + self.t
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project world points (..., 3).
+
+        Returns:
+            pixels (..., 2) float64 in OpenCV pixel coordinates (ignores `dist`), and
+            depth (..., ) float64 camera-space z (meters).
+        """
+        x = self.to_camera(points)
+        z = x[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = x[..., :2] / z[..., None]
+        pixels = uv * np.array([self.K[0, 0], self.K[1, 1]]) + np.array([self.K[0, 2], self.K[1, 2]])
+        pixels[..., 0] += self.K[0, 1] * uv[..., 1]
+        return pixels, z
+
+    def pixel_rays(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit ray directions (..., 3) float64 in world coordinates through pixels (..., 2)."""
+        pixels = np.asarray(pixels, dtype=np.float64)
+        homog = np.concatenate([pixels, np.ones(pixels.shape[:-1] + (1,))], axis=-1)
+        d_cam = homog @ np.linalg.inv(self.K).T
+        d_world = d_cam @ self.R
+        return d_world / np.linalg.norm(d_world, axis=-1, keepdims=True)
+
+    def with_name(self, name: str) -> "Camera":
+        return replace(self, name=name)
+
+
+def look_at(name: str, center: Sequence[float], target: Sequence[float], *, width: int, height: int,
+            focal: float, up: Sequence[float] = (0.0, 1.0, 0.0)) -> Camera:
+    """A camera at `center` looking at `target`, world `up` appearing up in the image.
+
+    The principal point is the image centre ((W-1)/2, (H-1)/2) in OpenCV pixel coordinates.
+    """
+    center = np.asarray(center, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - center
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=np.float64))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)  # image y points down: world up appears up
+    R = np.stack([x, y, z])
+    K = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    return Camera(name=name, width=width, height=height, K=K, R=R, t=-R @ center)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """An ordered set of uniquely named cameras."""
+
+    cameras: tuple[Camera, ...]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "cameras", tuple(self.cameras))
+        names = [c.name for c in self.cameras]
+        if len(set(names)) != len(names):
+            raise ValueError(f"camera names must be unique, got {names}")
+
+    def __iter__(self) -> Iterator[Camera]:
+        return iter(self.cameras)
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.cameras]
+
+    def __getitem__(self, name: str) -> Camera:
+        for cam in self.cameras:
+            if cam.name == name:
+                return cam
+        raise KeyError(name)
+
+    def select(self, names: Sequence[str] | None, source: str | os.PathLike | None = None) -> "Rig":
+        """The sub-rig with these camera names (all if None); unknown names raise InputError."""
+        if not names:
+            return self
+        unknown = [n for n in names if n not in self.names]
+        if unknown:
+            raise InputError(source, f"no camera named {', '.join(unknown)} (the rig has {', '.join(self.names)})")
+        return Rig(tuple(self[n] for n in names))
+
+
+# -- OpenCV YAML -------------------------------------------------------------------------
+
+def save_rig(rig: Rig, path: str | os.PathLike) -> None:
+    """Write a rig as OpenCV FileStorage YAML (atomically)."""
+    import cv2
+
+    from .io import atomic_path
+
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        # FileStorage picks the format from the extension: keep ".yaml" on the temporary.
+        tmp_yaml = tmp.with_name(tmp.name + ".yaml")
+        fs = cv2.FileStorage(str(tmp_yaml), cv2.FILE_STORAGE_WRITE)
+        fs.write("format", RIG_FORMAT)
+        fs.write("version", RIG_VERSION)
+        fs.startWriteStruct("cameras", cv2.FileNode_SEQ)
+        for cam in rig:
+            fs.startWriteStruct("", cv2.FileNode_MAP)
+            fs.write("name", cam.name)
+            fs.write("width", cam.width)
+            fs.write("height", cam.height)
+            fs.write("K", cam.K)
+            fs.write("dist", cam.dist.reshape(1, 5))
+            fs.write("R", cam.R)
+            fs.write("t", cam.t.reshape(3, 1))
+            fs.endWriteStruct()
+        fs.endWriteStruct()
+        fs.release()
+        os.replace(tmp_yaml, tmp)
+
+
+def load_rig(path: str | os.PathLike) -> Rig:
+    """Read an mvtex-rig YAML; any problem raises InputError naming the file."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "rig file not found")
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_YAML)
+    except (cv2.error, SystemError) as err:  # OpenCV 5 surfaces parse errors as either
+        detail = str(getattr(err, "__cause__", None) or err).strip().splitlines()
+        raise InputError(path, f"malformed rig YAML ({detail[-1] if detail else 'parse error'})") from None
+    try:
+        if not fs.isOpened():
+            raise InputError(path, "cannot be read as OpenCV YAML")
+        fmt = fs.getNode("format")
+        if fmt.empty() or fmt.string() != RIG_FORMAT:
+            raise InputError(path, f'not an mvtex rig (missing format: "{RIG_FORMAT}")')
+        version = fs.getNode("version")
+        if version.empty() or int(version.real()) != RIG_VERSION:
+            raise InputError(path, f"unsupported rig version (expected {RIG_VERSION})")
+        seq = fs.getNode("cameras")
+        if seq.empty() or not seq.isSeq() or seq.size() == 0:
+            raise InputError(path, "no 'cameras' sequence")
+        cameras = []
+        for i in range(seq.size()):
+            node = seq.at(i)
+            cameras.append(_camera_from_node(node, path, i))
+        try:
+            return Rig(tuple(cameras))
+        except ValueError as err:
+            raise InputError(path, str(err)) from None
+    finally:
+        fs.release()
+
+
+def _camera_from_node(node, path: Path, index: int) -> Camera:
+    def need(key: str):
+        child = node.getNode(key)
+        if child.empty():
+            raise InputError(path, f"camera {index}: missing '{key}'")
+        return child
+
+    def matrix(key: str, size: int) -> np.ndarray:
+        child = need(key)
+        m = child.mat() if child.isMap() else None
+        if m is None:
+            raise InputError(path, f"camera {index}: '{key}' is not an OpenCV matrix")
+        m = np.asarray(m, dtype=np.float64).reshape(-1)
+        if m.size != size:
+            raise InputError(path, f"camera {index}: '{key}' has {m.size} values, expected {size}")
+        return m
+
+    name = need("name").string()
+    R = matrix("R", 9).reshape(3, 3)
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+        raise InputError(path, f"camera {index}: R is not a rotation matrix")
+    if not name:
+        raise InputError(path, f"camera {index}: empty name")
+    try:
+        return Camera(
+            name=name,
+            width=int(need("width").real()),
+            height=int(need("height").real()),
+            K=matrix("K", 9).reshape(3, 3),
+            dist=matrix("dist", 5) if not node.getNode("dist").empty() else np.zeros(5),
+            R=R,
+            t=matrix("t", 3),
+        )
+    except ValueError as err:
+        raise InputError(path, str(err)) from None
+
+
+def builtin_rig_path(name: str) -> Path:
+    """Path of a rig shipped with mvtex (`stereo`, `square4`, `trapezoid12`)."""
+    from .resources import resource_path
+
+    return resource_path("calib", f"{name}.yaml")
+
+
+def resolve_rig(spec: str | os.PathLike) -> Path:
+    """A rig argument: a YAML path, or the name of a built-in rig."""
+    path = Path(spec)
+    if path.exists() or path.suffix in (".yaml", ".yml"):
+        return path
+    builtin = builtin_rig_path(str(spec))
+    return builtin if builtin.is_file() else path

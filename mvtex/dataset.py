@@ -1,0 +1,304 @@
+"""The mvtex-dataset v1 directory (DESIGN §4): load memory-mapped, validate, save, split,
+pose selection specs, and import from OBJ/PLY sequences.
+
+    dataset.json   {"format": "mvtex-dataset", "version": 1, "name", "units": "m",
+                    "num_poses": K, "num_vertices": n, "pose_dim": P}
+    mesh.npz       faces int32 (m,3), uv float32 (n,2), optional rest float32 (n,3)
+    gt.npy, inferred.npy   float32 (K,n,3)
+    poses.npy      float32 (K,P)
+    split.json     optional {"train": [...], "val": [...], "test": [...]}
+"""
+
+from __future__ import annotations
+
+import glob as globlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .errors import InputError
+from .io import atomic_path, load_npy, load_npz, read_json
+
+FORMAT = "mvtex-dataset"
+VERSION = 1
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A loaded dataset. `gt`, `inferred` are memory-mapped (K,n,3) float32 arrays.
+
+    Attributes:
+        path: the dataset directory.
+        name: free-form name.
+        faces: (m,3) int32. uv: (n,2) float32 (T_G). rest: (n,3) float32 or None.
+        gt, inferred: (K,n,3) float32 (memory-mapped). poses: (K,P) float32.
+        split: dict with "train", "val", "test" lists of pose indices.
+    """
+
+    path: Path
+    name: str
+    faces: np.ndarray
+    uv: np.ndarray
+    rest: np.ndarray | None
+    gt: np.ndarray
+    inferred: np.ndarray
+    poses: np.ndarray
+    split: dict[str, list[int]]
+
+    @property
+    def num_poses(self) -> int:
+        return int(self.gt.shape[0])
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.gt.shape[1])
+
+    def select(self, spec: str | None, default: str = "all") -> list[int]:
+        """Pose indices for a SPEC (`all`, `train`, `val`, `test`, `a:b`, `3,5,7`)."""
+        return parse_pose_spec(spec or default, self.num_poses, self.split, source=self.path)
+
+
+def default_split(num_poses: int, seed: int = 0, fractions: tuple[float, float] = (0.8, 0.1)) -> dict[str, list[int]]:
+    """A seeded 80/10/10 permutation split of range(num_poses)."""
+    order = np.random.default_rng(seed).permutation(num_poses)
+    n_train = int(round(fractions[0] * num_poses))
+    n_val = int(round(fractions[1] * num_poses))
+    return {
+        "train": sorted(order[:n_train].tolist()),
+        "val": sorted(order[n_train:n_train + n_val].tolist()),
+        "test": sorted(order[n_train + n_val:].tolist()),
+    }
+
+
+def parse_pose_spec(spec: str, num_poses: int, split: dict[str, list[int]] | None = None,
+                    source: str | os.PathLike | None = None) -> list[int]:
+    """Resolve a pose SPEC to sorted-as-given indices; errors raise InputError."""
+    spec = str(spec).strip()
+    if spec == "all":
+        return list(range(num_poses))
+    if spec in ("train", "val", "test"):
+        split = split if split is not None else default_split(num_poses)
+        return list(split[spec])
+    try:
+        if ":" in spec:
+            parts = spec.split(":")
+            if len(parts) > 3:
+                raise ValueError
+            sl = slice(*(int(p) if p.strip() else None for p in parts))
+            indices = list(range(num_poses))[sl]
+        else:
+            indices = [int(p) for p in spec.split(",") if p.strip()]
+    except ValueError:
+        raise InputError(source, f"bad pose spec {spec!r} (use all, train, val, test, a:b or 3,5,7)") from None
+    bad = [i for i in indices if not 0 <= i < num_poses]
+    if bad:
+        raise InputError(source, f"pose index {bad[0]} out of range (dataset has {num_poses} poses)")
+    if not indices:
+        raise InputError(source, f"pose spec {spec!r} selects no pose")
+    return indices
+
+
+def validate_mesh(faces: np.ndarray, uv: np.ndarray, source: str | os.PathLike | None) -> None:
+    """Faces int (m,3) in range, uv (n,2) finite."""
+    faces = np.asarray(faces)
+    uv = np.asarray(uv)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise InputError(source, f"faces must have shape (m,3), got {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise InputError(source, f"faces must be integers, got {faces.dtype}")
+    if uv.ndim != 2 or uv.shape[1] != 2:
+        raise InputError(source, f"uv must have shape (n,2), got {uv.shape}")
+    if faces.min() < 0 or faces.max() >= len(uv):
+        raise InputError(source, f"face index out of range [0, {len(uv)}): min {faces.min()}, max {faces.max()}")
+    if not np.all(np.isfinite(uv)):
+        raise InputError(source, "uv has NaN or infinite values")
+
+
+def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = None) -> None:
+    if array.ndim != 3 or array.shape[2] != 3:
+        raise InputError(source, f"expected shape (K,{n},3), got {array.shape}")
+    if array.shape[1] != n:
+        raise InputError(source, f"vertex count {array.shape[1]} does not match mesh.npz ({n})")
+    if k is not None and array.shape[0] != k:
+        raise InputError(source, f"pose count {array.shape[0]} does not match ({k})")
+    # Chunked so a large memory-mapped array is never loaded whole.
+    for start in range(0, array.shape[0], 64):
+        if not np.all(np.isfinite(array[start:start + 64])):
+            bad = start + int(np.argmax(~np.isfinite(array[start:start + 64]).all(axis=(1, 2))))
+            raise InputError(source, f"NaN or infinite positions (pose {bad})")
+
+
+def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
+    """Open a dataset directory (arrays memory-mapped); problems raise InputError."""
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError(path, "dataset directory not found")
+    meta = read_json(path / "dataset.json")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise InputError(path / "dataset.json", f'not an mvtex dataset (format must be "{FORMAT}")')
+    if meta.get("version") != VERSION:
+        raise InputError(path / "dataset.json", f"unsupported version {meta.get('version')!r} (expected {VERSION})")
+    mesh = load_npz(path / "mesh.npz")
+    for key in ("faces", "uv"):
+        if key not in mesh:
+            raise InputError(path / "mesh.npz", f"missing array '{key}'")
+    faces, uv = mesh["faces"], mesh["uv"]
+    validate_mesh(faces, uv, path / "mesh.npz")
+    n = len(uv)
+    gt = load_npy(path / "gt.npy")
+    inferred = load_npy(path / "inferred.npy")
+    poses = load_npy(path / "poses.npy")
+    rest = mesh.get("rest")
+    if validate:
+        _check_positions(gt, n, path / "gt.npy")
+        _check_positions(inferred, n, path / "inferred.npy", gt.shape[0])
+        if rest is not None and (rest.shape != (n, 3) or not np.all(np.isfinite(rest))):
+            raise InputError(path / "mesh.npz", f"rest must be finite with shape ({n},3), got {rest.shape}")
+        if poses.ndim != 2 or poses.shape[0] != gt.shape[0]:
+            raise InputError(path / "poses.npy", f"expected shape ({gt.shape[0]},P), got {poses.shape}")
+        if not np.all(np.isfinite(poses)):
+            raise InputError(path / "poses.npy", "NaN or infinite values")
+        for key, expected in (("num_poses", gt.shape[0]), ("num_vertices", n), ("pose_dim", poses.shape[1])):
+            if key in meta and meta[key] != expected:
+                raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
+    split = _load_split(path, gt.shape[0])
+    return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
+                   uv=uv.astype(np.float32), rest=None if rest is None else rest.astype(np.float32),
+                   gt=gt, inferred=inferred, poses=poses, split=split)
+
+
+def _load_split(path: Path, num_poses: int) -> dict[str, list[int]]:
+    file = path / "split.json"
+    if not file.exists():
+        return default_split(num_poses)
+    split = read_json(file)
+    if not isinstance(split, dict) or not all(k in split for k in ("train", "val", "test")):
+        raise InputError(file, "needs lists 'train', 'val' and 'test'")
+    out = {}
+    for key in ("train", "val", "test"):
+        try:
+            values = [int(i) for i in split[key]]
+        except (TypeError, ValueError):
+            raise InputError(file, f"'{key}' must be a list of pose indices") from None
+        if any(not 0 <= i < num_poses for i in values):
+            raise InputError(file, f"'{key}' has a pose index outside [0, {num_poses})")
+        out[key] = values
+    return out
+
+
+def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray,
+                 inferred: np.ndarray, poses: np.ndarray, name: str = "dataset",
+                 rest: np.ndarray | None = None, split: dict[str, Sequence[int]] | None = None,
+                 **extra_meta) -> Path:
+    """Write a dataset directory atomically (the whole directory appears at once).
+
+    Args:
+        faces: (m,3) int. uv: (n,2). gt, inferred: (K,n,3). poses: (K,P).
+        rest: optional (n,3). split: optional train/val/test lists (default 80/10/10).
+        extra_meta: extra JSON-serialisable keys for dataset.json (e.g. "stats").
+    """
+    import json
+
+    path = Path(path)
+    gt = np.asarray(gt, dtype=np.float32)
+    inferred = np.asarray(inferred, dtype=np.float32)
+    poses = np.asarray(poses, dtype=np.float32).reshape(len(gt), -1)
+    validate_mesh(faces, uv, path)
+    if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3):
+        raise InputError(path, f"gt {gt.shape} and inferred {inferred.shape} must both be (K,{len(uv)},3)")
+    split = split or default_split(len(gt))
+    meta = {"format": FORMAT, "version": VERSION, "name": name, "units": "m", "num_poses": int(gt.shape[0]),
+            "num_vertices": int(gt.shape[1]), "pose_dim": int(poses.shape[1]), **extra_meta}
+    with atomic_path(path) as tmp:
+        tmp.mkdir()
+        mesh = {"faces": np.asarray(faces, dtype=np.int32), "uv": np.asarray(uv, dtype=np.float32)}
+        if rest is not None:
+            mesh["rest"] = np.asarray(rest, dtype=np.float32)
+        np.savez_compressed(tmp / "mesh.npz", **mesh)
+        np.save(tmp / "gt.npy", gt, allow_pickle=False)
+        np.save(tmp / "inferred.npy", inferred, allow_pickle=False)
+        np.save(tmp / "poses.npy", poses, allow_pickle=False)
+        (tmp / "split.json").write_text(json.dumps({k: [int(i) for i in split[k]] for k in ("train", "val", "test")}) + "\n")
+        (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return path
+
+
+# -- import from OBJ/PLY sequences -----------------------------------------------------
+
+def _sorted_glob(pattern: str, what: str) -> list[str]:
+    files = sorted(globlib.glob(pattern))
+    if not files:
+        raise InputError(pattern, f"no {what} files match")
+    return files
+
+
+def _read_mesh(file: str):
+    import trimesh
+
+    try:
+        mesh = trimesh.load(file, process=False, maintain_order=True, force="mesh")
+    except Exception as err:  # trimesh raises many kinds for unreadable files
+        raise InputError(file, f"cannot read mesh ({type(err).__name__}: {err})") from None
+    if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+        raise InputError(file, "no triangle faces")
+    return mesh
+
+
+def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
+                     poses_file: str | os.PathLike | None = None, name: str | None = None,
+                     progress: bool = True) -> Path:
+    """Turn two OBJ/PLY sequences with identical connectivity into a dataset.
+
+    Files are paired in sorted order. The first gt mesh defines faces and uv (and `rest`);
+    every other mesh must have the same vertex count and the same faces, or InputError.
+    Without `poses_file` (.npy (K,P) or .txt/.csv rows), the pose vector is the frame index.
+    """
+    gt_files = _sorted_glob(gt_glob, "gt")
+    inf_files = _sorted_glob(inferred_glob, "inferred")
+    if len(gt_files) != len(inf_files):
+        raise InputError(inferred_glob, f"{len(inf_files)} inferred meshes for {len(gt_files)} gt meshes")
+    first = _read_mesh(gt_files[0])
+    faces = np.asarray(first.faces, dtype=np.int32)
+    n = len(first.vertices)
+    uv = getattr(getattr(first, "visual", None), "uv", None)
+    if uv is None or len(uv) != n:
+        raise InputError(gt_files[0], "no per-vertex texture coordinates (need OBJ 'vt' or PLY texcoords)")
+    uv = np.asarray(uv, dtype=np.float32)
+    gt = np.empty((len(gt_files), n, 3), dtype=np.float32)
+    inferred = np.empty_like(gt)
+    from tqdm import tqdm
+
+    for k, (g, i) in enumerate(tqdm(list(zip(gt_files, inf_files)), desc="import", unit="pose", disable=not progress)):
+        for file, target in ((g, gt), (i, inferred)):
+            mesh = first if file == gt_files[0] else _read_mesh(file)
+            if len(mesh.vertices) != n:
+                raise InputError(file, f"{len(mesh.vertices)} vertices, expected {n} (from {gt_files[0]})")
+            if not np.array_equal(np.asarray(mesh.faces), faces):
+                raise InputError(file, f"connectivity or vertex order differs from {gt_files[0]}")
+            target[k] = mesh.vertices
+            if not np.all(np.isfinite(target[k])):
+                raise InputError(file, "NaN or infinite vertex positions")
+    if poses_file is not None:
+        poses = _read_poses(Path(poses_file), len(gt_files))
+    else:
+        poses = np.arange(len(gt_files), dtype=np.float32)[:, None]
+    return save_dataset(out, faces=faces, uv=uv, gt=gt, inferred=inferred, poses=poses,
+                        name=name or Path(out).name, rest=gt[0])
+
+
+def _read_poses(path: Path, k: int) -> np.ndarray:
+    if not path.is_file():
+        raise InputError(path, "poses file not found")
+    try:
+        poses = np.load(path, allow_pickle=False) if path.suffix == ".npy" else np.loadtxt(path, delimiter="," if path.suffix == ".csv" else None, ndmin=2)
+    except (ValueError, OSError) as err:
+        raise InputError(path, f"cannot read poses ({err})") from None
+    poses = np.asarray(poses, dtype=np.float32).reshape(len(poses), -1)
+    if len(poses) != k:
+        raise InputError(path, f"{len(poses)} pose rows for {k} meshes")
+    if not np.all(np.isfinite(poses)):
+        raise InputError(path, "NaN or infinite values")
+    return poses

@@ -1,0 +1,199 @@
+"""Triangle-mesh topology shared by every stage: edges, adjacency, seams, subdivision,
+Laplacians, normals and edge strain.
+
+Meshes are plain arrays: `faces` int32 (m,3) counter-clockwise seen from outside,
+`uv` float32 (n,2) per vertex (UV seams are split vertices: two vertices, one position).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def edges(faces: np.ndarray) -> np.ndarray:
+    """Unique undirected edges (e,2) int64, each row sorted (i < j)."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e.sort(axis=1)
+    return np.unique(e, axis=0)
+
+
+def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
+    """Symmetric (n,n) vertex adjacency with unit weights."""
+    e = edges(faces)
+    a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    return (a + a.T).tocsr()
+
+
+def weld_groups(positions: np.ndarray, decimals: int = 7) -> np.ndarray:
+    """For each vertex, the index of the first vertex at the same position (n,) int64.
+
+    Seam copies (split vertices for UV charts) share a group; everything else maps to itself.
+    """
+    key = np.round(np.asarray(positions, dtype=np.float64), decimals)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return first[inverse.reshape(-1)]
+
+
+def welded_adjacency(faces: np.ndarray, groups: np.ndarray) -> sp.csr_matrix:
+    """Adjacency of the mesh with seam copies joined: copies share their neighbours.
+
+    Returns (n,n) over the original vertices: vertex i is linked to every vertex whose
+    group neighbours i's group, and to its own seam copies.
+    """
+    n = len(groups)
+    g = np.asarray(groups)
+    adj_groups = adjacency(g[np.asarray(faces)], n)
+    member = sp.coo_matrix((np.ones(n), (np.arange(n), g)), shape=(n, n)).tocsr()  # vertex -> group
+    linked = member @ (adj_groups + sp.identity(n, format="csr")) @ member.T
+    linked = (linked > 0).astype(np.float64).tolil()
+    linked.setdiag(0)
+    return linked.tocsr()
+
+
+def uniform_laplacian(adj: sp.csr_matrix) -> sp.csr_matrix:
+    """Graph Laplacian L = D - A of an adjacency matrix."""
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    return (sp.diags(deg) - adj).tocsr()
+
+
+def face_normals(positions: np.ndarray, faces: np.ndarray, normalize: bool = True) -> np.ndarray:
+    """(m,3) face normals (area-weighted when normalize=False)."""
+    p = np.asarray(positions, dtype=np.float64)
+    f = np.asarray(faces)
+    n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+    if normalize:
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return n
+
+
+def vertex_normals(positions: np.ndarray, faces: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
+    """(n,3) unit area-weighted vertex normals; seam copies (same `groups`) share one normal."""
+    p = np.asarray(positions, dtype=np.float64)
+    fn = face_normals(p, faces, normalize=False)
+    acc = np.zeros_like(p)
+    for k in range(3):
+        np.add.at(acc, np.asarray(faces)[:, k], fn)
+    if groups is not None:
+        pooled = np.zeros_like(acc)
+        np.add.at(pooled, groups, acc)
+        acc = pooled[groups]
+    return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+
+
+def edge_strain(positions: np.ndarray, rest: np.ndarray, edge_list: np.ndarray) -> np.ndarray:
+    """Per-edge strain len/rest_len - 1, (e,) float64 (negative = compression).
+
+    `positions` may be (n,3) or (K,n,3).
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    r = np.asarray(rest, dtype=np.float64)
+    rest_len = np.linalg.norm(r[edge_list[:, 1]] - r[edge_list[:, 0]], axis=-1)
+    length = np.linalg.norm(p[..., edge_list[:, 1], :] - p[..., edge_list[:, 0], :], axis=-1)
+    return length / np.maximum(rest_len, 1e-300) - 1.0
+
+
+def vertex_strain_energy(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Signed per-vertex strain (n,) float64: mean strain of incident edges.
+
+    Negative = compression, positive = extension (the paper's blue/red energy pictures).
+    """
+    e = edges(faces)
+    s = edge_strain(positions, rest, e)
+    n = len(rest)
+    acc = np.zeros(n)
+    cnt = np.zeros(n)
+    for k in range(2):
+        np.add.at(acc, e[:, k], s)
+        np.add.at(cnt, e[:, k], 1.0)
+    return acc / np.maximum(cnt, 1)
+
+
+@dataclass(frozen=True)
+class Subdivision:
+    """A midpoint subdivision of a mesh.
+
+    Attributes:
+        faces: (m',3) int32 faces of the subdivided mesh (4^levels * m).
+        parent: (n',2) int32; the original n vertices come first with parent[i] = (i, i);
+            every later vertex is the midpoint of vertices parent[j] (which precede it).
+    """
+
+    faces: np.ndarray
+    parent: np.ndarray
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.parent)
+
+    def apply(self, values: np.ndarray) -> np.ndarray:
+        """Extend per-vertex values (..., n, C) to the subdivided mesh (..., n', C), linearly."""
+        v = np.asarray(values)
+        n = int(np.sum(self.parent[:, 0] == self.parent[:, 1]))
+        if v.shape[-2] != n:
+            raise ValueError(f"expected {n} vertices, got array of shape {v.shape}")
+        return apply_parent(v, self.parent)
+
+
+def apply_parent(values: np.ndarray, parent: np.ndarray) -> np.ndarray:
+    """Extend per-vertex values (..., n, C) through a `parent` map (n',2) by midpoints."""
+    v = np.asarray(values)
+    n = v.shape[-2]
+    out = np.empty(v.shape[:-2] + (len(parent), v.shape[-1]), dtype=np.result_type(v.dtype, np.float32))
+    out[..., :n, :] = v
+    # Parents precede children, so each level's midpoints can be filled in one vectorised step.
+    start = n
+    while start < len(parent):
+        stop = start
+        while stop < len(parent) and parent[stop].max() < start:
+            stop += 1
+        if stop == start:
+            raise ValueError(f"parent map: vertex {start} names a parent that does not precede it")
+        p = parent[start:stop]
+        out[..., start:stop, :] = 0.5 * (out[..., p[:, 0], :] + out[..., p[:, 1], :])
+        start = stop
+    return out
+
+
+def subdivide(faces: np.ndarray, num_vertices: int, levels: int) -> Subdivision:
+    """Split every triangle into four, `levels` times (0, 1 or 2 in practice).
+
+    No geometric perturbation: positions and uv of new vertices are edge midpoints.
+    Seam copies stay split (each chart gets its own midpoint).
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    parent = np.stack([np.arange(num_vertices)] * 2, axis=1)
+    n = num_vertices
+    for _ in range(levels):
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e_sorted = np.sort(e, axis=1)
+        uniq, inverse = np.unique(e_sorted, axis=0, return_inverse=True)
+        mid = n + inverse.reshape(3, len(f))  # midpoint index of edges (01, 12, 20) per face
+        m01, m12, m20 = mid
+        a, b, c = f[:, 0], f[:, 1], f[:, 2]
+        f = np.concatenate([
+            np.stack([a, m01, m20], 1),
+            np.stack([m01, b, m12], 1),
+            np.stack([m20, m12, c], 1),
+            np.stack([m01, m12, m20], 1),
+        ])
+        parent = np.concatenate([parent, uniq])
+        n += len(uniq)
+    return Subdivision(faces=f.astype(np.int32), parent=parent.astype(np.int32))
+
+
+def barycentric_2d(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (k,3) float64 of 2-D points (k,2) in triangles (k,3,2)."""
+    p = np.asarray(points, dtype=np.float64)
+    t = np.asarray(tri, dtype=np.float64)
+    v0 = t[:, 1] - t[:, 0]
+    v1 = t[:, 2] - t[:, 0]
+    v2 = p - t[:, 0]
+    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
+        b2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
+    return np.stack([1.0 - b1 - b2, b1, b2], axis=1)

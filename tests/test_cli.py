@@ -1,0 +1,123 @@
+"""The command line, through main(argv): outputs, exit codes, one-line errors naming files."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from mvtex.camera import Camera, Rig, save_rig
+from mvtex.cli import main
+
+
+@pytest.fixture()
+def rig_file(tmp_path, front_rig):
+    path = tmp_path / "rig.yaml"
+    save_rig(front_rig, path)
+    return path
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_help_and_version(capsys):
+    assert main(["--help"]) == 0
+    assert "render" in capsys.readouterr().out
+    assert main(["render", "--help"]) == 0
+
+
+@pytest.mark.gl
+def test_render_writes_pictures_and_raster_dumps(tmp_path, tiny_dataset, rig_file, gl, capsys, front_rig):
+    from mvtex.dataset import load_dataset
+    from mvtex.raster import interpolate, rasterize
+
+    code, out, err = run(capsys, "render", tiny_dataset, "--rig", rig_file, "--pose", 2, "--out", tmp_path / "r",
+                         "--raster", "--quiet")
+    assert code == 0, err
+    for cam in ("a", "b"):
+        for what in ("gt", "inferred"):
+            assert (tmp_path / "r" / cam / f"{what}.png").stat().st_size > 1000
+        dump = np.load(tmp_path / "r" / cam / "gt_raster.npz", allow_pickle=False)
+        assert dump["tri_id"].dtype == np.int32 and dump["bary"].shape == (120, 160, 3)
+        # The dump's uv is T_G interpolated at the pixels: check a few against the mesh directly.
+        ds = load_dataset(tiny_dataset)
+        r = rasterize(np.asarray(ds.gt[2]), ds.faces, front_rig[cam])
+        assert np.array_equal(r.tri_id, dump["tri_id"])
+        assert np.allclose(interpolate(ds.uv, r, ds.faces), dump["uv"], atol=1e-6)
+    assert (tmp_path / "r" / "overview.png").exists()
+    assert json.loads((tmp_path / "r" / "render.json").read_text())["pose"] == 2
+
+
+def _assert_one_line_error(code, err, needle):
+    assert code == 2
+    # Progress bars may have been drawn before the failure; the error itself is one line, last.
+    lines = [line for line in err.strip().splitlines() if line.strip().startswith("mvtex")]
+    assert len(lines) == 1, err
+    assert err.rstrip().endswith(lines[0]) and needle in lines[0], lines[0]
+
+
+@pytest.mark.gl
+def test_render_refuses_distortion_and_blind_cameras(tmp_path, tiny_dataset, front_rig, capsys, gl):
+    cam = front_rig["a"]
+    distorted = tmp_path / "distorted.yaml"
+    save_rig(Rig((Camera("a", cam.width, cam.height, K=cam.K, R=cam.R, t=cam.t, dist=[0.1, 0, 0, 0, 0]),)), distorted)
+    code, out, err = run(capsys, "render", tiny_dataset, "--rig", distorted, "--pose", 0, "--out", tmp_path / "o")
+    _assert_one_line_error(code, err, f"{distorted}: camera 'a' has non-zero distortion")
+    away = tmp_path / "away.yaml"
+    save_rig(Rig((Camera("a", cam.width, cam.height, K=cam.K, R=cam.R, t=cam.t + np.array([5.0, 0, 0])),)), away)
+    code, out, err = run(capsys, "render", tiny_dataset, "--rig", away, "--pose", 0, "--out", tmp_path / "o2")
+    _assert_one_line_error(code, err, f"{away}: camera 'a' sees nothing")
+    assert not (tmp_path / "o2" / "a" / "gt.png").exists()
+
+
+def test_bad_inputs_exit_2_naming_the_file(tmp_path, tiny_dataset, rig_file, capsys):
+    bad_yaml = tmp_path / "bad.yaml"
+    bad_yaml.write_text("cameras: [unclosed")
+    code, _, err = run(capsys, "render", tiny_dataset, "--rig", bad_yaml, "--pose", 0, "--out", tmp_path / "o")
+    _assert_one_line_error(code, err, str(bad_yaml))
+
+    code, _, err = run(capsys, "render", tmp_path / "missing", "--rig", rig_file, "--pose", 0, "--out", tmp_path / "o")
+    _assert_one_line_error(code, err, str(tmp_path / "missing"))
+
+    broken = tmp_path / "broken"
+    shutil.copytree(tiny_dataset, broken)
+    (broken / "split.json").write_text("[1, 2")
+    code, _, err = run(capsys, "render", broken, "--rig", rig_file, "--pose", 0, "--out", tmp_path / "o")
+    _assert_one_line_error(code, err, f"{broken / 'split.json'}: malformed JSON")
+
+    code, _, err = run(capsys, "render", tiny_dataset, "--rig", rig_file, "--pose", 99, "--out", tmp_path / "o")
+    _assert_one_line_error(code, err, "pose 99 out of range")
+
+    code, _, err = run(capsys, "render", tiny_dataset, "--rig", rig_file, "--pose", 0, "--out", tmp_path / "o",
+                       "--cameras", "zz")
+    _assert_one_line_error(code, err, f"{rig_file}: no camera named zz")
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").rglob("*.png"))
+
+
+def test_import_mismatched_vertex_counts(tmp_path, capsys):
+    from test_dataset import _write_obj
+
+    from conftest import grid_mesh
+
+    faces, uv, rest = grid_mesh(5, 5)
+    f2, uv2, rest2 = grid_mesh(6, 5)
+    _write_obj(tmp_path / "g0.obj", rest, uv, faces)
+    _write_obj(tmp_path / "g1.obj", rest2, uv2, f2)
+    _write_obj(tmp_path / "i0.obj", rest, uv, faces)
+    _write_obj(tmp_path / "i1.obj", rest, uv, faces)
+    code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred", tmp_path / "i*.obj",
+                       "--quiet")
+    _assert_one_line_error(code, err, f"{tmp_path / 'g1.obj'}: 30 vertices, expected 25")
+    assert not (tmp_path / "ds").exists()
+    code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "none*.obj", "--inferred", tmp_path / "i*.obj")
+    _assert_one_line_error(code, err, "no gt files match")
+
+
+def test_bad_usage_exits_2(capsys):
+    assert main(["render"]) == 2
+    assert main(["nonsense"]) == 2

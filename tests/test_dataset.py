@@ -1,0 +1,140 @@
+"""Dataset format, pose specs, subdivision and the OBJ/PLY importer."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import grid_mesh, wave
+from mvtex.dataset import default_split, load_dataset, parse_pose_spec, save_dataset
+from mvtex.errors import InputError
+from mvtex.mesh import edges, subdivide
+
+
+def test_round_trip_is_memory_mapped(tiny_dataset):
+    ds = load_dataset(tiny_dataset)
+    assert isinstance(ds.gt, np.memmap) and ds.gt.dtype == np.float32
+    assert ds.gt.shape == ds.inferred.shape == (6, len(ds.uv), 3)
+    meta = json.loads((tiny_dataset / "dataset.json").read_text())
+    assert meta["format"] == "mvtex-dataset" and meta["num_vertices"] == len(ds.uv) and meta["pose_dim"] == 2
+    assert sorted(ds.split["train"] + ds.split["val"] + ds.split["test"]) == list(range(6))
+
+
+def test_default_split_is_seeded_80_10_10():
+    a, b = default_split(100, seed=3), default_split(100, seed=3)
+    assert a == b and [len(a[k]) for k in ("train", "val", "test")] == [80, 10, 10]
+    assert len(set(a["train"]) | set(a["val"]) | set(a["test"])) == 100
+
+
+@pytest.mark.parametrize("spec,expected", [("all", list(range(10))), ("2:5", [2, 3, 4]), ("3,5,7", [3, 5, 7]),
+                                           ("::4", [0, 4, 8]), ("-2:", [8, 9])])
+def test_pose_specs(spec, expected):
+    assert parse_pose_spec(spec, 10) == expected
+
+
+@pytest.mark.parametrize("spec", ["12", "a:b", "1,x", "5:5"])
+def test_bad_pose_specs(spec):
+    with pytest.raises(InputError):
+        parse_pose_spec(spec, 10)
+
+
+def test_subdivision_parent_map_and_midpoints():
+    faces, uv, rest = grid_mesh(5, 4)
+    n = len(uv)
+    for levels in (1, 2):
+        sub = subdivide(faces, n, levels)
+        assert len(sub.faces) == len(faces) * 4**levels
+        assert np.array_equal(sub.parent[:n], np.stack([np.arange(n)] * 2, 1))
+        assert np.all(sub.parent[n:].max(axis=1) < np.arange(n, sub.num_vertices))  # parents precede children
+        # Positions of a flat grid: every new vertex is the exact midpoint (closed form).
+        pos = sub.apply(rest)
+        for j in range(n, sub.num_vertices):
+            a, b = sub.parent[j]
+            assert np.allclose(pos[j], 0.5 * (pos[a] + pos[b]))
+        # Euler characteristic is preserved and every edge is shared by at most two faces.
+        V, E, F = sub.num_vertices, len(edges(sub.faces)), len(sub.faces)
+        assert V - E + F == n - len(edges(faces)) + len(faces)
+
+
+def _write_obj(path, positions, uv, faces):
+    lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in positions]
+    lines += [f"vt {u:.9f} {v:.9f}" for u, v in uv]
+    lines += [f"f {a+1}/{a+1} {b+1}/{b+1} {c+1}/{c+1}" for a, b, c in faces]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_import_obj_sequences(tmp_path):
+    faces, uv, rest = grid_mesh(6, 5)
+    for k in range(3):
+        _write_obj(tmp_path / f"gt_{k:03d}.obj", wave(rest, 0.01, k), uv, faces)
+        _write_obj(tmp_path / f"inf_{k:03d}.obj", wave(rest, 0.003, k), uv, faces)
+    from mvtex.dataset import import_sequences
+
+    out = import_sequences(tmp_path / "ds", str(tmp_path / "gt_*.obj"), str(tmp_path / "inf_*.obj"))
+    ds = load_dataset(out)
+    assert np.array_equal(ds.faces, faces)
+    assert np.allclose(ds.uv, uv, atol=1e-6)
+    assert np.allclose(ds.gt[2], wave(rest, 0.01, 2), atol=1e-6)
+
+
+def test_import_refuses_different_connectivity(tmp_path):
+    faces, uv, rest = grid_mesh(6, 5)
+    _write_obj(tmp_path / "gt_0.obj", rest, uv, faces)
+    _write_obj(tmp_path / "gt_1.obj", rest, uv, faces[:, [0, 2, 1]])
+    _write_obj(tmp_path / "inf_0.obj", rest, uv, faces)
+    _write_obj(tmp_path / "inf_1.obj", rest, uv, faces)
+    from mvtex.dataset import import_sequences
+
+    with pytest.raises(InputError, match="gt_1.obj: connectivity"):
+        import_sequences(tmp_path / "ds", str(tmp_path / "gt_*.obj"), str(tmp_path / "inf_*.obj"))
+    assert not (tmp_path / "ds").exists()
+
+
+def _corrupt(tiny_dataset, tmp_path, name, mutate):
+    import shutil
+
+    path = tmp_path / "bad"
+    shutil.copytree(tiny_dataset, path)
+    mutate(path)
+    return path
+
+
+def test_validation_names_the_file(tiny_dataset, tmp_path):
+    def nan(path):
+        a = np.load(path / "gt.npy")
+        a[3, 5, 1] = np.nan
+        np.save(path / "gt.npy", a)
+
+    with pytest.raises(InputError, match=r"gt.npy: NaN.*pose 3"):
+        load_dataset(_corrupt(tiny_dataset, tmp_path / "a", "gt", nan))
+
+    def count(path):
+        np.save(path / "inferred.npy", np.load(path / "inferred.npy")[:, :-1])
+
+    with pytest.raises(InputError, match="inferred.npy: vertex count"):
+        load_dataset(_corrupt(tiny_dataset, tmp_path / "b", "inf", count))
+
+    def faces(path):
+        z = dict(np.load(path / "mesh.npz"))
+        z["faces"][0, 0] = 10**6
+        np.savez(path / "mesh.npz", **z)
+
+    with pytest.raises(InputError, match="mesh.npz: face index out of range"):
+        load_dataset(_corrupt(tiny_dataset, tmp_path / "c", "faces", faces))
+
+    def meta(path):
+        (path / "dataset.json").write_text("{not json")
+
+    with pytest.raises(InputError, match="dataset.json: malformed JSON"):
+        load_dataset(_corrupt(tiny_dataset, tmp_path / "d", "meta", meta))
+
+
+def test_save_is_atomic_on_bad_input(tmp_path):
+    faces, uv, rest = grid_mesh(4, 4)
+    gt = np.stack([rest, rest])
+    with pytest.raises(InputError):
+        save_dataset(tmp_path / "ds", faces=faces, uv=uv, gt=gt, inferred=gt[:, :-1], poses=np.zeros((2, 1)))
+    assert not (tmp_path / "ds").exists()
+    assert list(tmp_path.iterdir()) == []
