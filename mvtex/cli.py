@@ -83,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pose", type=int, required=True)
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--smooth", action="store_true", help="smooth the reconstructed displacement (noisy inputs)")
+    p.add_argument("--max-reprojection-px", type=float, default=2.0, help="reject points above this (default 2 px)")
+    p.add_argument("--max-surface-distance", type=float, default=0.05,
+                   help="reject points farther than this from the inferred surface (default 0.05 m)")
     _add_json(p)
     _add_progress(p)
 
@@ -214,7 +217,9 @@ def cmd_triangulate(args) -> dict:
     rig, rig_path = _load_rig(args.rig)
     tc = open_texcoords(args.texcoords, dataset.num_vertices)
     result = triangulate_pose(dataset, rig.select(tc.cameras, rig_path), tc, args.pose, args.out,
-                              ReconOptions(smooth=args.smooth), progress=not args.quiet)
+                              ReconOptions(smooth=args.smooth, max_reprojection_px=args.max_reprojection_px,
+                                           max_surface_distance_m=args.max_surface_distance),
+                              progress=not args.quiet)
     _emit(args, result, f"pose {result['pose']}: {result['num_triangulated']}/{result['num_vertices']} vertices "
           f"triangulated; RMSE inferred {result['rmse_m']['inferred']*1e3:.2f} mm -> reconstructed "
           f"{result['rmse_m']['reconstructed']*1e3:.2f} mm; wrote {args.out}")
