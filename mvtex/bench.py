@@ -1,0 +1,182 @@
+"""Throughput of texture sliding: the raster path against a ray-cast (Embree) path of the
+same algorithm, measured side by side on the same jobs, with their agreement; and the
+throughput of the per-pixel evaluation.
+
+The ray-cast path differs from `sliding.find_hits_raster` only in how it finds things:
+pixel ownership (rule 1) by casting a ray through every pixel centre of the inferred
+mesh's bounding box, the depth test (rule 2) and the first gt hit by casting the vertex
+rays (`trimesh.ray.ray_pyembree.RayMeshIntersector`, which needs `embreex`). Embree works
+in float32, so its hit triangle is re-intersected in float64 for the barycentrics; every
+rule after that (`sliding.finish`: back faces, edge breaking, fill) is shared.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import time
+from typing import Sequence
+
+import numpy as np
+
+from .camera import Camera, Rig
+from .sliding import Hits, SlideOptions, SlideTopology, build_topology, finish, find_hits_raster, intersect_pairs
+
+
+def _intersector(positions: np.ndarray, faces: np.ndarray):
+    import trimesh
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    return RayMeshIntersector(trimesh.Trimesh(vertices=positions, faces=faces, process=False))
+
+
+def _first_hits(intersector, origins: np.ndarray, dirs: np.ndarray, num_faces: int):
+    """Nearest hit triangle per ray (-1 = none)."""
+    tri, ray = intersector.intersects_id(origins, dirs, multiple_hits=False, return_locations=False)
+    out = np.full(len(dirs), -1, np.int64)
+    out[ray] = tri
+    return out
+
+
+def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray, topo: SlideTopology,
+                     camera: Camera, options: SlideOptions) -> Hits:
+    """Same contract as `sliding.find_hits_raster`, by ray casting with Embree."""
+    n = len(X)
+    origin = camera.center
+    W, H = camera.width, camera.height
+    inf_rt = _intersector(X, topo.faces)
+    gt_rt = _intersector(gt, faces)
+    pixels, z = camera.project(X)
+    inside = (z > 0) & (pixels[:, 0] > -0.5) & (pixels[:, 0] < W - 0.5) & (pixels[:, 1] > -0.5) & (pixels[:, 1] < H - 0.5)
+    # Rule 1: cast a ray through every pixel centre of the projected bounding box.
+    front = z > 0
+    lo = np.clip(np.floor(pixels[front].min(axis=0)) - 1, 0, [W - 1, H - 1]).astype(int)
+    hi = np.clip(np.ceil(pixels[front].max(axis=0)) + 1, 0, [W - 1, H - 1]).astype(int)
+    cols, rows = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+    pix = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float64)
+    dirs_px = camera.pixel_rays(pix)
+    owner = _first_hits(inf_rt, np.broadcast_to(origin, dirs_px.shape), dirs_px, len(topo.faces))
+    owned = np.zeros(len(topo.faces), bool)
+    owned[owner[owner >= 0]] = True
+    touched = np.zeros(n, bool)
+    touched[topo.faces[owned].ravel()] = True
+    cand = np.flatnonzero(touched & inside)
+    # Rule 2: the first inferred surface along the vertex ray is not (much) nearer.
+    dirs = X[cand] - origin
+    unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    occ = _first_hits(inf_rt, np.broadcast_to(origin, unit.shape), unit, len(topo.faces))
+    t_occ = np.full(len(cand), np.inf)
+    has = occ >= 0
+    t_occ[has] = intersect_pairs(origin, dirs[has], X, topo.faces, occ[has])[0]
+    # Embree's float32 hit can miss in float64 by a hair at an edge: then it is not an occluder.
+    vis = ~(t_occ < 1 - options.depth_tolerance)
+    cand, dirs, unit = cand[vis], dirs[vis], unit[vis]
+    visible = np.zeros(n, bool)
+    visible[cand] = True
+    tri = _first_hits(gt_rt, np.broadcast_to(origin, unit.shape), unit, len(faces))
+    tri_hit = np.full(n, -1, np.int64)
+    bary = np.zeros((n, 3))
+    back = np.zeros(n, bool)
+    ok = tri >= 0
+    t, b1, b2, facing = intersect_pairs(origin, dirs[ok], gt, faces, tri[ok])
+    idx = cand[ok]
+    tri_hit[idx] = tri[ok]
+    bary[idx] = np.stack([1 - b1 - b2, b1, b2], axis=1)
+    back[idx] = facing > 0
+    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back)
+
+
+def _job(path: str, gt, inferred, faces, uv, topo, camera, options):
+    gt = np.asarray(gt, np.float64)
+    inferred = np.asarray(inferred, np.float64)
+    X = topo.positions(inferred)
+    find = find_hits_raster if path == "raster" else find_hits_embree
+    hits = find(gt, inferred, faces, X, topo, camera, options)
+    return finish(hits, faces, uv, X, topo, options)
+
+
+def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
+              progress: bool = True) -> dict:
+    """Measure jobs/s of the raster and ray-cast sliding paths and the eval throughput.
+
+    Args:
+        dataset: `Dataset` or directory. rig: `Rig` or rig path / built-in name.
+        poses: pose indices (default: the first 10).
+        subdiv: subdivision levels of the sliding jobs.
+        repeats: timed passes over all jobs per path; the fastest pass is reported.
+        progress: progress bar on stderr.
+
+    Returns:
+        JSON-able dict: jobs, sliding.{raster,raycast}.jobs_per_s, speedup (raster over
+        ray cast), agreement.{displacement (fraction of vertices assigned by both whose d
+        agree to 1e-5), assigned_flags (fraction with equal flags)}, eval.images_per_s, machine.
+    """
+    from tqdm import tqdm
+
+    from .camera import load_rig, resolve_rig
+    from .dataset import Dataset, load_dataset
+    from .metrics import _error, uv_image
+    from .raster import gl_renderer
+
+    ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
+    if not isinstance(rig, Rig):
+        rig = load_rig(resolve_rig(rig))
+    poses = list(range(min(10, ds.num_poses))) if poses is None else [int(p) for p in poses]
+    options = SlideOptions(subdiv=subdiv)
+    reference = ds.rest if ds.rest is not None else ds.gt[poses[0]]
+    topo = build_topology(ds.faces, ds.uv, reference, subdiv)
+    faces = ds.faces.astype(np.int64)
+    jobs = [(k, cam) for k in poses for cam in rig]
+    gts = {k: np.asarray(ds.gt[k], np.float64) for k in poses}
+    infs = {k: np.asarray(ds.inferred[k], np.float64) for k in poses}
+    # Warm up both paths (GL context, shader compilation, Embree import).
+    for path in ("raster", "raycast"):
+        _job(path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options)
+    results: dict = {}
+    timing: dict = {}
+    bar = tqdm(total=2 * repeats * len(jobs), desc="bench", unit="job", disable=not progress, file=sys.stderr)
+    for path in ("raster", "raycast"):
+        best = np.inf
+        for _ in range(repeats):
+            start = time.perf_counter()
+            for k, cam in jobs:
+                results[path, k, cam.name] = _job(path, gts[k], infs[k], faces, ds.uv, topo, cam, options)
+                bar.update(1)
+            best = min(best, time.perf_counter() - start)
+        timing[path] = best
+    bar.close()
+    both = agree = flags = total = 0
+    for k, cam in jobs:
+        d_r, a_r = results["raster", k, cam.name]
+        d_e, a_e = results["raycast", k, cam.name]
+        common = a_r & a_e
+        both += int(common.sum())
+        agree += int((np.abs(d_r[common] - d_e[common]).max(axis=1) <= 1e-5).sum())
+        flags += int((a_r == a_e).sum())
+        total += len(a_r)
+    # Evaluation: per image one gt, one baseline and one (subdivided) texcoords render.
+    start = time.perf_counter()
+    for k, cam in jobs:
+        uv_g, m_g = uv_image(gts[k], faces, ds.uv, cam)
+        _error(*uv_image(infs[k], faces, ds.uv, cam), uv_g, m_g)
+        d, _ = results["raster", k, cam.name]
+        _error(*uv_image(topo.positions(infs[k]), topo.faces, topo.uv + d, cam), uv_g, m_g)
+    eval_time = time.perf_counter() - start
+    return {
+        "jobs": len(jobs),
+        "poses": len(poses),
+        "cameras": rig.names,
+        "subdiv": subdiv,
+        "num_vertices": len(topo.uv),
+        "image_size": [rig.cameras[0].width, rig.cameras[0].height],
+        "sliding": {
+            "raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
+            "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
+        },
+        "speedup": timing["raycast"] / timing["raster"],
+        "agreement": {"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
+        "eval": {"images_per_s": len(jobs) / eval_time},
+        "machine": {"cpu_count": os.cpu_count(), "gl_renderer": gl_renderer(), "platform": platform.platform(),
+                    "python": platform.python_version(), "processes": 1},
+    }

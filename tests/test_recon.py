@@ -1,0 +1,345 @@
+"""Multi-view reconstruction: UV lookup against brute force, triangulation against OpenCV,
+pycolmap and scipy, exact recovery when inferred = gt, hypothesis disambiguation, and the
+exported PLY / COLMAP model read back by trimesh, pycolmap and the colmap binary."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import grid_mesh, wave
+from mvtex.camera import Rig, look_at
+from mvtex.errors import InputError
+from mvtex.mesh import barycentric_2d, subdivide
+
+
+def three_camera_rig(width: int = 160, height: int = 120) -> Rig:
+    cams = []
+    for name, angle in (("a", -12.0), ("b", 0.0), ("c", 12.0)):
+        r = np.radians(angle)
+        cams.append(look_at(name, (1.2 * np.sin(r), 0.05, 1.2 * np.cos(r)), (0, 0, 0), width=width, height=height,
+                            focal=230.0))
+    return Rig(tuple(cams))
+
+
+def random_rig(rng, count: int) -> Rig:
+    cams = []
+    for i in range(count):
+        az, el = rng.uniform(-0.6, 0.6), rng.uniform(-0.3, 0.3)
+        center = 2.0 * np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
+        cams.append(look_at(f"c{i}", center, rng.normal(scale=0.02, size=3), width=640, height=480,
+                            focal=rng.uniform(600, 900)))
+    return Rig(tuple(cams))
+
+
+# -- UV lookup ----------------------------------------------------------------------------
+
+def test_locate_uv_matches_brute_force(gl):
+    """Every (point, containing triangle) pair, also where jittered texcoords fold over."""
+    from mvtex.recon import locate_uv
+
+    rng = np.random.default_rng(3)
+    faces, uv, _ = grid_mesh(20, 18)
+    texcoords = uv + rng.normal(scale=0.02, size=uv.shape)  # ~ 0.4 cell: fold-overs, 3 layers deep
+    points = rng.uniform(0.02, 0.98, size=(1000, 2))
+    pi, fi, bary = locate_uv(points, faces, texcoords, resolution=256)
+    # Brute force: every point against every triangle.
+    P = np.repeat(np.arange(len(points)), len(faces))
+    F = np.tile(np.arange(len(faces)), len(points))
+    b = barycentric_2d(points[P], texcoords[faces[F]])
+    inside = np.all(b >= -1e-7, axis=1)
+    expected = set(zip(P[inside].tolist(), F[inside].tolist()))
+    assert set(zip(pi.tolist(), fi.tolist())) == expected
+    assert sum(np.bincount(P[inside]) > 2) >= 5  # the test does exercise several hypotheses
+    # Barycentrics reproduce the points.
+    recon = np.einsum("hk,hkj->hj", bary, texcoords[faces[fi]])
+    assert np.abs(recon - points[pi]).max() < 1e-12
+
+
+# -- triangulation -----------------------------------------------------------------------------
+
+def test_dlt_matches_opencv_and_truth_without_noise():
+    import cv2
+
+    from mvtex.recon import triangulate_dlt
+
+    rng = np.random.default_rng(0)
+    rig = random_rig(rng, 2)
+    X = rng.uniform(-0.3, 0.3, size=(50, 3))
+    pix = np.stack([cam.project(X)[0] for cam in rig], axis=1)
+    ours = triangulate_dlt(list(rig), pix, np.ones((50, 2)))
+    a, b = rig.cameras
+    h = cv2.triangulatePoints(a.projection, b.projection, pix[:, 0].T.copy(), pix[:, 1].T.copy())  # 2xN
+    ref = (h[:3] / h[3]).T
+    assert np.abs(ours - X).max() < 1e-9
+    assert np.abs(ours - ref).max() < 1e-8
+
+
+def test_refined_triangulation_matches_scipy_and_pycolmap_with_noise():
+    """Noisy observations: Gauss-Newton reaches scipy's least-squares optimum of the same
+    reprojection error; COLMAP's estimator (its own linear + refinement) lands next to it."""
+    from scipy.optimize import least_squares
+
+    from mvtex.colmap import triangulate_colmap
+    from mvtex.recon import reprojection_errors, triangulate_dlt, refine_points
+
+    rng = np.random.default_rng(1)
+    rig = random_rig(rng, 4)
+    cams = list(rig)
+    X = rng.uniform(-0.3, 0.3, size=(30, 3))
+    pix = np.stack([cam.project(X)[0] for cam in cams], axis=1) + rng.normal(scale=0.7, size=(30, 4, 2))
+    w = np.ones((30, 4))
+    w[:10, 3] = 0  # some points seen by 3 cameras only
+    ours = refine_points(cams, triangulate_dlt(cams, pix, w), pix, w, iterations=10)
+    for i in range(30):
+        used = np.flatnonzero(w[i])
+
+        def residual(p):
+            return np.concatenate([cams[c].project(p)[0] - pix[i, c] for c in used])
+
+        ref = least_squares(residual, X[i], xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+        assert np.linalg.norm(ours[i] - ref) < 1e-7
+        # COLMAP minimises an angular error: a point within the noise of ours (~1-5 mm from
+        # the truth here), never with a lower reprojection error than ours.
+        colmap = triangulate_colmap([cams[c] for c in used], pix[i, used], max_error_px=10.0)
+        assert colmap is not None
+        assert np.linalg.norm(colmap - ours[i]) < 2e-3
+        assert np.sum(residual(ours[i]) ** 2) <= np.sum(residual(colmap) ** 2) + 1e-9
+        # Noise-free, all three are the truth.
+        exact = np.stack([cams[c].project(X[i])[0] for c in used])
+        assert np.linalg.norm(triangulate_colmap([cams[c] for c in used], exact) - X[i]) < 1e-7
+        assert np.linalg.norm(triangulate_dlt([cams[c] for c in used], exact[None], np.ones((1, len(used))))[0] - X[i]) < 1e-9
+    err = reprojection_errors(cams, ours, pix)
+    assert np.all(err[w > 0] < 4)
+
+
+def test_taubin_keeps_constants_and_damps_noise():
+    from mvtex.mesh import adjacency
+    from mvtex.recon import taubin_smooth
+
+    faces, uv, _ = grid_mesh(30, 30)
+    adj = adjacency(faces, len(uv))
+    const = np.tile([0.01, -0.02, 0.003], (len(uv), 1))
+    assert np.abs(taubin_smooth(const, adj, 10) - const).max() < 1e-15
+    noise = np.random.default_rng(0).normal(size=(len(uv), 3))
+    assert taubin_smooth(noise, adj, 10).std() < 0.5 * noise.std()
+    # A field one grid wide passes nearly unchanged (Taubin's low-pass does not shrink).
+    smooth = np.sin(np.pi * uv[:, :1]) * np.sin(np.pi * uv[:, 1:]) * np.ones((1, 3))
+    assert np.abs(taubin_smooth(smooth, adj, 10) - smooth).max() < 0.05
+
+
+# -- reconstruct ------------------------------------------------------------------------------
+
+def test_identity_reproduces_gt(gl):
+    """inferred = gt, T_N = T_G: triangulated vertices are the gt vertices."""
+    from mvtex.recon import reconstruct
+
+    faces, uv, rest = grid_mesh(30, 26)
+    gt = wave(rest, 0.015, 0.4)
+    rig = three_camera_rig()
+    rec = reconstruct(uv, gt, faces, uv, {c.name: uv for c in rig}, rig)
+    tri = rec.triangulated
+    assert tri.mean() > 0.8
+    assert np.abs(rec.points[tri] - gt[tri]).max() < 1e-6
+    assert np.nanmax(rec.reprojection_error) < 1e-6
+    # Observations are the gt vertices' projections.
+    for cam in rig:
+        o = rec.observations[cam.name]
+        seen = np.isfinite(o[:, 0])
+        assert seen.sum() > 0.8 * len(uv)
+        assert np.abs(o[seen] - cam.project(gt[seen])[0]).max() < 1e-6
+
+
+def test_identity_on_subdivided_mesh(gl):
+    """Same on a subdivided texcoord mesh: the gt vertex lies on its midpoint triangles."""
+    from mvtex.mesh import apply_parent
+    from mvtex.recon import reconstruct
+
+    faces, uv, rest = grid_mesh(24, 20)
+    gt = wave(rest, 0.015, 1.1)
+    sub = subdivide(faces, len(uv), 1)
+    uv_sub = apply_parent(uv.astype(np.float64), sub.parent)
+    rig = three_camera_rig()
+    rec = reconstruct(uv, apply_parent(gt, sub.parent), sub.faces, uv_sub, {c.name: uv_sub for c in rig}, rig,
+                      gt_faces=faces)
+    tri = rec.triangulated
+    assert tri.mean() > 0.8
+    assert np.abs(rec.points[tri] - gt[tri]).max() < 1e-6
+
+
+def test_fold_over_hypotheses_are_disambiguated(gl):
+    """Camera b's texcoords fold over (one vertex dragged across its neighbours): several
+    triangles contain some T_G. With two cameras no observation can be voted out, so only
+    the choice of the hypotheses whose rays agree gives back the gt points."""
+    from mvtex.recon import locate_uv, reconstruct
+
+    faces, uv, rest = grid_mesh(30, 26)
+    gt = wave(rest, 0.015, 0.4)
+    rig = three_camera_rig().select(["a", "b"])
+    bad = uv.astype(np.float64).copy()
+    for k in (13 * 30 + 12, 7 * 30 + 8):
+        bad[k] = uv[k + 6]  # its fan now overlaps the cells six columns to the right
+    pi, fi, bary = locate_uv(uv, faces, bad)
+    points = np.einsum("hk,hkj->hj", bary, gt[faces[fi]])
+    wrong = np.unique(pi[np.linalg.norm(points - gt[pi], axis=1) > 1e-3])  # has a false hypothesis
+    rec = reconstruct(uv, gt, faces, uv, {"a": uv, "b": bad}, rig)
+    assert rec.stats["ambiguous_vertices"] > 0
+    assert rec.triangulated[wrong].sum() >= 8
+    tri = rec.triangulated
+    assert np.abs(rec.points[tri] - gt[tri]).max() < 1e-6
+
+
+def test_untriangulated_get_the_extended_displacement(gl):
+    """Flat gt, inferred 1 cm in front of it. T_N by exact ray casting (closed form: the
+    ray through an inferred vertex meets the plane z = 0). Triangulation recovers gt; the
+    vertices seen by < 2 cameras get X_N + the harmonic extension of the constant
+    displacement, i.e. gt as well."""
+    from mvtex.recon import reconstruct
+
+    size = 0.9
+    faces, uv, rest = grid_mesh(36, 30, size=size)
+    inferred = rest + np.array([0.0, 0.0, 0.01])
+    rig = three_camera_rig()
+    T = {}
+    for cam in rig:
+        C = cam.center
+        s = C[2] / (C[2] - inferred[:, 2])
+        hit = C + s[:, None] * (inferred - C)
+        T[cam.name] = (hit[:, :2] + size / 2) / size
+    rec = reconstruct(uv, inferred, faces, uv, T, rig)
+    assert 0.3 < rec.triangulated.mean() < 0.97
+    assert np.abs(rec.points - rest).max() < 1e-6
+
+
+# -- the command: files ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def identity_run(gl, tmp_path_factory, tiny_dataset):
+    """An identity texcoord set (inferred replaced by gt, d = 0) and its triangulation."""
+    from mvtex.dataset import load_dataset, save_dataset
+    from mvtex.recon import triangulate_pose
+    from mvtex.texcoords import open_texcoords, save_texcoords
+
+    base = load_dataset(tiny_dataset)
+    root = tmp_path_factory.mktemp("recon")
+    save_dataset(root / "ds", faces=base.faces, uv=base.uv, gt=base.gt, inferred=base.gt, poses=base.poses,
+                 rest=base.rest)
+    ds = load_dataset(root / "ds")
+    rig = three_camera_rig()
+    n = ds.num_vertices
+    poses = [1, 4]
+    save_texcoords(root / "tc", faces=ds.faces, uv=ds.uv, parent=np.stack([np.arange(n)] * 2, 1), source="identity",
+                   subdiv=0, poses=poses, displacement={c: np.zeros((2, n, 2)) for c in rig.names},
+                   assigned={c: np.ones((2, n), bool) for c in rig.names})
+    tc = open_texcoords(root / "tc", n)
+    report = triangulate_pose(ds, rig, tc, 4, root / "out", progress=False)
+    return ds, rig, tc, report, root / "out"
+
+
+def test_slide_with_inferred_equal_gt_reproduces_gt(identity_run):
+    """Texture sliding with inferred = gt assigns T_N = T_G (exact ray casting onto itself);
+    triangulating that texcoord set gives back gt, with and without subdivision."""
+    from mvtex.recon import triangulate_pose
+    from mvtex.sliding import SlideOptions, slide_dataset
+    from mvtex.texcoords import open_texcoords
+
+    ds, rig, tc, report, out = identity_run
+    for subdiv in (0, 1):
+        path = out.parent / f"slid{subdiv}"
+        slide_dataset(ds, rig, path, poses=[2], options=SlideOptions(subdiv=subdiv), progress=False)
+        result = triangulate_pose(ds, rig, open_texcoords(path, ds.num_vertices), 2, None, progress=False)
+        assert result["num_triangulated"] > 0.7 * ds.num_vertices
+        assert result["rmse_triangulated_m"]["reconstructed"] <= 1e-6
+        assert result["mean_reprojection_error_px"] < 1e-3
+
+
+def test_triangulate_pose_identity_report(identity_run):
+    ds, rig, tc, report, out = identity_run
+    assert report["pose"] == 4 and report["num_vertices"] == ds.num_vertices
+    assert report["num_triangulated"] > 0.8 * ds.num_vertices
+    assert report["rmse_triangulated_m"]["reconstructed"] <= 1e-6
+    assert report["rmse_m"]["inferred"] == pytest.approx(0.0, abs=1e-9)
+    assert report["mean_reprojection_error_px"] < 1e-5
+    assert sum(report["rejected"].values()) == ds.num_vertices - report["num_triangulated"]
+    import json
+
+    assert json.loads((out / "report.json").read_text()) == json.loads(json.dumps(report))
+    for name in rig.names:
+        assert (out / "images" / f"{name}.png").is_file()
+    assert (out / "comparison.png").is_file()
+
+
+def test_ply_loads_with_trimesh(identity_run):
+    import trimesh
+
+    ds, rig, tc, report, out = identity_run
+    mesh = trimesh.load(out / "reconstruction.ply", process=False)
+    assert len(mesh.vertices) == ds.num_vertices
+    assert np.array_equal(mesh.faces, ds.faces)
+    assert np.abs(mesh.visual.uv - ds.uv).max() < 1e-7
+    raw = mesh.metadata["_ply_raw"]["vertex"]["data"]
+    assert int(raw["triangulated"].sum()) == report["num_triangulated"]
+    tri = raw["triangulated"].astype(bool)
+    assert np.abs(mesh.vertices[tri] - ds.gt[4][tri]).max() < 1e-6
+
+
+def test_colmap_model_reads_back(identity_run):
+    import pycolmap
+
+    from mvtex.colmap import model_summary
+
+    ds, rig, tc, report, out = identity_run
+    rec = pycolmap.Reconstruction(str(out / "colmap"))
+    assert rec.num_images() == len(rig) and rec.num_points3D() == report["num_triangulated"]
+    assert {rec.images[i].name for i in rec.images} == {f"{c}.png" for c in rig.names}
+    summary = model_summary(out / "colmap")
+    assert summary["mean_reprojection_error_px"] == pytest.approx(report["mean_reprojection_error_px"], abs=1e-6)
+    # COLMAP projects the points onto their observations (+0.5 convention on both sides).
+    for pid, point in list(rec.points3D.items())[:50]:
+        for el in point.track.elements:
+            image = rec.images[el.image_id]
+            uv = image.project_point(point.xyz)
+            assert np.linalg.norm(uv - image.points2D[el.point2D_idx].xy) < 1e-5
+
+
+def test_colmap_model_reprojection_equals_ours_with_noise(gl, tmp_path):
+    """Noisy texcoords: COLMAP's reprojection error of the exported model equals ours."""
+    from mvtex.colmap import model_summary
+    from mvtex.recon import ReconOptions, export_reconstruction, reconstruct
+
+    faces, uv, rest = grid_mesh(24, 20)
+    gt = wave(rest, 0.015, 0.4)
+    rig = three_camera_rig()
+    rng = np.random.default_rng(5)
+    T = {c.name: uv + rng.normal(scale=1e-3, size=uv.shape) for c in rig}
+    rec = reconstruct(uv, gt, faces, uv, T, rig, ReconOptions(max_reprojection_px=5.0))
+    assert rec.triangulated.sum() > 100
+    ours = float(np.mean(rec.reprojection_error[rec.triangulated]))
+    assert ours > 0.05
+    export_reconstruction(tmp_path / "out", rec, rig, faces=faces, uv=uv, gt=None, rest=None, inferred_mesh=None,
+                          report={"pose": 0})
+    assert model_summary(tmp_path / "out" / "colmap")["mean_reprojection_error_px"] == pytest.approx(ours, rel=1e-6)
+
+
+@pytest.mark.skipif(shutil.which("colmap") is None, reason="colmap binary not installed")
+def test_colmap_binary_reads_model(identity_run):
+    ds, rig, tc, report, out = identity_run
+    run = subprocess.run(["colmap", "model_analyzer", "--path", str(out / "colmap")], capture_output=True, text=True,
+                         timeout=120, env={"QT_QPA_PLATFORM": "offscreen", "PATH": "/usr/bin:/bin"})
+    assert run.returncode == 0, run.stderr
+    text = run.stdout + run.stderr
+    assert f"Points: {report['num_triangulated']}" in text
+    assert f"Images: {len(rig)}" in text
+
+
+def test_bad_inputs(identity_run):
+    from mvtex.recon import triangulate_pose
+
+    ds, rig, tc, report, out = identity_run
+    with pytest.raises(InputError, match="texcoords.json: pose 0"):
+        triangulate_pose(ds, rig, tc, 0, None, progress=False)
+    with pytest.raises(InputError, match="2 cameras"):
+        triangulate_pose(ds, rig.select(["a"]), tc, 4, None, progress=False)
