@@ -197,3 +197,23 @@ def barycentric_2d(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
         b1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
         b2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
     return np.stack([1.0 - b1 - b2, b1, b2], axis=1)
+
+
+def uv_charts(faces: np.ndarray, n: int) -> np.ndarray:
+    """Chart label per vertex (n,) int64: connected components of the face graph.
+
+    UV seams are split vertices, so each UV chart is one component.
+    """
+    import scipy.sparse.csgraph as csgraph
+
+    return csgraph.connected_components(adjacency(faces, n), directed=False)[1].astype(np.int64)
+
+
+def charts_through_parent(base_charts: np.ndarray, faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """Chart labels on a subdivided mesh (its first len(base_charts) vertices are the base
+    vertices), numbered like the base mesh's."""
+    n = len(base_charts)
+    sub = uv_charts(faces, num_vertices)
+    lut = np.full(sub.max() + 1, -1, dtype=np.int64)
+    lut[sub[:n]] = base_charts
+    return lut[sub]

@@ -85,3 +85,52 @@ def test_heatmap_colours():
     assert r[2] > 100 and b[2] < 50          # vmax is red
     assert np.array_equal(rgb[0, 2], rgb[0, 3])  # saturates above vmax
     assert rgb[0, 4].max() < 60              # NaN is the dark background
+
+
+def two_chart_sheet():
+    """The wavy-sheet grid cut at x = 0 into two UV charts (seam vertices split): faces that
+    touch x < 0 form chart 0 (u in [0, 0.45]), the rest chart 1 (u in [0.55, 1])."""
+    from conftest import grid_mesh
+
+    faces, uv, rest = grid_mesh(24, 20)
+    in_chart0 = (rest[faces][:, :, 0] < 0).any(axis=1)
+    chart1_vertices = np.unique(faces[~in_chart0])
+    copy = {v: len(rest) + i for i, v in enumerate(chart1_vertices)}
+    faces = faces.copy()
+    faces[~in_chart0] = np.vectorize(copy.get)(faces[~in_chart0])
+    positions = np.concatenate([rest, rest[chart1_vertices]])
+    uv = np.concatenate([uv * [0.45, 1.0], uv[chart1_vertices] * [0.45, 1.0] + [0.55, 0.0]]).astype(np.float32)
+    keep = np.unique(faces)  # drop chart-1-only originals that no face uses any more
+    remap = np.full(len(positions), -1)
+    remap[keep] = np.arange(len(keep))
+    face_chart = (~in_chart0).astype(int)
+    return remap[faces].astype(np.int32), uv[keep], positions[keep], face_chart
+
+
+def test_same_chart_statistic_excludes_chart_boundaries(gl, front_rig, tmp_path):
+    """Where the meshes show different charts the atlas distance is large; the same-chart
+    statistic leaves exactly those pixels out (labels from the construction, not from mvtex)."""
+    from mvtex.dataset import save_dataset
+
+    faces, uv, rest, face_chart = two_chart_sheet()
+    gt = rest[None].astype(np.float32)  # as stored in the dataset
+    inferred = (gt + np.float32([0.012, 0.0, 0.0])).astype(np.float32)  # slid sideways: the chart boundary moves
+    save_dataset(tmp_path / "d", faces=faces, uv=uv, gt=gt, inferred=inferred, poses=np.zeros((1, 1)))
+    tc = save_texcoords(tmp_path / "tc", faces=faces, uv=uv, parent=np.stack([np.arange(len(uv))] * 2, 1),
+                        source="test", subdiv=0, poses=[0],
+                        displacement={c.name: np.zeros((1, len(uv), 2), np.float32) for c in front_rig},
+                        assigned={c.name: np.ones((1, len(uv)), bool) for c in front_rig})
+    result = evaluate(tmp_path / "d", front_rig, tc, progress=False)
+    for cam in front_rig:
+        rg, ri = rasterize(gt[0], faces, cam), rasterize(inferred[0], faces, cam)
+        both = (rg.tri_id >= 0) & (ri.tri_id >= 0)
+        same = both.copy()
+        same[both] = face_chart[rg.tri_id[both]] == face_chart[ri.tri_id[both]]
+        assert (both & ~same).sum() > 0
+        e, _, s_all = direct_sqrt_mse(gt[0], faces, uv, inferred[0], faces, uv, cam)
+        err, _ = uv_error_image(gt[0], faces, uv, inferred[0], faces, uv, cam)
+        s_same = np.sqrt(np.mean(err[same].astype(np.float64) ** 2))
+        per = result["per_camera"][cam.name]
+        assert per["sqrt_mse"]["inferred"]["mean"] == pytest.approx(s_all, rel=1e-5)
+        assert per["sqrt_mse_same_chart"]["inferred"]["mean"] == pytest.approx(s_same, rel=1e-5)
+        assert s_same < 0.5 * s_all
