@@ -1,0 +1,233 @@
+"""Texture sliding network: atlas images, training, checkpoints, prediction.
+
+The texcoord sets here are written directly from a closed-form, smooth, pose-dependent
+displacement field on a small two-chart mesh, so nothing depends on texture sliding.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("safetensors")
+
+from mvtex.errors import InputError  # noqa: E402
+from mvtex.mesh import apply_parent, subdivide  # noqa: E402
+
+pytestmark = pytest.mark.gl
+
+
+def two_chart_mesh(nx: int = 9, ny: int = 10):
+    """Two flat grids side by side in uv (u in [0.05,0.45] and [0.55,0.95]), as two charts.
+
+    Returns faces (m,3) int32, uv (n,2) float32, positions (n,3) float64.
+    """
+    xs, ys = np.linspace(0, 1, nx), np.linspace(0, 1, ny)
+    X, Y = np.meshgrid(xs, ys)
+    unit = np.stack([X.ravel(), Y.ravel()], axis=1)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    grid_faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    uv_front = unit * [0.4, 0.85] + [0.05, 0.07]
+    uv_back = unit * [0.4, 0.85] + [0.55, 0.07]
+    faces = np.concatenate([grid_faces, grid_faces + nx * ny]).astype(np.int32)
+    uv = np.concatenate([uv_front, uv_back]).astype(np.float32)
+    pos = np.concatenate([np.c_[unit * 0.4, np.zeros(nx * ny)], np.c_[unit * 0.4, np.full(nx * ny, -0.1)]])
+    return faces, uv, pos
+
+
+def displacement_field(pose: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """A smooth field, nonlinear in the pose, (n,2) float32, about 1e-2 uv units."""
+    u, v = uv[:, 0].astype(np.float64), uv[:, 1].astype(np.float64)
+    du = 0.01 * (pose[0] * np.sin(4 * np.pi * u) + 0.5 * pose[1] ** 2)
+    dv = 0.01 * np.cos(3 * np.pi * v + pose[2]) * (0.5 + 0.5 * u)
+    return np.stack([du, dv], axis=1).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def field_data(tmp_path_factory, gl):
+    """A 30-pose dataset of the two-chart mesh and a subdiv-1 texcoord set of camera 'cam'."""
+    from mvtex.dataset import save_dataset, load_dataset
+    from mvtex.texcoords import open_texcoords, save_texcoords
+
+    faces, uv, pos = two_chart_mesh()
+    k = 30
+    poses = np.random.default_rng(3).uniform(-1, 1, (k, 3)).astype(np.float32)
+    root = tmp_path_factory.mktemp("tsnn")
+    positions = np.repeat(pos[None], k, 0)
+    save_dataset(root / "data", faces=faces, uv=uv, gt=positions, inferred=positions, poses=poses, name="charts")
+    dataset = load_dataset(root / "data")
+    sub = subdivide(faces, len(uv), 1)
+    uv1 = apply_parent(uv, sub.parent)
+    d = np.stack([displacement_field(p, uv1) for p in poses])
+    # Mark a band of vertices "extrapolated", as a slide would behind an occlusion.
+    assigned = np.broadcast_to(uv1[:, 1] > 0.3, d.shape[:2]).copy()
+    save_texcoords(root / "tc", faces=sub.faces, uv=uv1, parent=sub.parent, source="synthetic", subdiv=1,
+                   poses=list(range(k)), displacement={"cam": d}, assigned={"cam": assigned})
+    return dataset, open_texcoords(root / "tc", dataset.num_vertices), root
+
+
+def test_atlas_image_of_linear_field_samples_back_exactly(gl):
+    from mvtex.tsnn.atlas import AtlasSampler
+
+    faces, uv, _ = two_chart_mesh()
+    sub = subdivide(faces, len(uv), 1)
+    uv1 = apply_parent(uv, sub.parent)
+    # A different linear function on each chart: dilation must not mix them.
+    chart = (uv1[:, 0] > 0.5).astype(np.float64)
+    field = np.stack([0.3 * uv1[:, 0] - 0.2 * uv1[:, 1] + 0.1 * chart,
+                      uv1[:, 0] + 0.7 * uv1[:, 1] - 2.0 * chart * uv1[:, 1]], axis=1)
+    for resolution in (32, 64):
+        sampler = AtlasSampler(sub.faces, uv1, resolution)
+        image = sampler.to_image(field)
+        assert image.shape == (resolution, resolution, 2)
+        back = sampler.sample_numpy(image)
+        np.testing.assert_allclose(back, field, atol=2e-5)
+        # Row convention: texel (r, c) holds the field at u=(c+0.5)/R, v=(r+0.5)/R.
+        r, c = np.argwhere(sampler.layout.covered)[len(np.argwhere(sampler.layout.covered)) // 2]
+        u, v = (c + 0.5) / resolution, (r + 0.5) / resolution
+        expected = [0.3 * u - 0.2 * v + 0.1 * (u > 0.5), u + 0.7 * v - 2.0 * (u > 0.5) * v]
+        np.testing.assert_allclose(image[r, c], expected, atol=2e-5)
+
+
+def test_sampling_matches_hand_bilinear(gl):
+    """grid_sample at T_G against a NumPy bilinear lookup with the documented texel centres."""
+    from mvtex.tsnn.atlas import AtlasSampler
+
+    faces, uv, _ = two_chart_mesh()
+    sampler = AtlasSampler(faces, uv, 16)
+    image = np.random.default_rng(0).normal(size=(16, 16, 2)).astype(np.float32)
+    x = uv[:, 0] * 16 - 0.5  # continuous column index: centre of column c at c
+    y = uv[:, 1] * 16 - 0.5
+    c0, r0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - c0)[:, None], (y - r0)[:, None]
+    ref = ((1 - fx) * (1 - fy) * image[r0, c0] + fx * (1 - fy) * image[r0, c0 + 1]
+           + (1 - fx) * fy * image[r0 + 1, c0] + fx * fy * image[r0 + 1, c0 + 1])
+    np.testing.assert_allclose(sampler.sample_numpy(image), ref, atol=1e-5)
+
+
+def test_overlapping_atlas_is_refused(gl):
+    from mvtex.tsnn.atlas import AtlasSampler, uv_overlap
+
+    faces, uv, _ = two_chart_mesh()
+    AtlasSampler(faces, uv, 32)  # disjoint charts are fine
+    overlapping = uv.copy()
+    overlapping[len(uv) // 2:, 0] -= 0.3  # the back chart now covers part of the front one
+    with pytest.raises(InputError, match="overlap"):
+        AtlasSampler(faces, overlapping, 32, source="mesh.npz")
+    # The overlap found is where the two charts' uv rectangles intersect.
+    mask = uv_overlap(overlapping, faces, 64)
+    centres = (np.arange(64) + 0.5) / 64
+    U, V = np.meshgrid(centres, centres)
+    expected = (U > 0.25) & (U < 0.45) & (V > 0.07) & (V < 0.92)
+    inner = (U > 0.26) & (U < 0.44) & (V > 0.08) & (V < 0.91)
+    assert mask[inner].all() and not mask[~expected].any()
+
+
+def test_training_beats_zero_predictor_and_checkpoint_roundtrips(field_data, tmp_path):
+    from mvtex.texcoords import open_texcoords
+    from mvtex.tsnn.predict import load_model, predict, predict_displacements
+    from mvtex.tsnn.train import TrainOptions, train_camera
+
+    dataset, tc, _ = field_data
+    options = TrainOptions(epochs=30, resolution=32, batch_size=8, width=64, patience=100, device="cpu",
+                           weight_assigned=2.0)
+    result = train_camera(dataset, tc, "cam", tmp_path / "model", options, progress=False)
+    meta = json.loads((tmp_path / "model" / "config.json").read_text())
+    history = meta["history"]["train"]
+    # The first epoch already starts from the mean displacement (the bias image), so compare
+    # with the zero predictor too.
+    assert history[-1] < 0.3 * history[0]
+    assert result["losses"]["train"]["loss"] < 0.05 * result["losses"]["train"]["zero_loss"]
+    assert (tmp_path / "model" / "loss.png").stat().st_size > 1000
+    assert meta["mesh"]["subdiv"] == 1 and meta["camera"] == "cam"
+    assert meta["split"] == {k: dataset.split[k] for k in ("train", "val", "test")}
+    assert result["losses"]["test"]["loss"] < 0.1 * result["losses"]["test"]["zero_loss"]
+
+    # Held-out poses: an independent computation of the error from the closed-form field.
+    test = dataset.split["test"]
+    model = load_model(tmp_path / "model")
+    pred = predict_displacements(model, dataset.poses[test], tc.uv)
+    truth = np.stack([displacement_field(dataset.poses[p], tc.uv) for p in test])
+    mse = np.mean(np.sum((pred - truth) ** 2, -1))
+    zero = np.mean(np.sum(truth ** 2, -1))
+    assert mse < 0.1 * zero
+
+    # Saved and loaded: bit-identical to the trained network, and predict writes that.
+    again = predict_displacements(load_model(tmp_path / "model"), dataset.poses[test], tc.uv)
+    assert np.array_equal(pred, again)
+    out = predict(dataset, [tmp_path / "model"], tmp_path / "pred", poses=test, progress=False)
+    pset = open_texcoords(out, dataset.num_vertices)
+    assert pset.source == "tsnn" and pset.poses == test and pset.cameras == ["cam"] and pset.subdiv == 1
+    assert np.array_equal(pset.faces, tc.faces) and np.array_equal(pset.parent, tc.parent)
+    np.testing.assert_array_equal(pset.uv, tc.uv)
+    assert np.array_equal(pset.displacement("cam", test[1]), pred[1])
+    assert pset.assigned("cam", test[0]).all()
+
+
+def test_training_is_deterministic_on_cpu(field_data, tmp_path):
+    from mvtex.tsnn.train import TrainOptions, train_camera
+    from safetensors.torch import load_file
+
+    dataset, tc, _ = field_data
+    options = TrainOptions(epochs=2, resolution=16, batch_size=8, width=32, device="cpu", seed=5)
+    for name in ("a", "b"):
+        train_camera(dataset, tc, "cam", tmp_path / name, options, progress=False)
+    a, b = load_file(tmp_path / "a" / "model.safetensors"), load_file(tmp_path / "b" / "model.safetensors")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_bad_models_are_refused(field_data, tmp_path):
+    import shutil
+
+    from mvtex.tsnn.predict import load_model, predict
+    from mvtex.tsnn.train import TrainOptions, train_camera
+
+    dataset, tc, root = field_data
+    options = TrainOptions(epochs=1, resolution=16, batch_size=8, width=32, device="cpu")
+    train_camera(dataset, tc, "cam", tmp_path / "m1", options, progress=False)
+
+    # A model of another subdivision level cannot share a texcoord set with it.
+    shutil.copytree(tmp_path / "m1", tmp_path / "m0")
+    meta = json.loads((tmp_path / "m0" / "config.json").read_text())
+    meta["mesh"]["subdiv"], meta["camera"] = 0, "other"
+    (tmp_path / "m0" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="subdivision"):
+        predict(dataset, [tmp_path / "m1", tmp_path / "m0"], tmp_path / "out", poses=[0], progress=False)
+    with pytest.raises(InputError, match="also predicted"):
+        predict(dataset, [tmp_path / "m1", tmp_path / "m1"], tmp_path / "out", poses=[0], progress=False)
+
+    # Malformed config.json: the message names the file.
+    broken = tmp_path / "broken"
+    shutil.copytree(tmp_path / "m1", broken)
+    meta = json.loads((broken / "config.json").read_text())
+    del meta["architecture"]
+    (broken / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="config.json"):
+        load_model(broken)
+    (broken / "config.json").write_text("{not json")
+    with pytest.raises(InputError, match="config.json"):
+        load_model(broken)
+    meta["architecture"] = {"pose_dim": 3, "resolution": 64, "width": 32, "min_width": 8, "depth": 4}
+    (broken / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="model.safetensors"):
+        load_model(broken)
+    assert not (tmp_path / "out").exists()
+
+
+def test_texcoord_set_of_another_mesh_is_refused(field_data, tmp_path):
+    from mvtex.texcoords import open_texcoords, save_texcoords
+    from mvtex.tsnn.train import TrainOptions, train_camera
+
+    dataset, tc, _ = field_data
+    uv = tc.uv.copy()
+    uv[-1] += 0.001
+    save_texcoords(tmp_path / "tc", faces=tc.faces, uv=uv, parent=tc.parent, source="x", subdiv=1, poses=tc.poses,
+                   displacement={"cam": np.zeros((len(tc.poses), len(uv), 2), np.float32)},
+                   assigned={"cam": np.ones((len(tc.poses), len(uv)), bool)})
+    with pytest.raises(InputError, match="mesh.npz"):
+        train_camera(dataset, open_texcoords(tmp_path / "tc"), "cam", tmp_path / "m", TrainOptions(epochs=1),
+                     progress=False)
