@@ -122,16 +122,25 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
 
 def _short(result: dict) -> dict:
     s = result["sqrt_mse"]
+    c = result["sqrt_mse_same_chart"]
     return {"num_images": result["num_images"], "inferred_e3": round(s["inferred"]["mean"] * 1e3, 3),
-            "texcoords_e3": round(s["texcoords"]["mean"] * 1e3, 3), "ratio": round(result["ratio"], 2)}
+            "texcoords_e3": round(s["texcoords"]["mean"] * 1e3, 3), "ratio": round(result["ratio"], 2),
+            "same_chart_inferred_e3": round(c["inferred"]["mean"] * 1e3, 3),
+            "same_chart_texcoords_e3": round(c["texcoords"]["mean"] * 1e3, 3),
+            "ratio_same_chart": round(result["ratio_same_chart"], 2)}
+
+
+def _pair(r: dict) -> str:
+    return (f"SqrtMSE inferred {r['inferred_e3']} e-3 -> {r['texcoords_e3']} e-3 (ratio {r['ratio']}); "
+            f"same-chart pixels {r['same_chart_inferred_e3']} -> {r['same_chart_texcoords_e3']} e-3 "
+            f"(ratio {r['ratio_same_chart']})")
 
 
 def _text(summary: dict) -> str:
     lines = [f"mvtex demo -> {summary['out']}",
              f"dataset: {summary['dataset']['num_poses']} poses, {summary['dataset']['num_vertices']} vertices"]
     for rig, r in summary["texture_sliding"].items():
-        lines.append(f"TS ({rig}, 1 subdivision): SqrtMSE {r['inferred_e3']} e-3 (inferred) -> {r['texcoords_e3']} e-3, "
-                     f"ratio {r['ratio']} over {r['num_images']} images")
+        lines.append(f"TS ({rig}, 1 subdivision, {r['num_images']} images): {_pair(r)}")
     rec = summary["reconstruction"]
     lines.append(f"reconstruction (square4, pose {rec['pose']}): {rec['num_triangulated']}/{rec['num_vertices']} "
                  f"triangulated, RMSE {rec['rmse_m']['inferred']*1e3:.2f} mm (inferred) -> "
@@ -139,6 +148,6 @@ def _text(summary: dict) -> str:
                  f"{rec['rmse_triangulated_m']['inferred']*1e3:.2f} -> {rec['rmse_triangulated_m']['reconstructed']*1e3:.2f} mm")
     if "tsnn" in summary:
         r = summary["tsnn"]
-        lines.append(f"TSNN (camera left, test poses): SqrtMSE {r['inferred_e3']} e-3 -> {r['texcoords_e3']} e-3, ratio {r['ratio']}")
+        lines.append(f"TSNN (camera left, {r['num_images']} test poses): {_pair(r)}")
     lines.append("pictures: " + ", ".join(summary["pictures"][:8]) + (" ..." if len(summary["pictures"]) > 8 else ""))
     return "\n".join(lines)

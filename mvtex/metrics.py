@@ -25,6 +25,7 @@ import numpy as np
 from .camera import Camera, Rig
 
 HEATMAP_MAX = 0.04
+CHART_BOUNDARY_COLOR = (255, 0, 255)  # pixels where the two meshes show different UV charts
 
 
 def uv_image(positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera,
@@ -106,7 +107,8 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
         texcoords: `TexcoordSet` or its directory.
         poses: dataset pose indices (default: the set's poses).
         heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
-            baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04).
+            baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
+            the two meshes show different UV charts).
         progress: progress bar on stderr.
 
     Returns:
@@ -158,8 +160,13 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
         for values, value in zip(per_cam[cam.name], (s_b, s_t, same_b, same_t)):
             values.append(value)
         if out_dir is not None:
-            picture = side_by_side([heatmap(err_b, HEATMAP_MAX), heatmap(err_t, HEATMAP_MAX), colorbar(cam.height, HEATMAP_MAX)],
-                                   [f"inferred {s_b * 1e3:.2f}e-3", f"{tc.source} {s_t * 1e3:.2f}e-3", "e"])
+            panels = []
+            for err, chart, total, same in ((err_b, chart_b, s_b, same_b), (err_t, chart_t, s_t, same_t)):
+                image = heatmap(err, HEATMAP_MAX)
+                image[(chart >= 0) & (chart_g >= 0) & (chart != chart_g)] = CHART_BOUNDARY_COLOR
+                panels.append((image, f"{total * 1e3:.2f}e-3, same chart {same * 1e3:.2f}e-3"))
+            picture = side_by_side([panels[0][0], panels[1][0], colorbar(cam.height, HEATMAP_MAX)],
+                                   [f"inferred {panels[0][1]}", f"{tc.source} {panels[1][1]}", "e"])
             save_png(out_dir / f"pose_{k:05d}_{cam.name}.png", picture)
     result = _summary(*([v for c in per_cam.values() for v in c[i]] for i in range(4)))
     result["per_camera"] = {name: _summary(*lists) for name, lists in per_cam.items()}
