@@ -96,8 +96,48 @@ def _job(path: str, gt, inferred, faces, uv, topo, camera, options):
     return finish(hits, faces, uv, X, topo, options)
 
 
+def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: int, barrier) -> tuple[int, float]:
+    """In a worker process: warm up, wait for the other workers, then time `repeats`
+    passes over `jobs` ((pose, camera name) pairs) on the raster path. Returns (number of
+    jobs, fastest pass in seconds)."""
+    from .dataset import load_dataset
+    from .sliding import _single_thread_gl
+
+    _single_thread_gl()
+    ds = load_dataset(dataset_path, validate=False)
+    options = SlideOptions(subdiv=subdiv)
+    reference = ds.rest if ds.rest is not None else ds.gt[jobs[0][0]]
+    topo = build_topology(ds.faces, ds.uv, reference, subdiv)
+    faces = ds.faces.astype(np.int64)
+    _job("raster", ds.gt[jobs[0][0]], ds.inferred[jobs[0][0]], faces, ds.uv, topo, rig[jobs[0][1]], options)
+    barrier.wait()
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for k, cam in jobs:
+            _job("raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options)
+        best = min(best, time.perf_counter() - start)
+    return len(jobs), best
+
+
+def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: int, workers: int) -> float:
+    """Raster-path jobs/s of `workers` processes running side by side, each on its share
+    of the jobs (start-up, topology and warm-up excluded: the processes start timing
+    together, behind a barrier)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        barrier = manager.Barrier(workers)
+        shares = [jobs[w::workers] for w in range(workers)]
+        futures = [pool.submit(_worker_pass, dataset_path, rig, share, subdiv, repeats, barrier) for share in shares]
+        done = [f.result() for f in futures]
+    return sum(count for count, _ in done) / max(seconds for _, seconds in done)
+
+
 def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
-              progress: bool = True) -> dict:
+              progress: bool = True, workers: int = 2) -> dict:
     """Measure jobs/s of the raster and ray-cast sliding paths and the eval throughput.
 
     Args:
@@ -106,10 +146,12 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         subdiv: subdivision levels of the sliding jobs.
         repeats: timed passes over all jobs per path; the fastest pass is reported.
         progress: progress bar on stderr.
+        workers: also measure the raster path on this many processes side by side
+            (`sliding.slide_dataset(workers=...)`); 1 = skip.
 
     Returns:
         JSON-able dict: jobs, sliding.{raster,raycast}.jobs_per_s, speedup (raster over
-        ray cast), agreement.{displacement (fraction of vertices assigned by both whose d
+        ray cast, both in one process), sliding.raster_workers.{workers,jobs_per_s}, agreement.{displacement (fraction of vertices assigned by both whose d
         agree to 1e-5), assigned_flags (fraction with equal flags)}, eval.images_per_s, machine.
     """
     from tqdm import tqdm
@@ -146,6 +188,9 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
             best = min(best, time.perf_counter() - start)
         timing[path] = best
     bar.close()
+    parallel = None
+    if workers > 1:
+        parallel = _bench_workers(str(ds.path), rig, [(k, cam.name) for k, cam in jobs], subdiv, repeats, workers)
     both = agree = flags = total = 0
     for k, cam in jobs:
         d_r, a_r = results["raster", k, cam.name]
@@ -173,6 +218,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         "sliding": {
             "raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
             "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
+            "raster_workers": {"workers": int(workers), "jobs_per_s": parallel},
         },
         "speedup": timing["raycast"] / timing["raster"],
         "agreement": {"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},

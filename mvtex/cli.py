@@ -63,7 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-displacement", type=float, help="unassign vertices with |d| above this (uv units)")
     p.add_argument("--cameras", help="comma-separated camera names (default: all)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, default=1, help="local worker processes")
+    g.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: one per core for long runs, else 1)")
     g.add_argument("--scheduler", help="Dask scheduler address (tcp://host:8786)")
     _add_progress(p)
 
@@ -113,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rig", required=True)
     p.add_argument("--poses", default="0:20", help="poses to time (default 0:20)")
     p.add_argument("--subdiv", type=int, default=1, choices=(0, 1, 2))
+    p.add_argument("--workers", type=int, default=2, help="worker processes for the parallel measurement (default 2)")
     _add_json(p)
     _add_progress(p)
 
@@ -183,7 +185,7 @@ def cmd_slide(args) -> None:
     rig, rig_path = _load_rig(args.rig)
     rig = rig.select(_cameras(args.cameras), rig_path)
     options = SlideOptions(subdiv=args.subdiv, fill=args.fill, max_displacement=args.max_displacement)
-    if args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         raise InputError(None, f"--workers must be at least 1 (got {args.workers})")
     out = slide_dataset(dataset, rig, args.out, poses=dataset.select(args.poses), options=options,
                         workers=args.workers, scheduler=args.scheduler, progress=not args.quiet)
@@ -259,7 +261,8 @@ def cmd_bench(args) -> dict:
 
     dataset = load_dataset(args.dataset)
     rig, _ = _load_rig(args.rig)
-    result = run_bench(dataset, rig, poses=dataset.select(args.poses), subdiv=args.subdiv, progress=not args.quiet)
+    result = run_bench(dataset, rig, poses=dataset.select(args.poses), subdiv=args.subdiv, workers=args.workers,
+                       progress=not args.quiet)
     _emit(args, result, json.dumps(result, indent=2))
     return result
 

@@ -278,9 +278,10 @@ def intersect_pairs(origin: np.ndarray, dirs: np.ndarray, positions: np.ndarray,
 
 
 def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
-                  neighbours: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  neighbours: np.ndarray | None = None, modulo: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distinct triangle ids in the (2r+1)² window around each pixel (and their edge
-    neighbours if given), as (ray, tri) pairs sorted by ray."""
+    neighbours if given), as (ray, tri) pairs sorted by ray. With `modulo`, the raster's
+    ids (>= 0) are taken modulo it first (subdivided face ids -> base face ids)."""
     H, W = tri_id.shape
     col = np.rint(pixels[:, 0]).astype(np.int64)
     row = np.rint(pixels[:, 1]).astype(np.int64)
@@ -288,11 +289,17 @@ def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
     rr = np.clip(row[:, None, None] + off[None, :, None], 0, H - 1)
     cc = np.clip(col[:, None, None] + off[None, None, :], 0, W - 1)
     ids = tri_id[rr, cc].reshape(len(pixels), -1)
+    if modulo is not None:
+        ids = np.where(ids >= 0, ids % modulo, -1)
     if neighbours is not None:
         ids = np.sort(ids, axis=1)
         ids[:, 1:][ids[:, 1:] == ids[:, :-1]] = -1
-        nb = np.where(ids[..., None] >= 0, neighbours[np.maximum(ids, 0)], -1)
-        ids = np.concatenate([ids, nb.reshape(len(pixels), -1)], axis=1)
+        # Each distinct id with its edge neighbours, looked up in one table whose last row
+        # (index -1) is all -1: background and repeated ids add nothing.
+        closed = np.full((len(neighbours) + 1, 4), -1, np.int64)
+        closed[:-1, 0] = np.arange(len(neighbours))
+        closed[:-1, 1:] = neighbours
+        ids = closed[ids].reshape(len(pixels), -1)
     ids = np.sort(ids, axis=1)
     keep = ids >= 0
     keep[:, 1:] &= ids[:, 1:] != ids[:, :-1]
@@ -319,26 +326,67 @@ def _first_per_ray(ray: np.ndarray, key: np.ndarray, num_rays: int) -> tuple[np.
 
 # -- rasterization of both meshes in one pass -------------------------------------------------
 
-class PairRaster:
-    """Triangle ids of two meshes with the same faces (gt and inferred) from one camera,
-    drawn side by side in one framebuffer: one upload, one readback.
+_SUBFACE_FRAG = """
+#version 330
+// Triangle id + 1 (0 = background). With levels > 0 the id is that of the midpoint-
+// subdivided child face containing the pixel centre, found from the perspective-correct
+// barycentrics in the drawn (base) face: children of face f are k * m + f for corner
+// children k = 0, 1, 2 (barycentric of corner k above 1/2) and the centre child k = 3
+// (`mvtex.mesh.subdivide`'s order); the barycentrics are then mapped into the child.
+uniform int num_faces;
+uniform int levels;
+in vec3 v_bary;
+in float v_z;
+layout(location = 0) out int out_id;
+void main() {
+    vec3 b = v_bary;
+    int f = gl_PrimitiveID;
+    int m = num_faces;
+    for (int level = 0; level < levels; ++level) {
+        int k;
+        if (b.x > 0.5) { k = 0; b = vec3(2.0 * b.x - 1.0, 2.0 * b.y, 2.0 * b.z); }
+        else if (b.y > 0.5) { k = 1; b = vec3(2.0 * b.x, 2.0 * b.y - 1.0, 2.0 * b.z); }
+        else if (b.z > 0.5) { k = 2; b = vec3(2.0 * b.x, 2.0 * b.y, 2.0 * b.z - 1.0); }
+        else { k = 3; b = vec3(1.0 - 2.0 * b.z, 1.0 - 2.0 * b.x, 1.0 - 2.0 * b.y); }
+        f = k * m + f;
+        m = 4 * m;
+    }
+    out_id = f + 1;
+}
+"""
 
-    Uses `mvtex.raster`'s id program and its OpenCV projection, so ids are those of
-    `raster.rasterize(..., attributes=False)`. Faces are uploaded once (index buffer).
+
+class PairRaster:
+    """Triangle ids of two meshes with the same base faces (gt and inferred) from one
+    camera, drawn side by side in one framebuffer: one upload, one readback.
+
+    The second mesh can report ids of its midpoint subdivision (`levels`) while only its
+    base faces are drawn: the child face of each pixel follows from the pixel's
+    barycentrics in the base face (midpoint subdivision does not move the surface, and
+    barycentrics are perspective-correct). That equals a raster of the subdivided mesh up
+    to pixel centres exactly on a child edge, at the cost of a base raster (llvmpipe's
+    cost grows with the triangle count). Projection and ids follow `mvtex.raster`
+    (`rasterize(..., attributes=False)`): row r, column c is OpenCV pixel (u=c, v=r).
     """
 
-    def __init__(self, faces: np.ndarray, num_vertices: int):
-        from .raster import _program, gl_context
+    def __init__(self, faces: np.ndarray, num_vertices: int, levels: int = 0):
+        from .raster import _shader_source, gl_context
 
         self.ctx = gl_context()
-        self.prog = _program("raster")
+        self.prog = self.ctx.program(vertex_shader=_shader_source("raster.vert.glsl"), fragment_shader=_SUBFACE_FRAG)
         self.n = int(num_vertices)
         self.m = len(faces)
+        self.levels = int(levels)
         f = np.asarray(faces, dtype=np.int32)
-        self.ibo = self.ctx.buffer(np.concatenate([f, f + self.n]).tobytes())
-        self.vbo = self.ctx.buffer(reserve=2 * self.n * 12)
+        self.faces = f
+        self.ibo = self.ctx.buffer(f.tobytes())
+        self.vbo = self.ctx.buffer(reserve=self.n * 12)
         self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f", "in_cam")], index_buffer=self.ibo,
                                          index_element_size=4)
+        # The second mesh de-indexed: each corner carries a one-hot barycentric.
+        self.vbo2 = self.ctx.buffer(reserve=3 * self.m * 12)
+        self.bary = self.ctx.buffer(np.tile(np.eye(3, dtype=np.float32), (self.m, 1)).tobytes())
+        self.vao2 = self.ctx.vertex_array(self.prog, [(self.vbo2, "3f", "in_cam"), (self.bary, "3f", "in_bary")])
         self._targets: dict = {}
 
     def _target(self, width: int, height: int):
@@ -349,47 +397,75 @@ class PairRaster:
             self._targets[key] = (self.ctx.framebuffer(color_attachments=[ids], depth_attachment=depth), ids, depth)
         return self._targets[key][0]
 
-    def __call__(self, first: np.ndarray, second: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-        """(H,W) int32 tri_id of `first` and of `second` (positions (n,3) world), -1 = background."""
+    def __call__(self, first: np.ndarray, second: np.ndarray, camera: Camera,
+                 pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(H,W) int32 tri_id of `first` (base faces) and of `second` (faces of its
+        `levels`-times subdivision), positions (n,3) world; -1 = background.
+
+        `pixels`, if given, (k,2) projections of every vertex of both meshes: they bound the
+        region read back.
+        """
         import moderngl
 
         from .raster import _check_renderable, clip_from_camera, depth_range
 
         _check_renderable(camera)
-        cam = camera.to_camera(np.concatenate([first, second]))
+        cam = camera.to_camera(np.concatenate([first, second])).astype(np.float32)
         near, far = depth_range(cam)
         W, H = camera.width, camera.height
         self.prog["clip_from_cam"].write(clip_from_camera(camera, near, far).T.astype("f4").tobytes())
-        self.vbo.write(cam.astype(np.float32).tobytes())
+        self.vbo.write(cam[:self.n].tobytes())
+        self.vbo2.write(cam[self.n:][self.faces].tobytes())
         fbo = self._target(W, H)
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         self.ctx.disable(moderngl.CULL_FACE)
         self.ctx.enable(moderngl.DEPTH_TEST)
         # The viewport clips in clip space: nothing of one mesh can spill into the other half.
+        self.prog["num_faces"].value = self.m
         self.ctx.viewport = (0, 0, W, H)
+        self.prog["levels"].value = 0
         self.vao.render(moderngl.TRIANGLES, vertices=3 * self.m)
         self.ctx.viewport = (W, 0, W, H)
-        self.vao.render(moderngl.TRIANGLES, vertices=3 * self.m, first=3 * self.m)
-        ids = np.frombuffer(fbo.read(attachment=0, components=1, dtype="i4", viewport=(0, 0, 2 * W, H)), np.int32)
-        ids = ids.reshape(H, 2 * W) - 1  # gl_PrimitiveID restarts at 0 on each draw call
-        return ids[:, :W], ids[:, W:]
+        self.prog["levels"].value = self.levels
+        self.vao2.render(moderngl.TRIANGLES, vertices=3 * self.m)
+        # A triangle covers only pixel centres inside the box of its projected corners, so
+        # the box of all projections (one pixel margin) holds every id; with a vertex
+        # behind the camera the projection says nothing: read everything.
+        c0, r0, c1, r1 = 0, 0, W, H
+        if pixels is not None and len(pixels) and bool(np.all(cam[:, 2] > 0)):
+            lo = np.floor(pixels.min(axis=0)).astype(np.int64) - 1
+            hi = np.ceil(pixels.max(axis=0)).astype(np.int64) + 2
+            c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
+            c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
+        out1 = np.full((H, W), -1, np.int32)
+        out2 = np.full((H, W), -1, np.int32)
+        w, h = c1 - c0, r1 - r0
+        if w > 0 and h > 0:
+            # GL window row y is image row v (the projection flips once), so no flip here.
+            for out, x0 in ((out1, c0), (out2, W + c0)):
+                data = fbo.read(attachment=0, components=1, dtype="i4", viewport=(x0, r0, w, h))
+                # gl_PrimitiveID restarts at 0 on each draw call; ids are stored +1.
+                out[r0:r1, c0:c1] = np.frombuffer(data, np.int32).reshape(h, w) - 1
+        return out1, out2
 
     def release(self) -> None:
         for fbo, ids, depth in self._targets.values():
             fbo.release(), ids.release(), depth.release()
         self.vao.release(), self.vbo.release(), self.ibo.release()
+        self.vao2.release(), self.vbo2.release(), self.bary.release()
+        self.prog.release()
 
 
 _RASTERS: dict = {}
 
 
-def _pair_raster(faces: np.ndarray, n: int) -> PairRaster:
-    key = (n, len(faces), hashlib.sha1(np.ascontiguousarray(faces, dtype=np.int64).tobytes()).hexdigest())
+def _pair_raster(faces: np.ndarray, n: int, levels: int = 0) -> PairRaster:
+    key = (n, len(faces), int(levels), hashlib.sha1(np.ascontiguousarray(faces, dtype=np.int64).tobytes()).hexdigest())
     if key not in _RASTERS:
         if len(_RASTERS) > 4:
             _RASTERS.pop(next(iter(_RASTERS))).release()
-        _RASTERS[key] = PairRaster(faces, n)
+        _RASTERS[key] = PairRaster(faces, n, levels)
     return _RASTERS[key]
 
 
@@ -485,12 +561,20 @@ def find_hits_raster(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
         X: (n',3) float64 subdivided inferred positions.
     """
     n = len(X)
+    m = len(faces)
     origin = camera.center
-    gt_ids, inf_ids = _pair_raster(faces, len(gt))(gt, inferred, camera)
-    H, W = inf_ids.shape
     pixels, z = camera.project(X)
+    gt_pixels = camera.project(gt)[0]
+    # Ids of the subdivided inferred faces (they give rule 1 directly); the base face of
+    # subdivided face k is k % m (children keep their parent modulo m). Both corners sets
+    # bound the read-back region (the inferred base vertices are among X's first n).
+    raster = _pair_raster(faces, len(gt), len(topo.levels) - 1)
+    gt_ids, sub_ids = raster(gt, inferred, camera, np.concatenate([gt_pixels, pixels]))
+    H, W = sub_ids.shape
     # Rule 1 (the paper's): an incident (subdivided) triangle owns at least one pixel.
-    owned = owned_subfaces(inf_ids, pixels, topo)
+    covered = sub_ids[sub_ids >= 0]
+    owned = np.zeros(len(topo.faces), bool)
+    owned[covered] = True
     touched = np.zeros(n, bool)
     touched[topo.faces[owned].ravel()] = True
     inside = (z > 0) & (pixels[:, 0] > -0.5) & (pixels[:, 0] < W - 0.5) & (pixels[:, 1] > -0.5) & (pixels[:, 1] < H - 0.5)
@@ -499,7 +583,7 @@ def find_hits_raster(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     # vertex). Candidate occluders: the base inferred triangles drawn around its projection
     # (the same surface as their subdivided children).
     dirs = X[cand] - origin
-    ray, tri = _window_pairs(inf_ids, pixels[cand], options.radius, topo.face_neighbours)
+    ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, topo.face_neighbours, modulo=m)
     keys = cand[ray] * len(faces) + tri
     pos = np.minimum(np.searchsorted(topo.host_keys, keys), len(topo.host_keys) - 1)
     other = topo.host_keys[pos] != keys
@@ -590,6 +674,8 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
 
 _FLUSH_SECONDS = 5.0
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
+_AUTO_WORKERS = 8  # workers=None: one process per core, up to this many
+_AUTO_MIN_JOBS = 256  # workers=None: fewer jobs left than this run in this process (start-up ≈ 1-2 s a worker)
 
 
 def _fingerprint(*arrays: np.ndarray) -> str:
@@ -615,9 +701,20 @@ class _Spec:
     rig: Rig
     options: SlideOptions
     key: str
+    worker: bool = False
 
 
 _STATE: dict = {}
+
+
+def _single_thread_gl() -> None:
+    """Let llvmpipe rasterize in the calling thread (fewer CPU cycles per draw) in a
+    worker process that has no GL context yet: with one process per core its own
+    rasterizer threads would only compete with the other processes."""
+    from . import raster
+
+    if raster._CONTEXT is None:
+        os.environ.setdefault("LP_NUM_THREADS", "0")
 
 
 def _state(spec: _Spec):
@@ -634,6 +731,8 @@ def _state(spec: _Spec):
 
 def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
     """Slide poses[rows] for one camera; returns (camera, rows, d (r,n',2), assigned (r,n'))."""
+    if spec.worker:
+        _single_thread_gl()
     ds, topo = _state(spec)
     cam = spec.rig[camera]
     d_out = np.empty((len(rows), len(topo.uv), 2), np.float32)
@@ -646,7 +745,7 @@ def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
 
 
 def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], options: SlideOptions,
-                  cameras: list[str] | None = None, workers: int = 1, scheduler: str | None = None,
+                  cameras: list[str] | None = None, workers: int | None = None, scheduler: str | None = None,
                   progress: bool = True) -> Path:
     """Texture-slide every (pose, camera) of a dataset into a texcoord set (DESIGN §4).
 
@@ -664,7 +763,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         poses: dataset pose indices (rows of the set, in this order).
         options: SlideOptions (recorded in texcoords.json as "options").
         cameras: camera names (default: every camera of the rig).
-        workers: local processes (each with its own GL context); 1 = this process.
+        workers: local processes (each with its own GL context); 1 = this process; None =
+            up to `_AUTO_WORKERS` (one per CPU core) when at least `_AUTO_MIN_JOBS` jobs are
+            left (a process takes about a second to start), else 1.
         scheduler: Dask scheduler address (overrides `workers`).
         progress: show a progress bar on stderr.
 
@@ -737,8 +838,15 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         todo = np.flatnonzero(~done[c]).tolist()
         for i in range(0, len(todo), _CHUNK):
             tasks.append((c, todo[i:i + _CHUNK]))
+    left = sum(len(r) for _, r in tasks)
+    if workers is None:
+        workers = min(_AUTO_WORKERS, os.cpu_count() or 1) if left >= _AUTO_MIN_JOBS else 1
+    # Smaller tasks when they would not keep every worker busy.
+    if workers > 1 and not scheduler and len(tasks) < 4 * workers:
+        tasks = [(c, rows[i:i + 2]) for c, rows in tasks for i in range(0, len(rows), 2)]
     spec = _Spec(dataset=str(ds.path), rig=rig, options=options,
-                 key=_fingerprint(np.frombuffer(json.dumps(record, sort_keys=True).encode(), np.uint8)))
+                 key=_fingerprint(np.frombuffer(json.dumps(record, sort_keys=True).encode(), np.uint8)),
+                 worker=workers > 1 and not scheduler)
     _STATE.clear()
     _STATE[spec.key] = (ds, topo)  # this process's jobs reuse what was just built
     total = len(poses) * len(rig)

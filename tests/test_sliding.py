@@ -114,6 +114,27 @@ def test_pixel_ownership_from_base_raster_matches_subdivided_raster(gl, oblique)
         assert np.sum(owned != expected) <= max(3, 0.002 * len(topo.faces))
 
 
+def test_pair_raster_subface_ids_match_raster_of_subdivided_mesh(gl, oblique):
+    """The pair raster draws base faces only and reports subdivided face ids from the
+    pixel barycentrics: compare with `raster.rasterize` of the subdivided mesh itself."""
+    from mvtex.raster import rasterize
+    from mvtex.sliding import PairRaster
+
+    faces, uv, gt, inferred = folded_sheet(20, 20)
+    for levels in (0, 1, 2):
+        sub = subdivide(faces, len(uv), levels)
+        X = apply_parent(inferred, sub.parent)
+        pair = PairRaster(faces, len(uv), levels)
+        for pixels in (None, np.concatenate([oblique.project(gt)[0], oblique.project(X)[0]])):
+            gt_ids, sub_ids = pair(gt, inferred, oblique, pixels)
+            assert np.array_equal(gt_ids, rasterize(gt, faces, oblique, attributes=False).tri_id)
+            expected = rasterize(X, sub.faces, oblique, attributes=False).tri_id
+            assert np.array_equal(sub_ids >= 0, expected >= 0)
+            # Pixel centres exactly on a child edge may go either way: allow a handful.
+            assert np.sum(sub_ids != expected) <= max(3, 0.002 * np.sum(expected >= 0))
+        pair.release()
+
+
 def test_identity_gives_zero_displacement_and_zero_error(gl):
     from mvtex.metrics import uv_error_image
     from mvtex.synth import deform, make_garment, sample_poses
