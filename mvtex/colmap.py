@@ -66,14 +66,7 @@ def rig_reconstruction(rig: Rig, observations: dict[str, np.ndarray] | None = No
 
 def write_rig(rig: Rig, path: str | os.PathLike, text: bool = False) -> Path:
     """Export a rig as a COLMAP model (cameras, images, empty points3D) into directory `path`."""
-    from .io import atomic_path
-
-    rec, _ = rig_reconstruction(rig)
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        tmp.mkdir()
-        (rec.write_text if text else rec.write_binary)(str(tmp))
-    return path
+    return write_model(rig_reconstruction(rig)[0], path, text=text)
 
 
 def read_rig(path: str | os.PathLike) -> Rig:
