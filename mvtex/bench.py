@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from .camera import Camera, Rig
-from .sliding import Hits, SlideOptions, SlideTopology, build_topology, finish, find_hits_raster, intersect_pairs
+from .sliding import Hits, SlideOptions, SlideTopology, build_topology, finish, find_hits_raster, intersect_pairs, seen_from_inside
 
 
 def _intersector(positions: np.ndarray, faces: np.ndarray):
@@ -84,7 +84,7 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     tri_hit[idx] = tri[ok]
     bary[idx] = np.stack([1 - b1 - b2, b1, b2], axis=1)
     back[idx] = facing > 0
-    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back)
+    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back, inside=seen_from_inside(X, topo.faces, origin))
 
 
 def _job(path: str, gt, inferred, faces, uv, topo, camera, options):

@@ -520,26 +520,48 @@ class Hits:
         tri: (n',) int64 gt triangle of the first hit (-1 if none).
         bary: (n',3) float64 barycentrics of the hit in `tri`.
         back: (n',) bool, the hit triangle faces away from the camera.
+        inside: (n',) bool, the inferred vertex itself is seen from the garment's inside
+            (its normal faces away from the camera, e.g. looking into a collar).
     """
 
     visible: np.ndarray
     tri: np.ndarray
     bary: np.ndarray
     back: np.ndarray
+    inside: np.ndarray
+
+
+def seen_from_inside(X: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """(n,) bool: the area-weighted vertex normal of X (faces CCW from outside) points away
+    from the camera at `origin`."""
+    p = X[faces]
+    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normals = np.stack([np.bincount(faces.ravel(), np.repeat(fn[:, c], 3), minlength=len(X)) for c in range(3)], 1)
+    return np.einsum("ij,ij->i", normals, X - origin) > 0
 
 
 def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: np.ndarray, ray: np.ndarray,
-                tri: np.ndarray, vert_chart: np.ndarray, gt_chart: np.ndarray):
+                tri: np.ndarray, vert_chart: np.ndarray, gt_chart: np.ndarray, vert_uv: np.ndarray | None = None,
+                gt_uv: np.ndarray | None = None):
     """Nearest hit per ray among its candidate (ray, tri) pairs. Exact ties (a ray through
     a gt vertex or edge) prefer a triangle of the vertex's own chart, then one facing the
-    camera. Returns tri (k,) (-1 = no hit), bary (k,3), back (k,) bool."""
+    camera, then (given `vert_uv` (k,2) and `gt_uv` (n,2)) the one whose uv at the hit is
+    nearest the vertex's own T_G: where a chart meets itself along a seam, both sides name
+    the same material and the vertex keeps its own side's coordinates.
+    Returns tri (k,) (-1 = no hit), bary (k,3), back (k,) bool."""
     k = len(dirs)
     t, b1, b2, facing = intersect_pairs(origin, dirs[ray], gt, gt_faces, tri)
     _, t_min = _first_per_ray(ray, t, k)
     near = np.isfinite(t) & (t <= t_min[ray] * (1 + 1e-9))
     back = facing > 0
     other = gt_chart[tri] != vert_chart[ray]
-    key = np.where(near, 2.0 * other + 1.0 * back, np.inf)
+    key = 4.0 * other + 2.0 * back
+    if vert_uv is not None and gt_uv is not None:
+        corners = gt_uv[gt_faces[tri]]
+        w = np.stack([1 - b1 - b2, b1, b2], axis=1)
+        hit_uv = np.einsum("kj,kjc->kc", np.nan_to_num(w), corners)
+        key = key + np.minimum(np.linalg.norm(hit_uv - vert_uv[ray], axis=1), 1.0)
+    key = np.where(near, key, np.inf)
     best, _ = _first_per_ray(ray, key, k)
     found = best >= 0
     sel = best[found]
@@ -599,8 +621,8 @@ def find_hits_raster(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     back = np.zeros(n, bool)
     ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, topo.face_neighbours)
     tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt, faces, ray, tri, topo.chart[cand],
-                                                        topo.gt_chart)
-    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back)
+                                                        topo.gt_chart, topo.uv[cand], topo.uv[:len(gt)])
+    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back, inside=seen_from_inside(X, topo.faces, origin))
 
 
 def finish(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: np.ndarray, topo: SlideTopology,
@@ -612,7 +634,10 @@ def finish(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: np.ndarray, topo
     f = gt_faces[hits.tri[found]]
     t_n[found] = np.einsum("kj,kjc->kc", hits.bary[found], np.asarray(uv, np.float64)[f])
     d = t_n - topo.uv
-    assigned = found & ~hits.back
+    # A hit on the inside of the gt garment (back-facing) mixes inside and outside material
+    # [Appendix A.1] — unless the inferred vertex is seen from the inside as well (a view
+    # into the collar or waist): then inside meets inside and the hit is the right one.
+    assigned = found & (~hits.back | hits.inside)
     if not options.cross_chart:
         assigned[found] &= topo.gt_chart[hits.tri[found]] == topo.chart[found]
     # Edges joining geodesically far regions [Appendix A.1]: the two hits lie much farther

@@ -234,3 +234,35 @@ def test_options_are_checked():
         SlideOptions(subdiv=-1)
     with pytest.raises(ValueError):
         SlideOptions(break_ratio=0.5)
+
+
+def open_tube(n_around: int = 48, n_rings: int = 16, radius: float = 0.15, height: float = 0.4):
+    """A single-chart open tube (seam vertices split), faces CCW seen from outside."""
+    a = np.linspace(0, 2 * np.pi, n_around + 1)
+    h = np.linspace(-height / 2, height / 2, n_rings)
+    A, Hh = np.meshgrid(a, h)
+    positions = np.stack([radius * np.sin(A).ravel(), Hh.ravel(), radius * np.cos(A).ravel()], 1)
+    uv = np.stack([A.ravel() / (2 * np.pi), (Hh.ravel() + height / 2) / height], 1).astype(np.float32)
+    idx = np.arange(positions.shape[0]).reshape(n_rings, n_around + 1)
+    p, q, r, s = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.stack([p, q, r], 1), np.stack([p, r, s], 1)]).astype(np.int32)
+    return positions, faces, uv
+
+
+def test_views_into_an_opening_are_assigned(gl):
+    """Looking down into a tube, the far wall is seen from the inside: its hits on the
+    (back-facing) inside of gt are the right ones and must be kept; with inferred = gt
+    they reproduce T_G."""
+    from mvtex.sliding import seen_from_inside
+
+    positions, faces, uv = open_tube()
+    camera = look_at("top", (0.0, 0.9, 0.6), (0, 0, 0), width=160, height=160, focal=180.0)
+    options = SlideOptions(subdiv=0)
+    d, assigned = slide_pose(positions, positions, faces, uv, camera, subdivide(faces, len(uv), 0), options)
+    # Independent facing: the outward normal of a tube vertex is its radial direction.
+    radial = positions * [1, 0, 1]
+    inside = np.einsum("ij,ij->i", radial, positions - camera.center) > 0
+    assert np.mean(inside == seen_from_inside(positions, faces, camera.center)) > 0.97
+    visible_inside = inside & assigned
+    assert visible_inside.sum() > 100
+    assert np.abs(d[assigned]).max() < 1e-5
