@@ -231,3 +231,29 @@ def test_texcoord_set_of_another_mesh_is_refused(field_data, tmp_path):
     with pytest.raises(InputError, match="mesh.npz"):
         train_camera(dataset, open_texcoords(tmp_path / "tc"), "cam", tmp_path / "m", TrainOptions(epochs=1),
                      progress=False)
+
+
+def test_regularisation_options_train_and_roundtrip(field_data, tmp_path):
+    """Pose noise and embedding dropout: validated, stored, and off in evaluation mode."""
+    from mvtex.tsnn.predict import load_model, predict_displacements
+    from mvtex.tsnn.train import TrainOptions, train_camera
+
+    dataset, tc, _ = field_data
+    for bad in (dict(pose_noise=-0.1), dict(dropout=1.0), dict(dropout=-0.5)):
+        with pytest.raises(ValueError):
+            train_camera(dataset, tc, "cam", tmp_path / "bad", TrainOptions(epochs=1, **bad), progress=False)
+    options = TrainOptions(epochs=2, resolution=16, batch_size=8, width=32, device="cpu", pose_noise=0.2,
+                           dropout=0.25)
+    train_camera(dataset, tc, "cam", tmp_path / "m", options, progress=False)
+    model = load_model(tmp_path / "m")
+    assert model.network.config.dropout == 0.25 and not model.network.training
+    # Dropout is a no-op in evaluation mode: prediction is a deterministic function of the pose.
+    x = np.asarray(dataset.poses[:4], np.float32)
+    a = predict_displacements(model, x, tc.uv)
+    b = predict_displacements(model, x, tc.uv)
+    assert np.array_equal(a, b)
+    # ... but active in training mode, where the same input gives different outputs.
+    model.network.train()
+    with torch.no_grad():
+        y1, y2 = model.network(torch.from_numpy(x)), model.network(torch.from_numpy(x))
+    assert not torch.equal(y1, y2)

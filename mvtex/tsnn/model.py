@@ -1,6 +1,6 @@
 """The texture sliding network: pose vector -> (2, R, R) displacement image over the UV atlas.
 
-    pose (P,) -> normalise (training mean/std) -> Linear -> (C0, S, S)
+    pose (P,) -> normalise (training mean/std) -> Linear -> BatchNorm + ReLU (+ dropout) -> (C0, S, S)
          -> depth x [ConvTranspose2d(4, stride 2) + BatchNorm2d + ReLU]   (S -> S * 2^depth = R)
          -> Conv2d 3x3 -> (2, R, R), times `output_scale`, plus a learned bias image
 
@@ -33,6 +33,7 @@ class ModelConfig:
         depth: number of upsampling stages (default: from a 4 x 4 start, log2(R / 4)).
         width: channels of the first stage; each later stage halves it, down to `min_width`.
         min_width: fewest channels of any stage.
+        dropout: dropout probability on the pose embedding (output of the linear layer).
     """
 
     pose_dim: int
@@ -40,6 +41,7 @@ class ModelConfig:
     depth: int | None = None
     width: int = 256
     min_width: int = 16
+    dropout: float = 0.0
 
     @property
     def num_stages(self) -> int:
@@ -75,7 +77,7 @@ class ModelConfig:
         unknown = set(d) - names
         if unknown:
             raise ValueError(f"unknown architecture keys {sorted(unknown)}")
-        config = cls(**{k: (None if d[k] is None else int(d[k])) for k in d})
+        config = cls(**{k: (None if d[k] is None else float(d[k]) if k == "dropout" else int(d[k])) for k in d})
         config.validate()
         return config
 
@@ -101,6 +103,7 @@ class TSNN(nn.Module):
         self.register_buffer("output_scale", torch.tensor(1.0))
         self.fc = nn.Linear(config.pose_dim, ch[0] * s * s)
         self.fc_norm = nn.BatchNorm2d(ch[0])
+        self.dropout = nn.Dropout(config.dropout)
         stages = []
         for cin, cout in zip(ch[:-1], ch[1:]):
             stages += [nn.ConvTranspose2d(cin, cout, kernel_size=4, stride=2, padding=1, bias=False),
@@ -123,6 +126,6 @@ class TSNN(nn.Module):
         x = (poses - self.pose_mean) / self.pose_std
         s = self.config.start
         x = self.fc(x).view(x.shape[0], -1, s, s)
-        x = torch.relu(self.fc_norm(x))
+        x = self.dropout(torch.relu(self.fc_norm(x)))
         x = self.head(self.stages(x))
         return (x + self.bias) * self.output_scale
