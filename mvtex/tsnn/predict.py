@@ -129,7 +129,7 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
 
     net = model.network.to(device)
     grid = vertex_grid(uv).to(device)
-    x = torch.from_numpy(np.asarray(poses, dtype=np.float32)).to(device)
+    x = torch.from_numpy(np.array(poses, dtype=np.float32)).to(device)
     out = np.empty((len(x), len(uv), 2), dtype=np.float32)
     with torch.no_grad():
         for start in range(0, len(x), batch_size):
