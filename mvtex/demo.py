@@ -78,8 +78,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
         t = _step(f"evaluating TS on the {rig_name} rig", progress)
         heat = out / "heatmaps" / rig_name if rig_name == "stereo" else None
         tc = open_texcoords(tc_path, dataset.num_vertices)
-        eval_poses = poses if heat is None else poses
-        results[rig_name] = evaluate(dataset, rig, tc, poses=eval_poses, heatmaps=None, progress=progress)
+        results[rig_name] = evaluate(dataset, rig, tc, poses=poses, heatmaps=None, progress=progress)
         if heat is not None:
             evaluate(dataset, rig, tc, poses=[test_pose], heatmaps=heat, progress=False)
         timings[f"eval_{rig_name}"] = time.perf_counter() - t

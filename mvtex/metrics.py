@@ -103,7 +103,8 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
 
     Args:
         dataset: `Dataset` or dataset directory.
-        rig: `Rig` or rig path / built-in name; must contain the set's cameras.
+        rig: `Rig` or rig path / built-in name. A rig whose cameras are all in the set
+            selects those cameras; otherwise it must contain every camera of the set.
         texcoords: `TexcoordSet` or its directory.
         poses: dataset pose indices (default: the set's poses).
         heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
@@ -134,7 +135,8 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
     if not isinstance(rig, Rig):
         rig_source = resolve_rig(rig)
         rig = load_rig(rig_source)
-    rig = rig.select(tc.cameras, source=rig_source)
+    if not set(rig.names) <= set(tc.cameras):
+        rig = rig.select(tc.cameras, source=rig_source)
     poses = tc.poses if poses is None else [int(p) for p in poses]
     for p in poses:
         tc.row(p)  # InputError for a pose the set does not have

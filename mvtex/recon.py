@@ -705,7 +705,7 @@ def comparison_picture(camera: Camera, faces: np.ndarray, uv: np.ndarray, gt: np
     Returns:
         (H',W',3) uint8 RGB picture.
     """
-    from .montage import grid_image
+    from .viz import grid_image
     from .raster import render_textured
 
     meshes = {"gt": gt, "inferred": inferred, "reconstruction": reconstructed}

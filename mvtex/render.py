@@ -90,7 +90,7 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
                         np.savez_compressed(f, tri_id=r.tri_id, bary=r.bary, depth=r.depth, uv=uv)
                 files.append(f"{cam.name}/{what}_raster.npz")
         tiles.append(row)
-    from .montage import grid_image
+    from .viz import grid_image
 
     save_png(out / "overview.png", grid_image([[t[0] for t in tiles], [t[1] for t in tiles]],
                                               col_labels=rig.names, row_labels=["gt", "inferred"]))

@@ -1,5 +1,5 @@
-"""Pictures: error heatmaps (blue = 0, red >= vmax, dark background) and labelled
-side-by-side panels."""
+"""Pictures: error heatmaps (blue = 0, red >= vmax, dark background), labelled
+side-by-side panels and labelled grids."""
 
 from __future__ import annotations
 
@@ -71,4 +71,26 @@ def colorbar(height: int, vmax: float = 0.04, width: int = 60) -> np.ndarray:
     for value, y in ((vmax, 12), (0.0, height - 4)):
         text = f"{value:g}" + ("+" if value == vmax else "")
         cv2.putText(canvas, text, (bar.shape[1] + 2, y), cv2.FONT_HERSHEY_SIMPLEX, 0.3, (255, 255, 255), 1, cv2.LINE_AA)
+    return canvas
+
+
+def grid_image(rows: Sequence[Sequence[np.ndarray]], col_labels: Sequence[str] | None = None,
+               row_labels: Sequence[str] | None = None, gap: int = 4, max_width: int = 3072) -> np.ndarray:
+    """Tile RGB uint8 images (all the same size) into one picture, labelled "row / column".
+
+    Wide grids are scaled down to at most `max_width` pixels.
+    """
+    import cv2
+
+    h, w = rows[0][0].shape[:2]
+    ncol = max(len(r) for r in rows)
+    canvas = np.full((len(rows) * (h + gap) - gap, ncol * (w + gap) - gap, 3), 255, np.uint8)
+    for i, row in enumerate(rows):
+        for j, image in enumerate(row):
+            text = " / ".join(t for t in ((row_labels[i] if row_labels else ""), (col_labels[j] if col_labels else "")) if t)
+            tile = label(image, text) if text else image
+            canvas[i * (h + gap):i * (h + gap) + h, j * (w + gap):j * (w + gap) + w] = tile
+    if canvas.shape[1] > max_width:
+        s = max_width / canvas.shape[1]
+        canvas = cv2.resize(canvas, (max_width, int(canvas.shape[0] * s)), interpolation=cv2.INTER_AREA)
     return canvas

@@ -66,6 +66,10 @@ def test_baseline_and_texcoords_match_direct_computation(gl, tiny_dataset, front
         assert per["sqrt_mse"]["inferred"]["mean"] == pytest.approx(np.mean(base[name]), rel=1e-5)
     assert sorted(p.name for p in heat.glob("*.png")) == ["pose_00001_a.png", "pose_00001_b.png",
                                                           "pose_00004_a.png", "pose_00004_b.png"]
+    # A rig holding some of the set's cameras evaluates just those.
+    only_b = evaluate(tiny_dataset, front_rig.select(["b"]), tc_path, progress=False)
+    assert list(only_b["per_camera"]) == ["b"] and only_b["num_images"] == 2
+    assert only_b["sqrt_mse"]["texcoords"]["mean"] == pytest.approx(np.mean(tex["b"]), rel=1e-5)
 
 
 def test_sliding_beats_baseline_on_tiny_dataset(gl, tiny_dataset, front_rig, tmp_path):
