@@ -248,7 +248,7 @@ def test_regularisation_options_train_and_roundtrip(field_data, tmp_path):
     model = load_model(tmp_path / "m")
     assert model.network.config.dropout == 0.25 and not model.network.training
     # Dropout is a no-op in evaluation mode: prediction is a deterministic function of the pose.
-    x = np.asarray(dataset.poses[:4], np.float32)
+    x = np.array(dataset.poses[:4], np.float32)  # a writable copy of the memory map
     a = predict_displacements(model, x, tc.uv)
     b = predict_displacements(model, x, tc.uv)
     assert np.array_equal(a, b)
