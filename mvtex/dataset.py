@@ -60,6 +60,14 @@ class Dataset:
         """Pose indices for a SPEC (`all`, `train`, `val`, `test`, `a:b`, `3,5,7`)."""
         return parse_pose_spec(spec or default, self.num_poses, self.split, source=self.path)
 
+    def check_poses(self, poses) -> list[int]:
+        """Pose indices as ints; InputError (naming the dataset) when none or one out of range."""
+        poses = [int(p) for p in poses]
+        if not poses:
+            raise InputError(self.path, "no pose selected")
+        _check_range(poses, self.num_poses, self.path)
+        return poses
+
 
 def default_split(num_poses: int, seed: int = 0, fractions: tuple[float, float] = (0.8, 0.1)) -> dict[str, list[int]]:
     """A seeded 80/10/10 permutation split of range(num_poses)."""
@@ -71,6 +79,12 @@ def default_split(num_poses: int, seed: int = 0, fractions: tuple[float, float] 
         "val": sorted(order[n_train:n_train + n_val].tolist()),
         "test": sorted(order[n_train + n_val:].tolist()),
     }
+
+
+def _check_range(indices: list[int], num_poses: int, source) -> None:
+    bad = [i for i in indices if not 0 <= i < num_poses]
+    if bad:
+        raise InputError(source, f"pose index {bad[0]} out of range (dataset has {num_poses} poses)")
 
 
 def parse_pose_spec(spec: str, num_poses: int, split: dict[str, list[int]] | None = None,
@@ -93,9 +107,7 @@ def parse_pose_spec(spec: str, num_poses: int, split: dict[str, list[int]] | Non
             indices = [int(p) for p in spec.split(",") if p.strip()]
     except ValueError:
         raise InputError(source, f"bad pose spec {spec!r} (use all, train, val, test, a:b or 3,5,7)") from None
-    bad = [i for i in indices if not 0 <= i < num_poses]
-    if bad:
-        raise InputError(source, f"pose index {bad[0]} out of range (dataset has {num_poses} poses)")
+    _check_range(indices, num_poses, source)
     if not indices:
         raise InputError(source, f"pose spec {spec!r} selects no pose")
     return indices

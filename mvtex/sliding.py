@@ -812,12 +812,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     else:
         rig_path = None
     rig = rig.select(cameras, source=rig_path)
-    poses = [int(p) for p in poses]
-    if not poses:
-        raise InputError(ds.path, "no poses selected")
-    bad = [p for p in poses if not 0 <= p < ds.num_poses]
-    if bad:
-        raise InputError(ds.path, f"pose index {bad[0]} out of range (dataset has {ds.num_poses} poses)")
+    poses = ds.check_poses(poses)
     out = Path(out)
     partial = out.with_name(out.name + ".partial")
     reference = ds.rest if ds.rest is not None else ds.gt[poses[0]]

@@ -164,12 +164,7 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     out = Path(out)
     if not models:
         raise InputError(out, "no model given")
-    poses = [int(p) for p in poses]
-    if not poses:
-        raise InputError(dataset.path, "no pose selected")
-    bad = [p for p in poses if not 0 <= p < dataset.num_poses]
-    if bad:
-        raise InputError(dataset.path, f"pose index {bad[0]} out of range (dataset has {dataset.num_poses} poses)")
+    poses = dataset.check_poses(poses)
     loaded = [load_model(m) for m in models]
     first = loaded[0]
     fingerprint = mesh_fingerprint(dataset.faces, dataset.uv)
