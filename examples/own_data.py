@@ -16,7 +16,8 @@ import numpy as np
 
 from mvtex.camera import load_rig, resolve_rig
 from mvtex.dataset import import_sequences, load_dataset
-from mvtex.sliding import SlideOptions, slide_dataset
+from mvtex.slide_jobs import slide_dataset
+from mvtex.sliding import SlideOptions
 
 
 def write_obj(path: Path, positions: np.ndarray, uv: np.ndarray, faces: np.ndarray) -> None:

@@ -14,7 +14,8 @@ from mvtex.camera import builtin_rig_path, load_rig
 from mvtex.dataset import load_dataset
 from mvtex.metrics import evaluate
 from mvtex.recon import triangulate_pose
-from mvtex.sliding import SlideOptions, slide_dataset
+from mvtex.slide_jobs import slide_dataset
+from mvtex.sliding import SlideOptions
 from mvtex.synth import SynthOptions, write_synth
 from mvtex.texcoords import open_texcoords
 

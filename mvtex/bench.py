@@ -7,7 +7,7 @@ pixel ownership (rule 1) by casting a ray through every pixel centre of the infe
 mesh's bounding box, the depth test (rule 2) and the first gt hit by casting the vertex
 rays (`trimesh.ray.ray_pyembree.RayMeshIntersector`, which needs `embreex`). Embree works
 in float32, so its hit triangle is re-intersected in float64 for the barycentrics; every
-rule after that (`sliding.finish`: back faces, edge breaking, fill) is shared.
+rule after that (`sliding.displacement_from_hits`: back faces, edge breaking, fill) is shared.
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ from typing import Sequence
 import numpy as np
 
 from .camera import Camera, Rig
-from .sliding import Hits, SlideOptions, SlideTopology, build_topology, finish, find_hits_raster, intersect_pairs, seen_from_inside
+from .sliding import (Hits, SlideOptions, SlideTopology, build_topology, displacement_from_hits, find_hits_raster,
+                      intersect_pairs, seen_from_inside)
 
 
 def _intersector(positions: np.ndarray, faces: np.ndarray):
@@ -48,7 +49,6 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     inf_rt = _intersector(X, topo.faces)
     gt_rt = _intersector(gt, faces)
     pixels, z = camera.project(X)
-    inside = (z > 0) & (pixels[:, 0] > -0.5) & (pixels[:, 0] < W - 0.5) & (pixels[:, 1] > -0.5) & (pixels[:, 1] < H - 0.5)
     # Rule 1: cast a ray through every pixel centre of the projected bounding box.
     front = z > 0
     lo = np.clip(np.floor(pixels[front].min(axis=0)) - 1, 0, [W - 1, H - 1]).astype(int)
@@ -61,7 +61,7 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     owned[owner[owner >= 0]] = True
     touched = np.zeros(n, bool)
     touched[topo.faces[owned].ravel()] = True
-    cand = np.flatnonzero(touched & inside)
+    cand = np.flatnonzero(touched & camera.in_image(pixels, z))
     # Rule 2: the first inferred surface along the vertex ray is not (much) nearer.
     dirs = X[cand] - origin
     unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -84,39 +84,43 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     tri_hit[idx] = tri[ok]
     bary[idx] = np.stack([1 - b1 - b2, b1, b2], axis=1)
     back[idx] = facing > 0
-    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back, inside=seen_from_inside(X, topo.faces, origin))
+    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back,
+                from_inside=seen_from_inside(X, topo.faces, origin))
 
 
-def _job(path: str, gt, inferred, faces, uv, topo, camera, options):
+def _job(ctx, path: str, gt, inferred, faces, uv, topo, camera, options):
     gt = np.asarray(gt, np.float64)
     inferred = np.asarray(inferred, np.float64)
     X = topo.positions(inferred)
-    find = find_hits_raster if path == "raster" else find_hits_embree
-    hits = find(gt, inferred, faces, X, topo, camera, options)
-    return finish(hits, faces, uv, X, topo, options)
+    if path == "raster":
+        hits = find_hits_raster(ctx, gt, inferred, faces, X, topo, camera, options)
+    else:
+        hits = find_hits_embree(gt, inferred, faces, X, topo, camera, options)
+    return displacement_from_hits(hits, faces, uv, X, topo, options)
 
 
 def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: int, barrier) -> tuple[int, float]:
     """In a worker process: warm up, wait for the other workers, then time `repeats`
     passes over `jobs` ((pose, camera name) pairs) on the raster path. Returns (number of
     jobs, fastest pass in seconds)."""
-    from .dataset import load_dataset
-    from .sliding import _single_thread_gl
+    from .dataset import load_dataset, reference_shape
+    from .raster import GLContext
+    from .slide_jobs import single_thread_gl
 
-    _single_thread_gl()
+    single_thread_gl()
     ds = load_dataset(dataset_path, validate=False)
     options = SlideOptions(subdiv=subdiv)
-    reference = ds.rest if ds.rest is not None else ds.gt[jobs[0][0]]
-    topo = build_topology(ds.faces, ds.uv, reference, subdiv)
+    topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
     faces = ds.faces.astype(np.int64)
-    _job("raster", ds.gt[jobs[0][0]], ds.inferred[jobs[0][0]], faces, ds.uv, topo, rig[jobs[0][1]], options)
-    barrier.wait()
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for k, cam in jobs:
-            _job("raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options)
-        best = min(best, time.perf_counter() - start)
+    with GLContext() as ctx:
+        _job(ctx, "raster", ds.gt[jobs[0][0]], ds.inferred[jobs[0][0]], faces, ds.uv, topo, rig[jobs[0][1]], options)
+        barrier.wait()
+        best = np.inf
+        for _ in range(repeats):
+            start = time.perf_counter()
+            for k, cam in jobs:
+                _job(ctx, "raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options)
+            best = min(best, time.perf_counter() - start)
     return len(jobs), best
 
 
@@ -137,7 +141,7 @@ def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats
 
 
 def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
-              progress: bool = True, workers: int = 2) -> dict:
+              progress: bool = True, workers: int = 2, ctx=None) -> dict:
     """Measure jobs/s of the raster and ray-cast sliding paths and the eval throughput.
 
     Args:
@@ -147,7 +151,8 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         repeats: timed passes over all jobs per path; the fastest pass is reported.
         progress: progress bar on stderr.
         workers: also measure the raster path on this many processes side by side
-            (`sliding.slide_dataset(workers=...)`); 1 = skip.
+            (`slide_jobs.slide_dataset(workers=...)`); 1 = skip.
+        ctx: `raster.GLContext` for this process (created, and released, if None).
 
     Returns:
         JSON-able dict: jobs, sliding.{raster,raycast}.jobs_per_s, speedup (raster over
@@ -156,25 +161,28 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     """
     from tqdm import tqdm
 
-    from .camera import load_rig, resolve_rig
-    from .dataset import Dataset, load_dataset
-    from .metrics import _error, uv_image
-    from .raster import gl_renderer
+    from .camera import as_rig
+    from .dataset import as_dataset, reference_shape
+    from .raster import GLContext
 
-    ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
-    if not isinstance(rig, Rig):
-        rig = load_rig(resolve_rig(rig))
+    ds = as_dataset(dataset)
+    rig = as_rig(rig)[0]
     poses = list(range(min(10, ds.num_poses))) if poses is None else [int(p) for p in poses]
+    if ctx is None:
+        with GLContext() as own:
+            return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,
+                             workers=workers, ctx=own)
+    from .metrics import _error, texcoord_image
+
     options = SlideOptions(subdiv=subdiv)
-    reference = ds.rest if ds.rest is not None else ds.gt[poses[0]]
-    topo = build_topology(ds.faces, ds.uv, reference, subdiv)
+    topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
     faces = ds.faces.astype(np.int64)
     jobs = [(k, cam) for k in poses for cam in rig]
     gts = {k: np.asarray(ds.gt[k], np.float64) for k in poses}
     infs = {k: np.asarray(ds.inferred[k], np.float64) for k in poses}
     # Warm up both paths (GL context, shader compilation, Embree import).
     for path in ("raster", "raycast"):
-        _job(path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options)
+        _job(ctx, path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options)
     results: dict = {}
     timing: dict = {}
     bar = tqdm(total=2 * repeats * len(jobs), desc="bench", unit="job", disable=not progress, file=sys.stderr)
@@ -183,7 +191,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         for _ in range(repeats):
             start = time.perf_counter()
             for k, cam in jobs:
-                results[path, k, cam.name] = _job(path, gts[k], infs[k], faces, ds.uv, topo, cam, options)
+                results[path, k, cam.name] = _job(ctx, path, gts[k], infs[k], faces, ds.uv, topo, cam, options)
                 bar.update(1)
             best = min(best, time.perf_counter() - start)
         timing[path] = best
@@ -203,10 +211,12 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     # Evaluation: per image one gt, one baseline and one (subdivided) texcoords render.
     start = time.perf_counter()
     for k, cam in jobs:
-        uv_g, m_g = uv_image(gts[k], faces, ds.uv, cam)
-        _error(*uv_image(infs[k], faces, ds.uv, cam), uv_g, m_g)
+        uv_g, r_g = texcoord_image(ctx, gts[k], faces, ds.uv, cam)
+        uv_b, r_b = texcoord_image(ctx, infs[k], faces, ds.uv, cam)
+        _error(uv_b, r_b.mask, uv_g, r_g.mask)
         d, _ = results["raster", k, cam.name]
-        _error(*uv_image(topo.positions(infs[k]), topo.faces, topo.uv + d, cam), uv_g, m_g)
+        uv_t, r_t = texcoord_image(ctx, topo.positions(infs[k]), topo.faces, topo.uv + d, cam)
+        _error(uv_t, r_t.mask, uv_g, r_g.mask)
     eval_time = time.perf_counter() - start
     return {
         "jobs": len(jobs),
@@ -223,6 +233,6 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         "speedup": timing["raycast"] / timing["raster"],
         "agreement": {"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
         "eval": {"images_per_s": len(jobs) / eval_time},
-        "machine": {"cpu_count": os.cpu_count(), "gl_renderer": gl_renderer(), "platform": platform.platform(),
+        "machine": {"cpu_count": os.cpu_count(), "gl_renderer": ctx.renderer, "platform": platform.platform(),
                     "python": platform.python_version(), "processes": 1},
     }

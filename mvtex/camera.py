@@ -99,6 +99,24 @@ class Camera:
         pixels[..., 0] += self.K[0, 1] * uv[..., 1]
         return pixels, z
 
+    def in_image(self, pixels: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """(...,) bool: in front of the camera (depth > 0) and inside the image, i.e. within
+        the outer edges of the border pixels (u in (-0.5, W - 0.5), v in (-0.5, H - 0.5)).
+
+        Args:
+            pixels: (..., 2) float pixel coordinates and depth (...,) camera-space z, as
+                returned by `project`.
+        """
+        u, v = pixels[..., 0], pixels[..., 1]
+        return (depth > 0) & (u > -0.5) & (u < self.width - 0.5) & (v > -0.5) & (v < self.height - 0.5)
+
+    def require_pinhole(self, source: str | os.PathLike | None = None) -> None:
+        """Raise InputError (naming `source`, e.g. the rig file) unless `dist` is all zero:
+        rendering, sliding and COLMAP export need undistorted (pinhole) cameras."""
+        if np.any(self.dist != 0):
+            raise InputError(source, f"camera {self.name!r} has non-zero distortion {self.dist.tolist()}: "
+                             "mvtex needs undistorted (pinhole) cameras; undistort the images and set dist to 0")
+
     def pixel_rays(self, pixels: np.ndarray) -> np.ndarray:
         """Unit ray directions (..., 3) float64 in world coordinates through pixels (..., 2)."""
         pixels = np.asarray(pixels, dtype=np.float64)
@@ -268,6 +286,14 @@ def _camera_from_node(node, path: Path, index: int) -> Camera:
         )
     except ValueError as err:
         raise InputError(path, str(err)) from None
+
+
+def as_rig(rig: "Rig | str | os.PathLike") -> tuple[Rig, Path | None]:
+    """A `Rig` as is (source None), or a rig path / built-in rig name loaded: (rig, its file)."""
+    if isinstance(rig, Rig):
+        return rig, None
+    path = resolve_rig(rig)
+    return load_rig(path), path
 
 
 def builtin_rig_path(name: str) -> Path:

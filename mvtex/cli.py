@@ -179,7 +179,8 @@ def cmd_render(args) -> None:
 
 def cmd_slide(args) -> None:
     from .dataset import load_dataset
-    from .sliding import SlideOptions, slide_dataset
+    from .slide_jobs import slide_dataset
+    from .sliding import SlideOptions
 
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)

@@ -69,16 +69,42 @@ class Dataset:
         return poses
 
 
-def default_split(num_poses: int, seed: int = 0, fractions: tuple[float, float] = (0.8, 0.1)) -> dict[str, list[int]]:
-    """A seeded 80/10/10 permutation split of range(num_poses)."""
-    order = np.random.default_rng(seed).permutation(num_poses)
-    n_train = int(round(fractions[0] * num_poses))
-    n_val = int(round(fractions[1] * num_poses))
-    return {
-        "train": sorted(order[:n_train].tolist()),
-        "val": sorted(order[n_train:n_train + n_val].tolist()),
-        "test": sorted(order[n_train + n_val:].tolist()),
-    }
+def as_dataset(dataset: "Dataset | str | os.PathLike") -> Dataset:
+    """A `Dataset` as is, or the dataset directory at a path loaded (`load_dataset`)."""
+    return dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
+
+
+def reference_shape(dataset: Dataset) -> np.ndarray:
+    """The one shape in which pose-independent mesh quantities are measured: seam copies and
+    their chart orientation, the fill's Laplacian, edge breaking (`sliding.build_topology`).
+
+    It is the dataset's `rest` shape when it has one, else the gt positions of pose 0
+    (`import_sequences` makes the same choice for `rest`). It never depends on which poses
+    are processed, in which order, or by how many workers, so neither do the results.
+
+    Returns:
+        (n,3) float64.
+    """
+    shape = dataset.rest if dataset.rest is not None else dataset.gt[0]
+    return np.array(shape, dtype=np.float64)
+
+
+def reference_shape_source(dataset: Dataset) -> str:
+    """Which shape `reference_shape` takes: "rest" or "gt[0]"."""
+    return "rest" if dataset.rest is not None else "gt[0]"
+
+
+def default_split(num_poses: int, seed: int = 0) -> dict[str, list[int]]:
+    """A seeded 80/10/10 permutation split of range(num_poses) (the built-in dataset's).
+
+    With 3 or more poses, val and test hold at least one pose each (10 % rounded) and train
+    the rest; with fewer, every pose is in train.
+    """
+    order = np.random.default_rng([seed, 1]).permutation(num_poses)
+    n_val = n_test = max(1, round(0.1 * num_poses)) if num_poses >= 3 else 0
+    n_train = num_poses - n_val - n_test
+    parts = {"train": order[:n_train], "val": order[n_train:n_train + n_val], "test": order[n_train + n_val:]}
+    return {name: sorted(int(i) for i in idx) for name, idx in parts.items()}
 
 
 def _check_range(indices: list[int], num_poses: int, source) -> None:

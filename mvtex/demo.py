@@ -41,7 +41,8 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     from .metrics import evaluate
     from .recon import ReconOptions, triangulate_pose
     from .render import render_pose
-    from .sliding import SlideOptions, slide_dataset
+    from .slide_jobs import slide_dataset
+    from .sliding import SlideOptions
     from .synth import SynthOptions, write_synth
     from .texcoords import open_texcoords
 

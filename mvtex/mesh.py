@@ -8,6 +8,7 @@ Meshes are plain arrays: `faces` int32 (m,3) counter-clockwise seen from outside
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -73,10 +74,10 @@ def face_normals(positions: np.ndarray, faces: np.ndarray, normalize: bool = Tru
 def vertex_normals(positions: np.ndarray, faces: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
     """(n,3) unit area-weighted vertex normals; seam copies (same `groups`) share one normal."""
     p = np.asarray(positions, dtype=np.float64)
-    fn = face_normals(p, faces, normalize=False)
-    acc = np.zeros_like(p)
-    for k in range(3):
-        np.add.at(acc, np.asarray(faces)[:, k], fn)
+    f = np.asarray(faces)
+    fn = face_normals(p, f, normalize=False)
+    corners = f.ravel()
+    acc = np.stack([np.bincount(corners, np.repeat(fn[:, c], 3), minlength=len(p)) for c in range(3)], axis=1)
     if groups is not None:
         pooled = np.zeros_like(acc)
         np.add.at(pooled, groups, acc)
@@ -112,6 +113,22 @@ def vertex_strain_energy(positions: np.ndarray, rest: np.ndarray, faces: np.ndar
     return acc / np.maximum(cnt, 1)
 
 
+def rms_distance(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float | None:
+    """Root mean square of the point distances ‖a - b‖ (meters for positions).
+
+    Args:
+        a, b: (..., n, 3) points (any leading pose axes). mask: optional (n,) bool selecting
+            vertices.
+
+    Returns:
+        float, or None when nothing is selected.
+    """
+    squared = np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=-1)
+    if mask is not None:
+        squared = squared[..., np.asarray(mask, bool)]
+    return float(np.sqrt(np.mean(squared))) if squared.size else None
+
+
 @dataclass(frozen=True)
 class Subdivision:
     """A midpoint subdivision of a mesh.
@@ -129,33 +146,63 @@ class Subdivision:
     def num_vertices(self) -> int:
         return len(self.parent)
 
+    @cached_property
+    def extension(self) -> sp.csr_matrix:
+        """(n',n) sparse matrix E: E @ base values = subdivided values (`extension_matrix`)."""
+        return extension_matrix(self.parent)
+
     def apply(self, values: np.ndarray) -> np.ndarray:
         """Extend per-vertex values (..., n, C) to the subdivided mesh (..., n', C), linearly."""
-        v = np.asarray(values)
-        n = int(np.sum(self.parent[:, 0] == self.parent[:, 1]))
-        if v.shape[-2] != n:
-            raise ValueError(f"expected {n} vertices, got array of shape {v.shape}")
-        return apply_parent(v, self.parent)
+        return apply_extension(self.extension, values)
 
 
-def apply_parent(values: np.ndarray, parent: np.ndarray) -> np.ndarray:
-    """Extend per-vertex values (..., n, C) through a `parent` map (n',2) by midpoints."""
-    v = np.asarray(values)
-    n = v.shape[-2]
-    out = np.empty(v.shape[:-2] + (len(parent), v.shape[-1]), dtype=np.result_type(v.dtype, np.float32))
-    out[..., :n, :] = v
-    # Parents precede children, so each level's midpoints can be filled in one vectorised step.
+def extension_matrix(parent: np.ndarray, num_base: int | None = None) -> sp.csr_matrix:
+    """(n',n) sparse matrix E with E @ base = values extended through a `parent` map
+    (`Subdivision.parent`: the n base vertices first, each later vertex the midpoint of two
+    that precede it).
+
+    Args:
+        parent: (n',2) int. num_base: n (default: the rows with parent[i] = (i, i)).
+    """
+    parent = np.asarray(parent, dtype=np.int64)
+    n = int(np.sum(parent[:, 0] == parent[:, 1])) if num_base is None else int(num_base)
+    E = sp.identity(n, format="csr")
     start = n
     while start < len(parent):
-        stop = start
-        while stop < len(parent) and parent[stop].max() < start:
-            stop += 1
+        # One level at a time: the vertices whose parents all precede `start`.
+        stop = start + int(np.argmax(np.r_[parent[start:].max(axis=1) >= start, True]))
         if stop == start:
             raise ValueError(f"parent map: vertex {start} names a parent that does not precede it")
         p = parent[start:stop]
-        out[..., start:stop, :] = 0.5 * (out[..., p[:, 0], :] + out[..., p[:, 1], :])
+        E = sp.vstack([E, 0.5 * (E[p[:, 0]] + E[p[:, 1]])]).tocsr()
         start = stop
-    return out
+    return E
+
+
+def apply_extension(extension: sp.csr_matrix, values: np.ndarray) -> np.ndarray:
+    """Per-vertex values (..., n, C) -> (..., n', C) through an `extension_matrix` (n',n).
+
+    The result has the values' floating dtype (float32 stays float32; integers give float64).
+    """
+    v = np.asarray(values)
+    n_sub, n = extension.shape
+    if v.ndim < 2 or v.shape[-2] != n:
+        raise ValueError(f"expected values of shape (..., {n}, C), got {v.shape}")
+    dtype = np.result_type(v.dtype, np.float32)
+    batch = v.shape[:-2]
+    flat = np.moveaxis(v, -2, 0).reshape(n, -1)
+    out = np.asarray(extension @ flat.astype(np.float64)).reshape((n_sub,) + batch + v.shape[-1:])
+    return np.moveaxis(out, 0, -2).astype(dtype, copy=False)
+
+
+def apply_parent(values: np.ndarray, parent: np.ndarray) -> np.ndarray:
+    """Extend per-vertex values (..., n, C) through a `parent` map (n',2) by midpoints.
+
+    Builds the `extension_matrix` each call; to extend many arrays, keep the matrix
+    (`Subdivision.extension`) and use `apply_extension`.
+    """
+    v = np.asarray(values)
+    return apply_extension(extension_matrix(parent, v.shape[-2]), v)
 
 
 def subdivide(faces: np.ndarray, num_vertices: int, levels: int) -> Subdivision:

@@ -18,33 +18,41 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from .camera import Camera, Rig
+from .camera import Camera
+
+if TYPE_CHECKING:
+    from .raster import GLContext, Raster
 
 HEATMAP_MAX = 0.04
 CHART_BOUNDARY_COLOR = (255, 0, 255)  # pixels where the two meshes show different UV charts
 
 
-def uv_image(positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera,
-             charts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Render per-vertex texcoords.
+def texcoord_image(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray,
+                   camera: Camera) -> tuple[np.ndarray, Raster]:
+    """Render per-vertex texcoords from a camera.
+
+    Args:
+        ctx: the GL context. positions: (n,3). faces: (m,3). texcoords: (n,2) per-vertex uv.
 
     Returns:
-        (H,W,2) float32 uv per pixel, and the (H,W) bool mask — or, when per-vertex `charts`
-        (n,) int are given, the (H,W) int64 chart label per pixel (-1 on background).
+        (H,W,2) float32 uv per pixel (0 on background), and the `Raster` it came from
+        (`.mask` is where the mesh covers the pixel).
     """
     from .raster import interpolate, rasterize
 
-    raster = rasterize(np.asarray(positions, np.float64), np.asarray(faces), camera, attributes=True)
-    uv = interpolate(np.asarray(texcoords, np.float64), raster, faces)
-    if charts is None:
-        return uv, raster.mask
+    raster = rasterize(ctx, np.asarray(positions, np.float64), np.asarray(faces), camera, attributes=True)
+    return interpolate(np.asarray(texcoords, np.float64), raster, faces), raster
+
+
+def chart_image(raster: Raster, faces: np.ndarray, charts: np.ndarray) -> np.ndarray:
+    """(H,W) int64 UV chart label per pixel from per-vertex `charts` (n,) int; -1 on background."""
     label = np.full(raster.tri_id.shape, -1, np.int64)
     label[raster.mask] = np.asarray(charts)[np.asarray(faces)[raster.tri_id[raster.mask], 0]]
-    return uv, label
+    return label
 
 
 def _error(uv_a: np.ndarray, mask_a: np.ndarray, uv_b: np.ndarray, mask_b: np.ndarray) -> tuple[np.ndarray, float]:
@@ -56,11 +64,13 @@ def _error(uv_a: np.ndarray, mask_a: np.ndarray, uv_b: np.ndarray, mask_b: np.nd
     return err, float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
 
 
-def uv_error_image(gt_positions: np.ndarray, faces_gt: np.ndarray, uv_gt: np.ndarray, inf_positions: np.ndarray,
-                   faces_inf: np.ndarray, texcoords_inf: np.ndarray, camera: Camera) -> tuple[np.ndarray, float]:
+def uv_error_image(ctx: GLContext, gt_positions: np.ndarray, faces_gt: np.ndarray, uv_gt: np.ndarray,
+                   inf_positions: np.ndarray, faces_inf: np.ndarray, texcoords_inf: np.ndarray,
+                   camera: Camera) -> tuple[np.ndarray, float]:
     """Per-pixel uv error of an inferred mesh with given texcoords against the gt mesh.
 
     Args:
+        ctx: the GL context.
         gt_positions: (n,3) gt positions; faces_gt (m,3); uv_gt (n,2) T_G.
         inf_positions: (n',3) inferred positions (subdivided when the texcoords are);
             faces_inf (m',3); texcoords_inf (n',2) (T_G for the baseline, T_N otherwise).
@@ -70,9 +80,9 @@ def uv_error_image(gt_positions: np.ndarray, faces_gt: np.ndarray, uv_gt: np.nda
         error: (H,W) float32 ‖uv_inferred − uv_gt‖, NaN where not covered by both meshes.
         sqrt_mse: sqrt(mean error²) over the covered pixels (NaN if none).
     """
-    uv_g, mask_g = uv_image(gt_positions, faces_gt, uv_gt, camera)
-    uv_i, mask_i = uv_image(inf_positions, faces_inf, texcoords_inf, camera)
-    return _error(uv_i, mask_i, uv_g, mask_g)
+    uv_g, raster_g = texcoord_image(ctx, gt_positions, faces_gt, uv_gt, camera)
+    uv_i, raster_i = texcoord_image(ctx, inf_positions, faces_inf, texcoords_inf, camera)
+    return _error(uv_i, raster_i.mask, uv_g, raster_g.mask)
 
 
 def _stats(values: Sequence[float]) -> dict:
@@ -94,7 +104,7 @@ def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same
 
 
 def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, heatmaps: str | os.PathLike | None = None,
-             progress: bool = True) -> dict:
+             progress: bool = True, ctx: GLContext | None = None) -> dict:
     """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
 
     "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
@@ -111,30 +121,33 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
             baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
             the two meshes show different UV charts).
         progress: progress bar on stderr.
+        ctx: the GL context (one is created, and released, for this call if None).
 
     Returns:
         {"num_images", "sqrt_mse": {"inferred": {"mean", "std"}, "texcoords": {...}},
          "ratio": inferred mean / texcoords mean, "sqrt_mse_same_chart": {...},
          "ratio_same_chart", "per_camera": {name: same keys}}.
     """
+    from .camera import as_rig
+    from .dataset import as_dataset
+    from .raster import GLContext
+    from .texcoords import TexcoordSet, open_texcoords
+
+    if ctx is None:
+        with GLContext() as own:
+            return evaluate(dataset, rig, texcoords, poses=poses, heatmaps=heatmaps, progress=progress, ctx=own)
     from tqdm import tqdm
 
-    from .camera import load_rig, resolve_rig
-    from .dataset import Dataset, load_dataset
     from .io import save_png
-    from .texcoords import TexcoordSet, open_texcoords
     from .viz import colorbar, heatmap, side_by_side
 
-    ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
+    ds = as_dataset(dataset)
     tc = texcoords if isinstance(texcoords, TexcoordSet) else open_texcoords(texcoords, ds.num_vertices)
     if tc.num_base_vertices != ds.num_vertices:
         from .errors import InputError
 
         raise InputError(tc.path / "mesh.npz", f"made for {tc.num_base_vertices} vertices, the dataset has {ds.num_vertices}")
-    rig_source = None
-    if not isinstance(rig, Rig):
-        rig_source = resolve_rig(rig)
-        rig = load_rig(rig_source)
+    rig, rig_source = as_rig(rig)
     if not set(rig.names) <= set(tc.cameras):
         rig = rig.select(tc.cameras, source=rig_source)
     poses = tc.poses if poses is None else [int(p) for p in poses]
@@ -152,10 +165,12 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
     for k, cam in tqdm(jobs, desc="eval", unit="image", disable=not progress, file=sys.stderr):
         gt = np.asarray(ds.gt[k], np.float64)
         inferred = np.asarray(ds.inferred[k], np.float64)
-        uv_g, chart_g = uv_image(gt, ds.faces, ds.uv, cam, charts)
-        uv_b, chart_b = uv_image(inferred, ds.faces, ds.uv, cam, charts)
+        uv_g, raster_g = texcoord_image(ctx, gt, ds.faces, ds.uv, cam)
+        uv_b, raster_b = texcoord_image(ctx, inferred, ds.faces, ds.uv, cam)
+        uv_t, raster_t = texcoord_image(ctx, tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam)
+        chart_g, chart_b = chart_image(raster_g, ds.faces, charts), chart_image(raster_b, ds.faces, charts)
+        chart_t = chart_image(raster_t, tc.faces, charts_tc)
         err_b, s_b = _error(uv_b, chart_b >= 0, uv_g, chart_g >= 0)
-        uv_t, chart_t = uv_image(tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam, charts_tc)
         err_t, s_t = _error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
         same_b = _error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
         same_t = _error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]

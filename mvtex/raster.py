@@ -1,47 +1,28 @@
 """Rasterization on moderngl, headless (EGL): triangle ids, perspective-correct
-barycentrics and depth per pixel; the same in UV space; textured shading.
+barycentrics and depth per pixel; the same in UV space; two meshes in one pass; textured
+shading. This is the only module that talks to OpenGL.
 
-One GL context per process, created on first use and reused (`gl_context()`).
+All GL state lives in a `GLContext` that the caller creates once and passes first
+(as nvdiffrast's `RasterizeGLContext`): `ctx = GLContext(); rasterize(ctx, ...)`. Nothing
+is kept at module level; a worker process creates its own context.
+
 GL's bottom-up rows are undone once, in the projection (`clip_from_camera`): readback row
 r, column c is OpenCV pixel (u=c, v=r). Triangle ids are stored +1 in GL (0 = clear) and
-the offset is removed once, in `rasterize`: `tri_id == -1` is background.
+the offset is removed here: `tri_id == -1` is background. Images over uv (`rasterize_uv`,
+`fabric_texture`) follow DESIGN §3: texel (row r, column c) has centre
+((c + 0.5)/W, (r + 0.5)/H), row 0 at v ≈ 0.
 """
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from .camera import Camera
-
-_CONTEXT = None
-
-
-def gl_context():
-    """The process-wide moderngl context (EGL, headless); a clear RuntimeError if none."""
-    global _CONTEXT
-    if _CONTEXT is None:
-        import moderngl
-
-        errors = []
-        for kwargs in ({"backend": "egl"}, {}):
-            try:
-                _CONTEXT = moderngl.create_standalone_context(require=330, **kwargs)
-                break
-            except Exception as err:  # moderngl/glcontext raise plain Exceptions
-                errors.append(f"{kwargs or 'default'}: {err}")
-        if _CONTEXT is None:
-            raise RuntimeError("no OpenGL 3.3 context could be created (needs EGL: on Debian "
-                               "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1, or an NVIDIA driver): "
-                               + "; ".join(errors))
-    return _CONTEXT
-
-
-def gl_renderer() -> str:
-    """The GL renderer string (e.g. 'llvmpipe (...)' or an NVIDIA GPU)."""
-    return str(gl_context().info["GL_RENDERER"])
 
 
 @lru_cache(maxsize=None)
@@ -51,11 +32,102 @@ def _shader_source(name: str) -> str:
     return resource_path("shaders", name).read_text()
 
 
-@lru_cache(maxsize=None)
-def _program(name: str):
-    ctx = gl_context()
-    return ctx.program(vertex_shader=_shader_source(f"{name}.vert.glsl"),
-                       fragment_shader=_shader_source(f"{name}.frag.glsl"))
+class GLContext:
+    """An OpenGL 3.3 context (moderngl, standalone) and everything made in it: compiled
+    programs, framebuffers, the fabric texture and the buffers of `rasterize_pair`.
+
+    Create one per process (or thread) and pass it to every rasterization function;
+    `release()` frees it. Every function makes it current for its own duration, so several
+    contexts can live in one process.
+
+    Args:
+        backend: moderngl backend; "egl" (default) works headless. If the EGL context
+            cannot be created, the platform default is tried before giving up.
+
+    Raises:
+        RuntimeError: no OpenGL 3.3 context could be created (with install hints).
+    """
+
+    def __init__(self, backend: str | None = "egl"):
+        import moderngl
+
+        errors = []
+        self.mgl = None
+        for kwargs in ({"backend": backend} if backend else {}, {}):
+            try:
+                self.mgl = moderngl.create_standalone_context(require=330, **kwargs)
+                break
+            except Exception as err:  # moderngl/glcontext raise plain Exceptions
+                errors.append(f"{kwargs or 'default'}: {err}")
+        if self.mgl is None:
+            raise RuntimeError("no OpenGL 3.3 context could be created (needs EGL: on Debian "
+                               "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1, or an NVIDIA driver): "
+                               + "; ".join(errors))
+        self._programs: dict = {}
+        self._targets: OrderedDict = OrderedDict()
+        self._pairs: OrderedDict = OrderedDict()
+        self._fabric: dict = {}
+
+    @property
+    def renderer(self) -> str:
+        """The GL renderer string (e.g. 'llvmpipe (...)' or an NVIDIA GPU)."""
+        return str(self.mgl.info["GL_RENDERER"])
+
+    @property
+    def error(self) -> str:
+        """The GL error flag ("GL_NO_ERROR" when none; reading it clears it)."""
+        with self.mgl:
+            return str(self.mgl.error)
+
+    def release(self) -> None:
+        """Free the context and everything made in it; the object is unusable afterwards."""
+        if self.mgl is not None:
+            self.mgl.release()
+            self.mgl = None
+        self._programs.clear(), self._targets.clear(), self._pairs.clear(), self._fabric.clear()
+
+    def __enter__(self) -> "GLContext":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    # -- cached GL objects (call with the context current) ------------------------------
+    def _program(self, vertex: str, fragment: str):
+        key = (vertex, fragment)
+        if key not in self._programs:
+            self._programs[key] = self.mgl.program(vertex_shader=_shader_source(vertex),
+                                                   fragment_shader=_shader_source(fragment))
+        return self._programs[key]
+
+    def _target(self, kind: str, width: int, height: int):
+        """A framebuffer of `kind` "ids" (R32I ids + RGBA32F attributes + depth), "pair"
+        (R32I ids twice as wide + depth) or "color" (RGBA8 + depth), kept for reuse:
+        releasing the bound framebuffer leaves GL with no valid draw target."""
+        key = (kind, width, height)
+        if key not in self._targets:
+            ctx = self.mgl
+            if kind == "ids":
+                attachments = [ctx.texture((width, height), 1, dtype="i4"), ctx.texture((width, height), 4, dtype="f4")]
+            elif kind == "pair":
+                attachments = [ctx.texture((2 * width, height), 1, dtype="i4")]
+            else:
+                attachments = [ctx.texture((width, height), 4)]
+            size = attachments[0].size
+            self._targets[key] = ctx.framebuffer(color_attachments=attachments,
+                                                 depth_attachment=ctx.depth_renderbuffer(size))
+            if len(self._targets) > 8:
+                _, old = self._targets.popitem(last=False)
+                _release_framebuffer(old)
+        self._targets.move_to_end(key)
+        return self._targets[key]
+
+
+def _release_framebuffer(fbo) -> None:
+    for attachment in list(fbo.color_attachments) + [fbo.depth_attachment]:
+        if attachment is not None:
+            attachment.release()
+    fbo.release()
 
 
 def clip_from_camera(camera: Camera, near: float, far: float) -> np.ndarray:
@@ -76,7 +148,7 @@ def clip_from_camera(camera: Camera, near: float, far: float) -> np.ndarray:
 
 
 def _uv_clip() -> np.ndarray:
-    # (u, v, 0) -> clip (2u-1, 2v-1): texel row r (bottom-up) has centre v = (r+0.5)/H.
+    # (u, v, 0) -> clip (2u-1, 2v-1): window row r (read back as row r) has centre v = (r+0.5)/H.
     return np.array([[2, 0, 0, -1], [0, 2, 0, -1], [0, 0, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
 
 
@@ -102,30 +174,13 @@ class Raster:
         return self.tri_id >= 0
 
 
-class _Target:
-    """Framebuffer with an R32I id attachment, an RGBA32F attachment and a depth buffer."""
-
-    def __init__(self, width: int, height: int):
-        ctx = gl_context()
-        self.size = (width, height)
-        self.ids = ctx.texture(self.size, 1, dtype="i4")
-        self.attrs = ctx.texture(self.size, 4, dtype="f4")
-        self.depth = ctx.depth_renderbuffer(self.size)
-        self.fbo = ctx.framebuffer(color_attachments=[self.ids, self.attrs], depth_attachment=self.depth)
-
-
-@lru_cache(maxsize=8)
-def _target(width: int, height: int) -> _Target:
-    return _Target(width, height)
-
-
 def _deindexed(points: np.ndarray, faces: np.ndarray) -> bytes:
     corners = points[faces.reshape(-1)].astype(np.float32)
     onehot = np.tile(np.eye(3, dtype=np.float32), (len(faces), 1))
     return np.hstack([corners, onehot]).tobytes()
 
 
-def _draw_ids(points3: np.ndarray, faces: np.ndarray, width: int, height: int, clip: np.ndarray,
+def _draw_ids(ctx: GLContext, points3: np.ndarray, faces: np.ndarray, width: int, height: int, clip: np.ndarray,
               depth_test: bool, attributes: bool) -> Raster:
     import moderngl
 
@@ -133,37 +188,32 @@ def _draw_ids(points3: np.ndarray, faces: np.ndarray, width: int, height: int, c
         empty = np.full((height, width), -1, np.int32)
         return Raster(empty, np.zeros((height, width, 3), np.float32) if attributes else None,
                       np.zeros((height, width), np.float32) if attributes else None)
-    ctx = gl_context()
-    prog = _program("raster")
-    prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())  # GLSL mat4 is column-major
-    vbo = ctx.buffer(_deindexed(points3, faces))
-    vao = ctx.vertex_array(prog, [(vbo, "3f 3f", "in_cam", "in_bary")])
-    target = _target(width, height)
-    target.fbo.use()
-    target.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-    ctx.disable(moderngl.CULL_FACE)
-    if depth_test:
-        ctx.enable(moderngl.DEPTH_TEST)
-    else:
-        ctx.disable(moderngl.DEPTH_TEST)
-    vao.render(moderngl.TRIANGLES)
-    ids = np.frombuffer(target.fbo.read(attachment=0, components=1, dtype="i4"), dtype=np.int32)
-    tri_id = ids.reshape(height, width) - 1
-    bary = depth = None
-    if attributes:
-        attrs = np.frombuffer(target.fbo.read(attachment=1, components=4, dtype="f4"), dtype=np.float32)
-        attrs = attrs.reshape(height, width, 4)
-        bary = np.ascontiguousarray(attrs[..., :3])
-        depth = np.ascontiguousarray(attrs[..., 3])
-    vao.release()
-    vbo.release()
+    gl = ctx.mgl
+    with gl:
+        prog = ctx._program("raster.vert.glsl", "raster.frag.glsl")
+        prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())  # GLSL mat4 is column-major
+        vbo = gl.buffer(_deindexed(points3, faces))
+        vao = gl.vertex_array(prog, [(vbo, "3f 3f", "in_cam", "in_bary")])
+        fbo = ctx._target("ids", width, height)
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        gl.disable(moderngl.CULL_FACE)
+        if depth_test:
+            gl.enable(moderngl.DEPTH_TEST)
+        else:
+            gl.disable(moderngl.DEPTH_TEST)
+        vao.render(moderngl.TRIANGLES)
+        ids = np.frombuffer(fbo.read(attachment=0, components=1, dtype="i4"), dtype=np.int32)
+        tri_id = ids.reshape(height, width) - 1
+        bary = depth = None
+        if attributes:
+            attrs = np.frombuffer(fbo.read(attachment=1, components=4, dtype="f4"), dtype=np.float32)
+            attrs = attrs.reshape(height, width, 4)
+            bary = np.ascontiguousarray(attrs[..., :3])
+            depth = np.ascontiguousarray(attrs[..., 3])
+        vao.release()
+        vbo.release()
     return Raster(tri_id=tri_id, bary=bary, depth=depth)
-
-
-def _check_renderable(camera: Camera) -> None:
-    if np.any(camera.dist != 0):
-        raise ValueError(f"camera {camera.name!r} has non-zero distortion {camera.dist.tolist()}: "
-                         "rendering needs undistorted (pinhole) cameras; undistort the images first")
 
 
 def depth_range(points_cam: np.ndarray) -> tuple[float, float]:
@@ -175,35 +225,151 @@ def depth_range(points_cam: np.ndarray) -> tuple[float, float]:
     return float(max(z.min() * 0.5, 1e-4)), float(z.max() * 2.0)
 
 
-def rasterize(positions: np.ndarray, faces: np.ndarray, camera: Camera, *, attributes: bool = True) -> Raster:
+def rasterize(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, camera: Camera, *,
+              attributes: bool = True) -> Raster:
     """Rasterize a mesh from a camera at its resolution.
 
     Args:
+        ctx: the GL context.
         positions: (n,3) world positions (meters).
         faces: (m,3) int vertex indices.
-        camera: pinhole camera with zero distortion.
+        camera: pinhole camera with zero distortion (else InputError).
         attributes: also read back barycentrics and depth (False: tri_id only, faster).
 
     Returns:
         Raster with (H,W) fields; pixel centres are sampled (OpenCV convention).
     """
-    _check_renderable(camera)
+    camera.require_pinhole()
     cam = camera.to_camera(positions)
     near, far = depth_range(cam)
     clip = clip_from_camera(camera, near, far)
-    return _draw_ids(cam, np.asarray(faces), camera.width, camera.height, clip, True, attributes)
+    return _draw_ids(ctx, cam, np.asarray(faces), camera.width, camera.height, clip, True, attributes)
 
 
-def rasterize_uv(uv: np.ndarray, faces: np.ndarray, width: int, height: int, *, attributes: bool = True) -> Raster:
+def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, height: int, *,
+                 attributes: bool = True) -> Raster:
     """Rasterize a mesh in texture space: positions are per-vertex uv in [0,1]².
 
     Texel (row r, column c) has centre (u, v) = ((c + 0.5)/W, (r + 0.5)/H): row 0 is v ≈ 0
-    (GL texture order). Only texels whose centre is inside a triangle are written; where
+    (DESIGN §3). Only texels whose centre is inside a triangle are written; where
     triangles overlap in uv, the last drawn wins. `depth` is 0.
     """
     uv = np.asarray(uv, dtype=np.float64)
     points = np.hstack([uv, np.zeros((len(uv), 1))])
-    return _draw_ids(points, np.asarray(faces), width, height, _uv_clip(), False, attributes)
+    return _draw_ids(ctx, points, np.asarray(faces), width, height, _uv_clip(), False, attributes)
+
+
+# -- two meshes with the same faces in one pass ------------------------------------------------
+
+class _PairBuffers:
+    """Program and buffers of `rasterize_pair` for one face list (made with the context current)."""
+
+    def __init__(self, ctx: GLContext, faces: np.ndarray, num_vertices: int, levels: int):
+        gl = ctx.mgl
+        self.prog = ctx._program("raster.vert.glsl", "subface.frag.glsl")
+        self.n = int(num_vertices)
+        self.m = len(faces)
+        self.levels = int(levels)
+        self.faces = np.asarray(faces, dtype=np.int32)
+        self.ibo = gl.buffer(self.faces.tobytes())
+        self.vbo = gl.buffer(reserve=self.n * 12)
+        self.vao = gl.vertex_array(self.prog, [(self.vbo, "3f", "in_cam")], index_buffer=self.ibo,
+                                   index_element_size=4)
+        # The subdivided-id mesh de-indexed: each corner carries a one-hot barycentric.
+        self.vbo_sub = gl.buffer(reserve=3 * self.m * 12)
+        self.bary = gl.buffer(np.tile(np.eye(3, dtype=np.float32), (self.m, 1)).tobytes())
+        self.vao_sub = gl.vertex_array(self.prog, [(self.vbo_sub, "3f", "in_cam"), (self.bary, "3f", "in_bary")])
+
+    def release(self) -> None:
+        for obj in (self.vao, self.vbo, self.ibo, self.vao_sub, self.vbo_sub, self.bary):
+            obj.release()
+
+
+def _pair_buffers(ctx: GLContext, faces: np.ndarray, num_vertices: int, levels: int) -> _PairBuffers:
+    key = (int(num_vertices), len(faces), int(levels),
+           hashlib.sha1(np.ascontiguousarray(faces, dtype=np.int64).tobytes()).hexdigest())
+    if key not in ctx._pairs:
+        if len(ctx._pairs) >= 4:
+            ctx._pairs.popitem(last=False)[1].release()
+        ctx._pairs[key] = _PairBuffers(ctx, faces, num_vertices, levels)
+    return ctx._pairs[key]
+
+
+def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positions: np.ndarray,
+                   faces: np.ndarray, camera: Camera, *, levels: int = 0,
+                   pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle ids of two meshes with the same faces (e.g. gt and inferred) from one camera,
+    drawn side by side in one framebuffer: one upload, one readback.
+
+    The second mesh reports ids of its `levels`-times midpoint subdivision
+    (`mesh.subdivide` numbering) while only its base faces are drawn: the child face of
+    each pixel follows from the pixel's barycentrics in the base face (midpoint subdivision
+    does not move the surface, and barycentrics are perspective-correct). That equals
+    `rasterize` of the subdivided mesh up to pixel centres exactly on a child edge, at the
+    cost of a base raster. Projection and ids are those of `rasterize(..., attributes=False)`.
+
+    Args:
+        ctx: the GL context.
+        base_positions: (n,3) world positions of the mesh reported with base face ids.
+        subdivided_positions: (n,3) world positions of the mesh reported with subdivided ids.
+        faces: (m,3) int base faces of both.
+        camera: pinhole camera with zero distortion.
+        levels: subdivision levels of the second mesh's ids.
+        pixels: optional (k,2) projections of every vertex of both meshes: they bound the
+            region read back (faster); ids outside it are -1.
+
+    Returns:
+        base_tri_id (H,W) int32 in [0, m), subdivided_tri_id (H,W) int32 in [0, 4^levels m);
+        -1 = background.
+    """
+    import moderngl
+
+    camera.require_pinhole()
+    base_positions = np.asarray(base_positions, np.float64)
+    cam = camera.to_camera(np.concatenate([base_positions, np.asarray(subdivided_positions, np.float64)]))
+    cam = cam.astype(np.float32)
+    near, far = depth_range(cam)
+    W, H = camera.width, camera.height
+    n = len(base_positions)
+    gl = ctx.mgl
+    with gl:
+        pair = _pair_buffers(ctx, faces, n, levels)
+        pair.prog["clip_from_cam"].write(clip_from_camera(camera, near, far).T.astype("f4").tobytes())
+        pair.vbo.write(cam[:n].tobytes())
+        pair.vbo_sub.write(cam[n:][pair.faces].tobytes())
+        fbo = ctx._target("pair", W, H)
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        gl.disable(moderngl.CULL_FACE)
+        gl.enable(moderngl.DEPTH_TEST)
+        # The viewport clips in clip space: nothing of one mesh can spill into the other half.
+        pair.prog["num_faces"].value = pair.m
+        gl.viewport = (0, 0, W, H)
+        pair.prog["levels"].value = 0
+        pair.vao.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        gl.viewport = (W, 0, W, H)
+        pair.prog["levels"].value = pair.levels
+        pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        # A triangle covers only pixel centres inside the box of its projected corners, so
+        # the box of all projections (one pixel margin) holds every id; with a vertex
+        # behind the camera the projection says nothing: read everything.
+        c0, r0, c1, r1 = 0, 0, W, H
+        if pixels is not None and len(pixels) and bool(np.all(cam[:, 2] > 0)):
+            lo = np.floor(pixels.min(axis=0)).astype(np.int64) - 1
+            hi = np.ceil(pixels.max(axis=0)).astype(np.int64) + 2
+            c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
+            c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
+        base_ids = np.full((H, W), -1, np.int32)
+        sub_ids = np.full((H, W), -1, np.int32)
+        w, h = c1 - c0, r1 - r0
+        if w > 0 and h > 0:
+            # GL window row y is image row v (the projection flips once), so no flip here.
+            for out, x0 in ((base_ids, c0), (sub_ids, W + c0)):
+                data = fbo.read(attachment=0, components=1, dtype="i4", viewport=(x0, r0, w, h))
+                # gl_PrimitiveID restarts at 0 on each draw call; ids are stored +1.
+                out[r0:r1, c0:c1] = np.frombuffer(data, np.int32).reshape(h, w) - 1
+        gl.viewport = (0, 0, W, H)
+    return base_ids, sub_ids
 
 
 def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.ndarray:
@@ -223,14 +389,15 @@ def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.nda
 
 @lru_cache(maxsize=4)
 def fabric_texture(size: int = 1024, seed: int = 7) -> np.ndarray:
-    """A fabric-like RGB texture (size,size,3) uint8, row 0 at v = 1 (picture order).
+    """A fabric-like RGB texture (size,size,3) uint8 over uv; row 0 at v ≈ 0 (DESIGN §3:
+    texel (r, c) has centre ((c + 0.5)/size, (r + 0.5)/size); flip rows to show v up).
 
     A printed plaid with fine threads (period 1/128 of the atlas), a coarser check and
     small dots: dense enough that sliding by a fraction of a centimetre shows.
     """
     rng = np.random.default_rng(seed)
     t = (np.arange(size) + 0.5) / size
-    u, v = np.meshgrid(t, t[::-1])
+    u, v = np.meshgrid(t, t)
     base = np.array([0.82, 0.78, 0.70])
     img = np.ones((size, size, 3)) * base
     # Coarse check in two colours.
@@ -257,36 +424,39 @@ def fabric_texture(size: int = 1024, seed: int = 7) -> np.ndarray:
     return np.clip(img * 255, 0, 255).astype(np.uint8)
 
 
-@lru_cache(maxsize=4)
-def _color_target(width: int, height: int):
-    # Kept alive (cached) rather than released: releasing the bound framebuffer leaves GL
-    # with no valid draw target for the next call.
-    ctx = gl_context()
-    return ctx.framebuffer(color_attachments=[ctx.texture((width, height), 4)],
-                           depth_attachment=ctx.depth_renderbuffer((width, height)))
+def fabric_colors(uv: np.ndarray, size: int = 1024) -> np.ndarray:
+    """The fabric texture's colour at texture coordinates (n,2) -> (n,3) uint8 (nearest texel)."""
+    tex = fabric_texture(size)
+    uv = np.asarray(uv, np.float64)
+    col = np.clip(np.floor(uv[:, 0] * size), 0, size - 1).astype(np.int64)
+    row = np.clip(np.floor(uv[:, 1] * size), 0, size - 1).astype(np.int64)
+    return tex[row, col]
 
 
-@lru_cache(maxsize=2)
-def _fabric_gl(size: int):
+def _fabric_gl(ctx: GLContext, size: int):
     import moderngl
 
-    ctx = gl_context()
-    image = fabric_texture(size)[::-1]  # GL row 0 is v = 0
-    tex = ctx.texture((size, size), 3, np.ascontiguousarray(image).tobytes())
-    tex.build_mipmaps()
-    tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-    tex.anisotropy = 8.0
-    tex.repeat_x = tex.repeat_y = True
-    return tex
+    if size not in ctx._fabric:
+        # GL texture row 0 is v = 0: the same order as `fabric_texture`, uploaded as is.
+        tex = ctx.mgl.texture((size, size), 3, np.ascontiguousarray(fabric_texture(size)).tobytes())
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        tex.anisotropy = 8.0
+        tex.repeat_x = tex.repeat_y = True
+        ctx._fabric[size] = tex
+    return ctx._fabric[size]
 
 
-def render_textured(positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera, *,
-                    normals: np.ndarray | None = None, background: tuple[int, int, int] = (40, 40, 46),
-                    supersample: int = 2, texture_size: int = 1024) -> np.ndarray:
+def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray,
+                    camera: Camera, *, normals: np.ndarray | None = None,
+                    background: tuple[int, int, int] = (40, 40, 46), supersample: int = 2,
+                    texture_size: int = 1024) -> np.ndarray:
     """Shade a mesh with the fabric texture at any per-vertex texcoords.
 
     Args:
+        ctx: the GL context.
         positions: (n,3) world positions. faces: (m,3). texcoords: (n,2) per-vertex uv.
+        camera: pinhole camera with zero distortion.
         normals: (n,3) vertex normals (computed with seam copies welded if None).
         supersample: render at this factor and downsample (anti-aliasing).
 
@@ -298,7 +468,7 @@ def render_textured(positions: np.ndarray, faces: np.ndarray, texcoords: np.ndar
 
     from .mesh import vertex_normals, weld_groups
 
-    _check_renderable(camera)
+    camera.require_pinhole()
     positions = np.asarray(positions, dtype=np.float64)
     if normals is None:
         normals = vertex_normals(positions, faces, weld_groups(positions))
@@ -309,26 +479,27 @@ def render_textured(positions: np.ndarray, faces: np.ndarray, texcoords: np.ndar
                  K=np.diag([s, s, 1.0]) @ camera.K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]]),
                  R=camera.R, t=camera.t)
     clip = clip_from_camera(big, near, far)
-    ctx = gl_context()
-    prog = _program("textured")
-    prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())
-    prog["fabric"].value = 0
     data = np.hstack([cam, normals @ camera.R.T, np.asarray(texcoords, dtype=np.float64)]).astype("f4")
-    vbo = ctx.buffer(data.tobytes())
-    ibo = ctx.buffer(np.asarray(faces, dtype=np.int32).tobytes())
-    vao = ctx.vertex_array(prog, [(vbo, "3f 3f 2f", "in_cam", "in_normal", "in_texcoord")], index_buffer=ibo,
-                           index_element_size=4)
-    fbo = _color_target(big.width, big.height)
-    fbo.use()
-    bg = np.asarray(background, dtype=np.float64) / 255
-    fbo.clear(*bg, 1.0, depth=1.0)
-    ctx.disable(moderngl.CULL_FACE)
-    ctx.enable(moderngl.DEPTH_TEST)
-    _fabric_gl(texture_size).use(0)
-    vao.render(moderngl.TRIANGLES)
-    img = np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(big.height, big.width, 3)
-    for obj in (vao, vbo, ibo):
-        obj.release()
+    gl = ctx.mgl
+    with gl:
+        prog = ctx._program("textured.vert.glsl", "textured.frag.glsl")
+        prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())
+        prog["fabric"].value = 0
+        vbo = gl.buffer(data.tobytes())
+        ibo = gl.buffer(np.asarray(faces, dtype=np.int32).tobytes())
+        vao = gl.vertex_array(prog, [(vbo, "3f 3f 2f", "in_cam", "in_normal", "in_texcoord")], index_buffer=ibo,
+                              index_element_size=4)
+        fbo = ctx._target("color", big.width, big.height)
+        fbo.use()
+        bg = np.asarray(background, dtype=np.float64) / 255
+        fbo.clear(*bg, 1.0, depth=1.0)
+        gl.disable(moderngl.CULL_FACE)
+        gl.enable(moderngl.DEPTH_TEST)
+        _fabric_gl(ctx, texture_size).use(0)
+        vao.render(moderngl.TRIANGLES)
+        img = np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(big.height, big.width, 3)
+        for obj in (vao, vbo, ibo):
+            obj.release()
     if s > 1:
         img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(img)

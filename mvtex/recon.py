@@ -139,8 +139,9 @@ def locate_uv(points: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, reso
         point_index (h,) int64, face_index (h,) int64, bary (h,3) float64: one row per
         (point, containing triangle) pair, sorted by point.
     """
-    from .raster import rasterize_uv
+    from .raster import GLContext, rasterize_uv
 
+    ctx = GLContext()
     points = np.asarray(points, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     texcoords = np.asarray(texcoords, dtype=np.float64)
@@ -155,8 +156,9 @@ def locate_uv(points: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, reso
         if not len(group):
             continue
         for order in (group, group[::-1]):
-            ids = rasterize_uv(texcoords, faces[order], R, R, attributes=False).tri_id
+            ids = rasterize_uv(ctx, texcoords, faces[order], R, R, attributes=False).tri_id
             buffers.append(np.where(ids >= 0, order[np.maximum(ids, 0)], -1))
+    ctx.release()
 
     col = np.clip(np.floor(points[:, 0] * R).astype(np.int64), 0, R - 1)
     row = np.clip(np.floor(points[:, 1] * R).astype(np.int64), 0, R - 1)
@@ -441,8 +443,9 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     """
     from tqdm import tqdm
 
-    from .raster import rasterize
+    from .raster import GLContext, rasterize
 
+    ctx = GLContext()
     gt_uv = np.asarray(gt_uv, dtype=np.float64)
     X_N = np.asarray(inferred_positions, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -478,12 +481,13 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
         P = np.einsum("hk,hkj->hj", bary, X_N[faces[fi]])
         keep = _dedupe(vi, P)
         vi, fi, P = vi[keep], fi[keep], P[keep]
-        raster = rasterize(X_N, faces, cam)
+        raster = rasterize(ctx, X_N, faces, cam)
         seen, pixels = _visible(cam, raster, P, fi, options.depth_tolerance)
         stats["occluded"] += int((~seen).sum())
         hyp_v.append(vi[seen])
         hyp_c.append(np.full(int(seen.sum()), c))
         hyp_px.append(pixels[seen])
+    ctx.release()
     hv, hc, hpx = np.concatenate(hyp_v), np.concatenate(hyp_c), np.concatenate(hyp_px)
 
     # Per (vertex, camera): how many hypotheses.
@@ -669,13 +673,9 @@ def strain_colors(strain: np.ndarray, scale: float) -> np.ndarray:
 
 def texture_colors(uv: np.ndarray, size: int = 1024) -> np.ndarray:
     """The fabric texture's colour at each texture coordinate (n,2) -> (n,3) uint8 (nearest texel)."""
-    from .raster import fabric_texture
+    from .raster import fabric_colors
 
-    tex = fabric_texture(size)  # row 0 at v = 1
-    uv = np.asarray(uv, np.float64)
-    col = np.clip(np.floor(uv[:, 0] * size), 0, size - 1).astype(np.int64)
-    row = np.clip(np.floor((1 - uv[:, 1]) * size), 0, size - 1).astype(np.int64)
-    return tex[row, col]
+    return fabric_colors(uv, size)
 
 
 def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.ndarray, camera: Camera,
@@ -686,9 +686,10 @@ def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.nd
         (H,W,3) uint8 RGB image.
     """
     from .mesh import vertex_normals
-    from .raster import interpolate, rasterize
+    from .raster import GLContext, interpolate, rasterize
 
-    raster = rasterize(positions, faces, camera)
+    with GLContext() as ctx:
+        raster = rasterize(ctx, positions, faces, camera)
     normals = vertex_normals(positions, faces, weld_groups(positions)) @ camera.R.T
     shade = 0.35 + 0.65 * np.abs(interpolate(normals, raster, faces)[..., 2:3])
     rgb = interpolate(np.asarray(colors, np.float64), raster, faces) * shade
@@ -706,10 +707,11 @@ def comparison_picture(camera: Camera, faces: np.ndarray, uv: np.ndarray, gt: np
         (H',W',3) uint8 RGB picture.
     """
     from .viz import grid_image
-    from .raster import render_textured
+    from .raster import GLContext, render_textured
 
     meshes = {"gt": gt, "inferred": inferred, "reconstruction": reconstructed}
-    rows = [[render_textured(x, faces, uv, camera) for x in meshes.values()]]
+    with GLContext() as ctx:
+        rows = [[render_textured(ctx, x, faces, uv, camera) for x in meshes.values()]]
     labels = ["texture"]
     if rest is not None:
         rows.append([render_vertex_colors(x, faces, strain_colors(vertex_strain_energy(x, rest, faces),
@@ -854,12 +856,13 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
         model.write_binary(str(tmp / "colmap"))
         # Images of the texture-corrected inferred mesh, so COLMAP's GUI shows the model on them.
         if inferred_mesh is not None:
-            from .raster import render_textured
+            from .raster import GLContext, render_textured
 
             X_sub, faces_sub, T = inferred_mesh
             (tmp / "images").mkdir()
             for name in tqdm(names, desc="images", unit="camera", disable=not progress, leave=False):
-                save_png(tmp / "images" / f"{name}.png", render_textured(X_sub, faces_sub, T[name], rig[name]))
+                with GLContext() as ctx:
+                    save_png(tmp / "images" / f"{name}.png", render_textured(ctx, X_sub, faces_sub, T[name], rig[name]))
         if gt is not None:
             views = np.array([np.isfinite(rec.observations[c][:, 0]).sum() for c in names])
             camera = rig[names[int(np.argmax(views))]]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,9 @@ from .dataset import Dataset
 from .errors import InputError
 from .io import atomic_path, save_png, write_json
 from .texcoords import TexcoordSet
+
+if TYPE_CHECKING:
+    from .raster import GLContext
 
 
 @dataclass(frozen=True)
@@ -42,14 +46,6 @@ def pose_views(dataset: Dataset, pose: int, camera: str, texcoords: TexcoordSet 
     return {"gt": gt, "inferred": inferred}
 
 
-def check_renderable(rig: Rig, rig_path: str | os.PathLike | None) -> None:
-    """Refuse cameras with distortion, naming the rig file."""
-    for cam in rig:
-        if np.any(cam.dist != 0):
-            raise InputError(rig_path, f"camera {cam.name!r} has non-zero distortion: rendering needs "
-                             "undistorted (pinhole) cameras; undistort the images and set dist to 0")
-
-
 def check_sees_mesh(raster, camera: Camera, rig_path, pose: int, what: str) -> None:
     if not np.any(raster.tri_id >= 0):
         raise InputError(rig_path, f"camera {camera.name!r} sees nothing of the {what} mesh at pose {pose}")
@@ -57,19 +53,27 @@ def check_sees_mesh(raster, camera: Camera, rig_path, pose: int, what: str) -> N
 
 def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *,
                 texcoords: TexcoordSet | None = None, raster: bool = False, rig_path: str | None = None,
-                progress: bool = True) -> dict:
+                progress: bool = True, ctx: GLContext | None = None) -> dict:
     """Render one pose from every camera of a rig into `out` (see module docstring).
+
+    Args:
+        ctx: the GL context (one is created, and released, for this call if None).
 
     Returns:
         {"pose": k, "cameras": [...], "files": [...]} (paths relative to out).
     """
-    from tqdm import tqdm
-
     from . import raster as gl
 
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
-    check_renderable(rig, rig_path)
+    for cam in rig:
+        cam.require_pinhole(rig_path)
+    if ctx is None:
+        with gl.GLContext() as own:
+            return render_pose(dataset, rig, pose, out, texcoords=texcoords, raster=raster, rig_path=rig_path,
+                               progress=progress, ctx=own)
+    from tqdm import tqdm
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files, tiles = [], []
@@ -77,9 +81,9 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
         views = pose_views(dataset, pose, cam.name, texcoords)
         row = []
         for what, view in views.items():
-            r = gl.rasterize(view.positions, view.faces, cam)
+            r = gl.rasterize(ctx, view.positions, view.faces, cam)
             check_sees_mesh(r, cam, rig_path, pose, what)
-            image = gl.render_textured(view.positions, view.faces, view.texcoords, cam)
+            image = gl.render_textured(ctx, view.positions, view.faces, view.texcoords, cam)
             save_png(out / cam.name / f"{what}.png", image)
             files.append(f"{cam.name}/{what}.png")
             row.append(image)

@@ -33,6 +33,9 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.special import expit, ndtr
 
+from .dataset import default_split
+from .mesh import edge_strain, edges, rms_distance
+
 __all__ = [
     "POSE_DIM",
     "PosePredictor",
@@ -479,25 +482,9 @@ def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: i
 # ------------------------------------------------------------------------- synthesize
 
 
-def _split(num_poses: int, seed: int) -> dict[str, list[int]]:
-    """Seeded 80/10/10 permutation of range(num_poses), at least one pose in val and test."""
-    order = np.random.default_rng([seed, 1]).permutation(num_poses)
-    n_val = n_test = max(1, round(0.1 * num_poses))
-    n_train = num_poses - n_val - n_test
-    parts = {"train": order[:n_train], "val": order[n_train : n_train + n_val], "test": order[n_train + n_val :]}
-    return {name: sorted(int(i) for i in idx) for name, idx in parts.items()}
-
-
-def _edge_strain(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> float:
+def _mean_abs_edge_strain(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> float:
     """Mean over poses and unique edges of |length / rest length - 1|."""
-    e = np.unique(np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
-    rest_len = np.linalg.norm(rest[e[:, 1]].astype(np.float64) - rest[e[:, 0]], axis=-1)
-    length = np.linalg.norm(positions[:, e[:, 1]].astype(np.float64) - positions[:, e[:, 0]], axis=-1)
-    return float(np.mean(np.abs(length / rest_len - 1.0)))
-
-
-def _rmse(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum((a.astype(np.float64) - b) ** 2, axis=-1))))
+    return float(np.mean(np.abs(edge_strain(positions, rest, edges(faces)))))
 
 
 def synthesize(options: SynthOptions = SynthOptions()) -> dict:
@@ -532,7 +519,7 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
         depths.append(max(d for d, _, _ in info))
         wavelengths += [w for d, w, _ in info if d >= 5e-3]
         peaks.append(max(p for _, _, p in info))
-    split = _split(options.num_poses, options.seed)
+    split = default_split(options.num_poses, options.seed)
     predictor = fit_predictor(gt[split["train"]], poses[split["train"]], options.pca_components, options.ridge)
     inferred = predictor.predict(poses)
     stats = {
@@ -543,10 +530,10 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
         "fold_wavelength_m": float(np.median(wavelengths)) if wavelengths else 0.0,
         "max_fold_angle_deg": float(np.degrees(max(peaks))),
         "overhanging_pose_fraction": float(np.mean(np.array(peaks) > np.pi / 2)),
-        "mean_abs_edge_strain_gt": _edge_strain(gt, rest, faces),
-        "mean_abs_edge_strain_inferred": _edge_strain(inferred, rest, faces),
-        "rmse_inferred_train_m": _rmse(inferred[split["train"]], gt[split["train"]]),
-        "rmse_inferred_test_m": _rmse(inferred[split["test"]], gt[split["test"]]),
+        "mean_abs_edge_strain_gt": _mean_abs_edge_strain(gt, rest, faces),
+        "mean_abs_edge_strain_inferred": _mean_abs_edge_strain(inferred, rest, faces),
+        "rmse_inferred_train_m": rms_distance(inferred[split["train"]], gt[split["train"]]),
+        "rmse_inferred_test_m": rms_distance(inferred[split["test"]], gt[split["test"]]),
     }
     return dict(name="shirt", faces=faces, uv=uv, rest=rest, gt=gt, inferred=inferred, poses=poses,
                 split=split, stats=stats)

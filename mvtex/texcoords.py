@@ -21,7 +21,7 @@ import numpy as np
 
 from .errors import InputError
 from .io import load_npy, load_npz, read_json, atomic_path
-from .mesh import apply_parent
+from .mesh import apply_extension, extension_matrix
 
 FORMAT = "mvtex-texcoords"
 VERSION = 1
@@ -99,7 +99,9 @@ class TexcoordSet:
 
     def positions(self, positions: np.ndarray) -> np.ndarray:
         """Extend base-mesh positions (n,3) (or (K,n,3)) to this set's subdivided mesh."""
-        return apply_parent(positions, self.parent)
+        if ("extension",) not in self._cache:  # camera names are strings: no clash
+            self._cache[("extension",)] = extension_matrix(self.parent)
+        return apply_extension(self._cache[("extension",)], positions)
 
 
 def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None) -> TexcoordSet:

@@ -15,12 +15,13 @@ from mvtex.camera import Rig, look_at
 @pytest.fixture(scope="session")
 def gl():
     """The only place the GL context is created; checks GL errors around the session."""
-    from mvtex.raster import gl_context
+    from mvtex.raster import GLContext
 
-    ctx = gl_context()
+    ctx = GLContext()
     assert ctx.error == "GL_NO_ERROR"
     yield ctx
     assert ctx.error == "GL_NO_ERROR"
+    ctx.release()
 
 
 def grid_mesh(nx: int = 24, ny: int = 20, size: float = 0.6):

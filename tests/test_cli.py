@@ -46,7 +46,7 @@ def test_render_writes_pictures_and_raster_dumps(tmp_path, tiny_dataset, rig_fil
         assert dump["tri_id"].dtype == np.int32 and dump["bary"].shape == (120, 160, 3)
         # The dump's uv is T_G interpolated at the pixels: check a few against the mesh directly.
         ds = load_dataset(tiny_dataset)
-        r = rasterize(np.asarray(ds.gt[2]), ds.faces, front_rig[cam])
+        r = rasterize(gl, np.asarray(ds.gt[2]), ds.faces, front_rig[cam])
         assert np.array_equal(r.tri_id, dump["tri_id"])
         assert np.allclose(interpolate(ds.uv, r, ds.faces), dump["uv"], atol=1e-6)
     assert (tmp_path / "r" / "overview.png").exists()

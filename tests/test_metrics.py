@@ -14,11 +14,11 @@ from mvtex.viz import heatmap
 pytestmark = pytest.mark.gl
 
 
-def direct_sqrt_mse(gt, faces, uv_gt, inf, faces_inf, tex, camera):
+def direct_sqrt_mse(gl, gt, faces, uv_gt, inf, faces_inf, tex, camera):
     """Rasterize both meshes, interpolate uv by hand from tri_id and bary, compare."""
     images = []
     for positions, f, t in ((gt, faces, uv_gt), (inf, faces_inf, tex)):
-        r = rasterize(positions, f, camera)
+        r = rasterize(gl, positions, f, camera)
         mask = r.tri_id >= 0
         corners = np.asarray(t, np.float64)[np.asarray(f)[r.tri_id[mask]]]  # (k,3,2)
         uv_img = np.zeros(r.tri_id.shape + (2,))
@@ -44,13 +44,13 @@ def test_baseline_and_texcoords_match_direct_computation(gl, tiny_dataset, front
         base[cam.name], tex[cam.name] = [], []
         for row, k in enumerate(poses):
             gt, inf = np.asarray(ds.gt[k], np.float64), np.asarray(ds.inferred[k], np.float64)
-            e, both, s = direct_sqrt_mse(gt, ds.faces, ds.uv, inf, ds.faces, ds.uv, cam)
-            err, s_lib = uv_error_image(gt, ds.faces, ds.uv, inf, ds.faces, ds.uv, cam)
+            e, both, s = direct_sqrt_mse(gl, gt, ds.faces, ds.uv, inf, ds.faces, ds.uv, cam)
+            err, s_lib = uv_error_image(gl, gt, ds.faces, ds.uv, inf, ds.faces, ds.uv, cam)
             assert np.array_equal(np.isfinite(err), both)
             assert np.allclose(err[both], e, atol=1e-6)
             assert abs(s_lib - s) < 1e-7 and s > 1e-4
             base[cam.name].append(s)
-            tex[cam.name].append(direct_sqrt_mse(gt, ds.faces, ds.uv, inf, ds.faces, ds.uv + disp[cam.name][row], cam)[2])
+            tex[cam.name].append(direct_sqrt_mse(gl, gt, ds.faces, ds.uv, inf, ds.faces, ds.uv + disp[cam.name][row], cam)[2])
     heat = tmp_path / "heat"
     result = evaluate(tiny_dataset, front_rig, tc_path, heatmaps=heat, progress=False)
     all_b = [v for c in base.values() for v in c]
@@ -73,7 +73,8 @@ def test_baseline_and_texcoords_match_direct_computation(gl, tiny_dataset, front
 
 
 def test_sliding_beats_baseline_on_tiny_dataset(gl, tiny_dataset, front_rig, tmp_path):
-    from mvtex.sliding import SlideOptions, slide_dataset
+    from mvtex.slide_jobs import slide_dataset
+    from mvtex.sliding import SlideOptions
 
     tc = slide_dataset(tiny_dataset, front_rig, tmp_path / "ts", poses=[0, 3], options=SlideOptions(subdiv=1), progress=False)
     result = evaluate(tiny_dataset, front_rig, tc, progress=False)
@@ -126,13 +127,13 @@ def test_same_chart_statistic_excludes_chart_boundaries(gl, front_rig, tmp_path)
                         assigned={c.name: np.ones((1, len(uv)), bool) for c in front_rig})
     result = evaluate(tmp_path / "d", front_rig, tc, progress=False)
     for cam in front_rig:
-        rg, ri = rasterize(gt[0], faces, cam), rasterize(inferred[0], faces, cam)
+        rg, ri = rasterize(gl, gt[0], faces, cam), rasterize(gl, inferred[0], faces, cam)
         both = (rg.tri_id >= 0) & (ri.tri_id >= 0)
         same = both.copy()
         same[both] = face_chart[rg.tri_id[both]] == face_chart[ri.tri_id[both]]
         assert (both & ~same).sum() > 0
-        e, _, s_all = direct_sqrt_mse(gt[0], faces, uv, inferred[0], faces, uv, cam)
-        err, _ = uv_error_image(gt[0], faces, uv, inferred[0], faces, uv, cam)
+        e, _, s_all = direct_sqrt_mse(gl, gt[0], faces, uv, inferred[0], faces, uv, cam)
+        err, _ = uv_error_image(gl, gt[0], faces, uv, inferred[0], faces, uv, cam)
         s_same = np.sqrt(np.mean(err[same].astype(np.float64) ** 2))
         per = result["per_camera"][cam.name]
         assert per["sqrt_mse"]["inferred"]["mean"] == pytest.approx(s_all, rel=1e-5)

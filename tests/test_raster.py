@@ -43,11 +43,11 @@ def scene(gl):
     return positions, faces, uv, cam
 
 
-def test_bary_point_projects_to_pixel_centre_and_reproduces_depth(scene):
+def test_bary_point_projects_to_pixel_centre_and_reproduces_depth(gl, scene):
     import cv2
 
     positions, faces, uv, cam = scene
-    r = rasterize(positions, faces, cam)
+    r = rasterize(gl, positions, faces, cam)
     rows, cols = np.nonzero(r.mask)
     assert len(rows) > 5000
     X = np.einsum("kj,kjc->kc", r.bary[rows, cols].astype(np.float64), positions[faces[r.tri_id[rows, cols]]])
@@ -59,13 +59,13 @@ def test_bary_point_projects_to_pixel_centre_and_reproduces_depth(scene):
     assert np.all(r.bary[r.mask] >= -1e-3) and np.allclose(r.bary[r.mask].sum(-1), 1, atol=1e-5)
 
 
-def test_vertices_land_where_opencv_projects_them(scene):
+def test_vertices_land_where_opencv_projects_them(gl, scene):
     """A vertex moved to 0.2 px from a pixel centre has that pixel drawn by one of its own
     triangles (unless something is in front of it): it lands where OpenCV projects it."""
     import cv2
 
     positions, faces, uv, cam = scene
-    r = rasterize(positions, faces, cam)
+    r = rasterize(gl, positions, faces, cam)
     pix, _ = cv2.projectPoints(positions, cv2.Rodrigues(cam.R)[0], cam.t, cam.K, None)
     pix = pix.reshape(-1, 2)
     col, row = np.arange(len(positions)) % 30, np.arange(len(positions)) // 30
@@ -78,7 +78,7 @@ def test_vertices_land_where_opencv_projects_them(scene):
     depth = (positions[idx] @ cam.R.T + cam.t)[:, 2]
     moved = positions.copy()
     moved[idx] = cam.center + rays * (depth / (rays @ cam.R[2]))[:, None]
-    r = rasterize(moved, faces, cam)
+    r = rasterize(gl, moved, faces, cam)
     centre = np.round(target).astype(int)
     hit_incident = [np.any(faces[r.tri_id[v, u]] == i) for i, (u, v) in zip(idx, centre)]
     _, t_ray = ray_cast_nearest(cam.center, rays, moved, faces)
@@ -87,9 +87,9 @@ def test_vertices_land_where_opencv_projects_them(scene):
     assert all(h for h, ok in zip(hit_incident, unoccluded) if ok)
 
 
-def test_tri_id_matches_exact_ray_cast(scene):
+def test_tri_id_matches_exact_ray_cast(gl, scene):
     positions, faces, uv, cam = scene
-    r = rasterize(positions, faces, cam)
+    r = rasterize(gl, positions, faces, cam)
     rng = np.random.default_rng(1)
     rows = rng.integers(0, cam.height, 600)
     cols = rng.integers(0, cam.width, 600)
@@ -110,21 +110,21 @@ def test_occluder_hides_what_is_behind(gl):
     positions = np.concatenate([rest, occ])
     all_faces = np.concatenate([faces, occluder_faces + len(rest)])
     cam = look_at("c", (0, 0, 1.0), (0, 0, 0), width=120, height=120, focal=150.0)
-    r = rasterize(positions, all_faces, cam)
+    r = rasterize(gl, positions, all_faces, cam)
     centre = r.tri_id[55:65, 55:65]
     assert np.all(centre >= len(faces))  # the occluder owns the middle
     assert np.allclose(r.depth[55:65, 55:65], 0.8, atol=1e-5)
     corner = r.tri_id[30, 30]
     assert 0 <= corner < len(faces)
     # Drawing order does not matter: the depth test decides.
-    r2 = rasterize(positions, np.concatenate([occluder_faces + len(rest), faces]), cam)
+    r2 = rasterize(gl, positions, np.concatenate([occluder_faces + len(rest), faces]), cam)
     assert np.all(r2.tri_id[55:65, 55:65] < len(occluder_faces))
 
 
 def test_uv_raster_recovers_texel_centres(gl):
     faces, uv, rest = grid_mesh(9, 7)
     W, H = 64, 48
-    r = rasterize_uv(uv, faces, W, H)
+    r = rasterize_uv(gl, uv, faces, W, H)
     rows, cols = np.nonzero(r.mask)
     assert r.mask.mean() > 0.9
     got = interpolate(uv, r, faces)[rows, cols]
@@ -134,12 +134,12 @@ def test_uv_raster_recovers_texel_centres(gl):
 
 def test_textured_render_shows_the_texture(gl, scene):
     positions, faces, uv, cam = scene
-    image = render_textured(positions, faces, uv, cam)
+    image = render_textured(gl, positions, faces, uv, cam)
     assert image.shape == (cam.height, cam.width, 3) and image.dtype == np.uint8
-    mask = rasterize(positions, faces, cam).mask
+    mask = rasterize(gl, positions, faces, cam).mask
     assert image[mask].std() > 10  # a pattern, not a flat colour
     assert np.all(image[~mask & ~np.roll(mask, 1, 0) & ~np.roll(mask, -1, 0) & ~np.roll(mask, 1, 1) & ~np.roll(mask, -1, 1)] == [40, 40, 46])
-    slid = render_textured(positions, faces, uv + np.float32([0.01, 0.0]), cam)
+    slid = render_textured(gl, positions, faces, uv + np.float32([0.01, 0.0]), cam)
     assert np.abs(slid.astype(int) - image.astype(int))[mask].mean() > 3  # sliding is visible
 
 
@@ -149,19 +149,19 @@ def test_distortion_is_refused(gl, scene):
     positions, faces, uv, cam = scene
     bad = Camera("d", cam.width, cam.height, K=cam.K, R=cam.R, t=cam.t, dist=[0.1, 0, 0, 0, 0])
     with pytest.raises(ValueError, match="distortion"):
-        rasterize(positions, faces, bad)
+        rasterize(gl, positions, faces, bad)
 
 
 def test_consecutive_renders_leave_gl_clean(gl, scene):
     positions, faces, uv, cam = scene
-    a = render_textured(positions, faces, uv, cam)
-    rasterize(positions, faces, cam)
-    b = render_textured(positions, faces, uv, cam)
+    a = render_textured(gl, positions, faces, uv, cam)
+    rasterize(gl, positions, faces, cam)
+    b = render_textured(gl, positions, faces, uv, cam)
     assert np.array_equal(a, b)
     assert gl.error == "GL_NO_ERROR"
 
 
 def test_empty_mesh_is_all_background(gl, scene):
     positions, faces, uv, cam = scene
-    r = rasterize(positions, faces[:0], cam)
+    r = rasterize(gl, positions, faces[:0], cam)
     assert np.all(r.tri_id == -1) and np.all(r.depth == 0)

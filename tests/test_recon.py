@@ -243,7 +243,8 @@ def test_slide_with_inferred_equal_gt_reproduces_gt(identity_run):
     """Texture sliding with inferred = gt assigns T_N = T_G (exact ray casting onto itself);
     triangulating that texcoord set gives back gt, with and without subdivision."""
     from mvtex.recon import triangulate_pose
-    from mvtex.sliding import SlideOptions, slide_dataset
+    from mvtex.slide_jobs import slide_dataset
+    from mvtex.sliding import SlideOptions
     from mvtex.texcoords import open_texcoords
 
     ds, rig, tc, report, out = identity_run

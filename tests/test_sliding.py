@@ -10,7 +10,8 @@ import pytest
 
 from mvtex.camera import Rig, look_at
 from mvtex.mesh import apply_parent, subdivide
-from mvtex.sliding import SlideOptions, build_topology, owned_subfaces, slide_dataset, slide_pose
+from mvtex.slide_jobs import slide_dataset
+from mvtex.sliding import SlideOptions, build_topology, slide_pose
 
 pytestmark = pytest.mark.gl
 
@@ -97,42 +98,22 @@ def test_displacements_equal_brute_force_ray_cast(gl, oblique, subdiv):
     assert np.all(np.isfinite(d))
 
 
-def test_pixel_ownership_from_base_raster_matches_subdivided_raster(gl, oblique):
-    from mvtex.raster import rasterize
-
-    faces, uv, gt, inferred = folded_sheet(20, 20)
-    for levels in (1, 2):
-        topo = build_topology(faces, uv, gt, levels)
-        X = topo.positions(gt)
-        base_ids = rasterize(gt, faces, oblique, attributes=False).tri_id
-        sub_ids = rasterize(X, topo.faces, oblique, attributes=False).tri_id
-        pixels, _ = oblique.project(X)
-        owned = owned_subfaces(base_ids, pixels, topo)
-        expected = np.zeros(len(topo.faces), bool)
-        expected[sub_ids[sub_ids >= 0]] = True
-        # Pixel centres exactly on a child edge may go either way: allow a handful.
-        assert np.sum(owned != expected) <= max(3, 0.002 * len(topo.faces))
-
-
 def test_pair_raster_subface_ids_match_raster_of_subdivided_mesh(gl, oblique):
     """The pair raster draws base faces only and reports subdivided face ids from the
     pixel barycentrics: compare with `raster.rasterize` of the subdivided mesh itself."""
-    from mvtex.raster import rasterize
-    from mvtex.sliding import PairRaster
+    from mvtex.raster import rasterize, rasterize_pair
 
     faces, uv, gt, inferred = folded_sheet(20, 20)
     for levels in (0, 1, 2):
         sub = subdivide(faces, len(uv), levels)
         X = apply_parent(inferred, sub.parent)
-        pair = PairRaster(faces, len(uv), levels)
         for pixels in (None, np.concatenate([oblique.project(gt)[0], oblique.project(X)[0]])):
-            gt_ids, sub_ids = pair(gt, inferred, oblique, pixels)
-            assert np.array_equal(gt_ids, rasterize(gt, faces, oblique, attributes=False).tri_id)
-            expected = rasterize(X, sub.faces, oblique, attributes=False).tri_id
+            gt_ids, sub_ids = rasterize_pair(gl, gt, inferred, faces, oblique, levels=levels, pixels=pixels)
+            assert np.array_equal(gt_ids, rasterize(gl, gt, faces, oblique, attributes=False).tri_id)
+            expected = rasterize(gl, X, sub.faces, oblique, attributes=False).tri_id
             assert np.array_equal(sub_ids >= 0, expected >= 0)
             # Pixel centres exactly on a child edge may go either way: allow a handful.
             assert np.sum(sub_ids != expected) <= max(3, 0.002 * np.sum(expected >= 0))
-        pair.release()
 
 
 def test_identity_gives_zero_displacement_and_zero_error(gl):
@@ -149,7 +130,7 @@ def test_identity_gives_zero_displacement_and_zero_error(gl):
         d, assigned = slide_pose(X, X, faces, uv, cam, sub, SlideOptions(subdiv=0))
         assert assigned.mean() > 0.3
         assert np.abs(d[assigned]).max() <= 1e-6
-        _, sqrt_mse = uv_error_image(X, faces, uv, X, faces, uv + d, cam)
+        _, sqrt_mse = uv_error_image(gl, X, faces, uv, X, faces, uv + d, cam)
         assert sqrt_mse <= 1e-4
 
 
@@ -165,7 +146,7 @@ def _same_set(a, b):
 
 
 def test_slide_dataset_resumes_after_interruption(gl, tiny_dataset, front_rig, tmp_path, monkeypatch):
-    import mvtex.sliding as sliding
+    import mvtex.slide_jobs as jobs
     from mvtex.texcoords import open_texcoords
 
     options = SlideOptions(subdiv=1)
@@ -176,7 +157,7 @@ def test_slide_dataset_resumes_after_interruption(gl, tiny_dataset, front_rig, t
     assert tc.meta["options"] == options.to_json()
     assert not list(full.glob("*/done.npy"))
 
-    original = sliding.slide_pose
+    original = jobs.slide_pose
     calls = {"n": 0}
 
     def flaky(*args, **kwargs):
@@ -185,8 +166,8 @@ def test_slide_dataset_resumes_after_interruption(gl, tiny_dataset, front_rig, t
             raise KeyboardInterrupt("simulated interruption")
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(sliding, "_CHUNK", 2)
-    monkeypatch.setattr(sliding, "slide_pose", flaky)
+    monkeypatch.setattr(jobs, "_CHUNK", 2)
+    monkeypatch.setattr(jobs, "slide_pose", flaky)
     out = tmp_path / "resumed"
     with pytest.raises(KeyboardInterrupt):
         slide_dataset(tiny_dataset, front_rig, out, poses=poses, options=options, progress=False)
@@ -200,11 +181,11 @@ def test_slide_dataset_resumes_after_interruption(gl, tiny_dataset, front_rig, t
 
 
 def test_slide_dataset_starts_over_with_other_options(gl, tiny_dataset, front_rig, tmp_path, monkeypatch, capsys):
-    import mvtex.sliding as sliding
+    import mvtex.slide_jobs as jobs
 
     poses = [1, 4]
-    monkeypatch.setattr(sliding, "_CHUNK", 1)
-    original = sliding.slide_pose
+    monkeypatch.setattr(jobs, "_CHUNK", 1)
+    original = jobs.slide_pose
     calls = {"n": 0}
 
     def flaky(*args, **kwargs):
@@ -213,10 +194,10 @@ def test_slide_dataset_starts_over_with_other_options(gl, tiny_dataset, front_ri
             raise RuntimeError("boom")
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(sliding, "slide_pose", flaky)
+    monkeypatch.setattr(jobs, "slide_pose", flaky)
     with pytest.raises(RuntimeError):
         slide_dataset(tiny_dataset, front_rig, tmp_path / "tc", poses=poses, options=SlideOptions(subdiv=0), progress=False)
-    monkeypatch.setattr(sliding, "slide_pose", original)
+    monkeypatch.setattr(jobs, "slide_pose", original)
     out = slide_dataset(tiny_dataset, front_rig, tmp_path / "tc", poses=poses, options=SlideOptions(subdiv=0, fill="fmm"),
                         progress=False)
     assert "starting over" in capsys.readouterr().err

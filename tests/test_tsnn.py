@@ -119,7 +119,7 @@ def test_overlapping_atlas_is_refused(gl):
     with pytest.raises(InputError, match="overlap"):
         AtlasSampler(faces, overlapping, 32, source="mesh.npz")
     # The overlap found is where the two charts' uv rectangles intersect.
-    mask = uv_overlap(overlapping, faces, 64)
+    mask = uv_overlap(gl, overlapping, faces, 64)
     centres = (np.arange(64) + 0.5) / 64
     U, V = np.meshgrid(centres, centres)
     expected = (U > 0.25) & (U < 0.45) & (V > 0.07) & (V < 0.92)

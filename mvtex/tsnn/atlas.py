@@ -14,14 +14,42 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from ..mesh import barycentric_2d
 
+if TYPE_CHECKING:
+    from ..raster import GLContext
 
-def uv_overlap(uv: np.ndarray, faces: np.ndarray, resolution: int) -> np.ndarray:
+
+def vertex_grid(uv: np.ndarray):
+    """`grid_sample` coordinates (1,1,n,2) float32 torch tensor of texcoords (n,2): 2·uv − 1."""
+    import torch
+
+    return torch.from_numpy(2.0 * np.asarray(uv, dtype=np.float32) - 1.0).view(1, 1, -1, 2)
+
+
+def sample_atlas(images, grid):
+    """Read atlas images at texcoords with bilinear interpolation (GL-free).
+
+    Args:
+        images: (B,C,H,W) torch tensor, row 0 at v ≈ 0.
+        grid: `vertex_grid(uv)` (1,1,n,2) on the images' device.
+
+    Returns:
+        (B,n,C) tensor, differentiable with respect to `images`.
+    """
+    import torch.nn.functional as F
+
+    g = grid.to(images.dtype).expand(images.shape[0], -1, -1, -1)
+    out = F.grid_sample(images, g, mode="bilinear", padding_mode="border", align_corners=False)
+    return out[:, :, 0, :].transpose(1, 2)
+
+
+def uv_overlap(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, resolution: int) -> np.ndarray:
     """Texels whose centre lies inside two or more uv triangles.
 
     `rasterize_uv` keeps the last triangle drawn on a texel. Drawing the faces once in
@@ -30,6 +58,7 @@ def uv_overlap(uv: np.ndarray, faces: np.ndarray, resolution: int) -> np.ndarray
     triangles, whatever the order) and different triangles wherever two or more cover it.
 
     Args:
+        ctx: the GL context.
         uv: (n,2) float texcoords in [0,1]². faces: (m,3) int.
         resolution: image size R (R x R texels).
 
@@ -39,8 +68,8 @@ def uv_overlap(uv: np.ndarray, faces: np.ndarray, resolution: int) -> np.ndarray
     from ..raster import rasterize_uv
 
     faces = np.asarray(faces)
-    forward = rasterize_uv(uv, faces, resolution, resolution, attributes=False).tri_id
-    backward = rasterize_uv(uv, faces[::-1], resolution, resolution, attributes=False).tri_id
+    forward = rasterize_uv(ctx, uv, faces, resolution, resolution, attributes=False).tri_id
+    backward = rasterize_uv(ctx, uv, faces[::-1], resolution, resolution, attributes=False).tri_id
     backward = np.where(backward >= 0, len(faces) - 1 - backward, -1)
     return forward != backward
 
@@ -75,14 +104,16 @@ class AtlasSampler:
             sampling at a border vertex (which reads the 2x2 texels around it) reads values of
             its own chart, never background.
         source: file the atlas comes from, named in errors.
+        ctx: the GL context for the two rasterizations in UV done here (one is created, and
+            released, if None). Nothing else of the sampler uses GL.
 
     Raises:
         InputError: uv outside [0,1]² or overlapping charts.
     """
 
     def __init__(self, faces: np.ndarray, uv: np.ndarray, resolution: int, *, dilation: int = 2,
-                 source: str | os.PathLike | None = None):
-        from ..raster import Raster, rasterize_uv
+                 source: str | os.PathLike | None = None, ctx: GLContext | None = None):
+        from ..raster import GLContext, Raster, rasterize_uv
 
         self.faces = np.asarray(faces, dtype=np.int32)
         self.uv = np.asarray(uv, dtype=np.float32)
@@ -96,13 +127,18 @@ class AtlasSampler:
         if self.uv.min() < 0 or self.uv.max() > 1:
             raise InputError(source, f"uv outside [0,1]² (range {self.uv.min():.4g}..{self.uv.max():.4g}): "
                              "atlas images cover the unit square only")
-        overlap = uv_overlap(self.uv, self.faces, self.resolution)
+        if ctx is None:
+            with GLContext() as own:
+                overlap = uv_overlap(own, self.uv, self.faces, self.resolution)
+                raster = rasterize_uv(own, self.uv, self.faces, self.resolution, self.resolution)
+        else:
+            overlap = uv_overlap(ctx, self.uv, self.faces, self.resolution)
+            raster = rasterize_uv(ctx, self.uv, self.faces, self.resolution, self.resolution)
         if overlap.any():
             rows, cols = np.nonzero(overlap)
             raise InputError(source, f"uv charts overlap on {int(overlap.sum())} texels of a "
                              f"{self.resolution}x{self.resolution} atlas (first at u={(cols[0] + 0.5) / self.resolution:.4f}, "
                              f"v={(rows[0] + 0.5) / self.resolution:.4f}); one texel cannot hold two displacements")
-        raster = rasterize_uv(self.uv, self.faces, self.resolution, self.resolution)
         self.layout = self._dilate(raster.tri_id, raster.bary)
         self._raster = Raster(tri_id=self.layout.tri_id, bary=self.layout.bary, depth=None)
 
@@ -146,9 +182,7 @@ class AtlasSampler:
 
     def grid(self):
         """The `grid_sample` grid of the vertices' T_G, (1,1,n,2) float32 torch tensor in [-1,1]."""
-        import torch
-
-        return torch.from_numpy(2.0 * self.uv.astype(np.float32) - 1.0).view(1, 1, -1, 2)
+        return vertex_grid(self.uv)
 
     def sample(self, images, grid=None):
         """Read atlas images at every vertex's T_G with bilinear interpolation.
@@ -160,13 +194,9 @@ class AtlasSampler:
         Returns:
             (B,n,C) tensor, differentiable with respect to `images`.
         """
-        import torch.nn.functional as F
-
         if grid is None:
             grid = self.grid().to(images.device)
-        g = grid.to(images.dtype).expand(images.shape[0], -1, -1, -1)
-        out = F.grid_sample(images, g, mode="bilinear", padding_mode="border", align_corners=False)
-        return out[:, :, 0, :].transpose(1, 2)
+        return sample_atlas(images, grid)
 
     def sample_numpy(self, image: np.ndarray) -> np.ndarray:
         """`sample` for one (H,W,C) numpy image; returns (n,C) float32."""

@@ -105,13 +105,6 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     return LoadedModel(path=path, camera=camera, meta=meta, network=network)
 
 
-def vertex_grid(uv: np.ndarray):
-    """`grid_sample` coordinates (1,1,n,2) of texcoords (n,2): 2·uv − 1 (see `mvtex.tsnn.atlas`)."""
-    import torch
-
-    return torch.from_numpy(2.0 * np.asarray(uv, dtype=np.float32) - 1.0).view(1, 1, -1, 2)
-
-
 def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, *, batch_size: int = 32,
                           device: str = "cpu") -> np.ndarray:
     """Per-vertex displacements of one network.
@@ -125,7 +118,8 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
         (K,n',2) float32 d.
     """
     import torch
-    import torch.nn.functional as F
+
+    from .atlas import sample_atlas, vertex_grid
 
     net = model.network.to(device)
     grid = vertex_grid(uv).to(device)
@@ -134,9 +128,7 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
     with torch.no_grad():
         for start in range(0, len(x), batch_size):
             images = net(x[start:start + batch_size])
-            g = grid.expand(images.shape[0], -1, -1, -1)
-            d = F.grid_sample(images, g, mode="bilinear", padding_mode="border", align_corners=False)
-            out[start:start + len(images)] = d[:, :, 0, :].transpose(1, 2).cpu().numpy()
+            out[start:start + len(images)] = sample_atlas(images, grid).cpu().numpy()
     return out
 
 

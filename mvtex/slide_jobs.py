@@ -1,0 +1,266 @@
+"""Texture sliding over a whole dataset (DESIGN §5 step 7): every (pose, camera) job of
+`mvtex.sliding.slide_pose`, streamed into a texcoord set (DESIGN §4), resumable, on local
+processes or a Dask cluster.
+
+The pose-independent topology is built once from `mvtex.dataset.reference_shape`, in the
+main process and in every worker alike, so the result of a pose does not depend on the
+pose subset, on their order or on the number of workers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Rig
+from .errors import InputError
+from .sliding import SlideOptions, SlideTopology, build_topology, slide_pose
+
+_FLUSH_SECONDS = 5.0
+_CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
+_AUTO_WORKERS = 8  # workers=None: one process per core, up to this many
+_AUTO_MIN_JOBS = 256  # workers=None: fewer jobs left than this run in this process (start-up ≈ 1-2 s a worker)
+
+
+def _fingerprint(*arrays: np.ndarray) -> str:
+    h = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str(a.shape).encode())
+        h.update(str(a.dtype).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def _rig_record(rig: Rig) -> dict:
+    return {cam.name: {"width": cam.width, "height": cam.height, "K": cam.K.tolist(), "R": cam.R.tolist(),
+                       "t": cam.t.tolist()} for cam in rig}
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """What a worker needs to slide chunks of poses: picklable, cached per process by key."""
+
+    dataset: str
+    rig: Rig
+    options: SlideOptions
+    key: str
+    worker: bool = False
+
+
+@dataclass
+class _WorkerState:
+    """What one process keeps between chunks of one run: the dataset, its topology and
+    the process's GL context."""
+
+    key: str
+    dataset: object
+    topology: SlideTopology
+    ctx: object
+    owns_ctx: bool
+
+
+# This process's state for the run it currently serves (a worker serves one run at a time).
+_WORKER: dict[str, _WorkerState] = {}
+
+
+def single_thread_gl() -> None:
+    """In a worker process, before its GL context is created: let llvmpipe rasterize in the
+    calling thread (fewer CPU cycles per draw); with one process per core its own
+    rasterizer threads would only compete with the other processes."""
+    os.environ.setdefault("LP_NUM_THREADS", "0")
+
+
+def _set_state(state: _WorkerState | None) -> None:
+    old = _WORKER.pop("current", None)
+    if old is not None and old.owns_ctx and (state is None or old.ctx is not state.ctx):
+        old.ctx.release()
+    if state is not None:
+        _WORKER["current"] = state
+
+
+def _state(spec: _Spec) -> _WorkerState:
+    state = _WORKER.get("current")
+    if state is None or state.key != spec.key:
+        from .dataset import load_dataset, reference_shape
+        from .raster import GLContext
+
+        if spec.worker:
+            single_thread_gl()
+        ds = load_dataset(spec.dataset, validate=False)
+        topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
+        state = _WorkerState(spec.key, ds, topo, GLContext(), owns_ctx=True)
+        _set_state(state)
+    return state
+
+
+def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
+    """Slide poses[rows] for one camera; returns (camera, rows, d (r,n',2), assigned (r,n'))."""
+    state = _state(spec)
+    ds, topo = state.dataset, state.topology
+    cam = spec.rig[camera]
+    d_out = np.empty((len(rows), len(topo.uv), 2), np.float32)
+    a_out = np.empty((len(rows), len(topo.uv)), bool)
+    for i, row in enumerate(rows):
+        k = poses[row]
+        d_out[i], a_out[i] = slide_pose(ds.gt[k], ds.inferred[k], ds.faces, ds.uv, cam, topo.subdivision,
+                                        spec.options, topology=topo, ctx=state.ctx)
+    return camera, rows, d_out, a_out
+
+
+def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], options: SlideOptions,
+                  cameras: list[str] | None = None, workers: int | None = None, scheduler: str | None = None,
+                  progress: bool = True, ctx=None) -> Path:
+    """Texture-slide every (pose, camera) of a dataset into a texcoord set (DESIGN §4).
+
+    Results stream into memory-mapped .npy files in ``<out>.partial/``; a per-camera done
+    mask (``done.npy``) is saved after the data is flushed, every few seconds and on any
+    exception, so an interrupted run continues where it stopped when called again with the
+    same arguments. Called with different options, poses, cameras, rig, dataset or
+    reference shape, it discards the partial result (saying so on stderr) and starts over.
+    When every job is done the directory is renamed to `out` (replacing an older `out`).
+
+    texcoords.json records "reference": which shape (`dataset.reference_shape`) the
+    topology, seam groups, fill Laplacian and edge breaking were measured on, and its
+    fingerprint.
+
+    Args:
+        dataset: a `Dataset` or a dataset directory.
+        rig: a `Rig` or a rig path / built-in rig name.
+        out: the texcoord set directory to write.
+        poses: dataset pose indices (rows of the set, in this order).
+        options: SlideOptions (recorded in texcoords.json as "options").
+        cameras: camera names (default: every camera of the rig).
+        workers: local processes (each with its own GL context); 1 = this process; None =
+            up to `_AUTO_WORKERS` (one per CPU core) when at least `_AUTO_MIN_JOBS` jobs are
+            left (a process takes about a second to start), else 1.
+        scheduler: Dask scheduler address (overrides `workers`).
+        progress: show a progress bar on stderr.
+        ctx: `raster.GLContext` for the jobs run in this process (created, and released at
+            the end, if None); worker processes create their own.
+
+    Returns:
+        Path of the finished texcoord set.
+    """
+    from numpy.lib.format import open_memmap
+    from tqdm import tqdm
+
+    from .camera import as_rig
+    from .dataset import as_dataset, reference_shape, reference_shape_source
+    from .io import load_npy, read_json, save_npy
+    from .texcoords import write_header
+
+    ds = as_dataset(dataset)
+    rig, rig_path = as_rig(rig)
+    rig = rig.select(cameras, source=rig_path)
+    poses = ds.check_poses(poses)
+    out = Path(out)
+    partial = out.with_name(out.name + ".partial")
+    reference = reference_shape(ds)
+    topo = build_topology(ds.faces, ds.uv, reference, options.subdiv)
+    n_sub = len(topo.uv)
+    record = {
+        "options": options.to_json(),
+        "dataset": {"path": str(Path(ds.path).resolve()), "name": ds.name, "num_poses": ds.num_poses,
+                    "num_vertices": ds.num_vertices, "mesh": _fingerprint(ds.faces, ds.uv)},
+        "reference": {"shape": reference_shape_source(ds), "fingerprint": _fingerprint(reference)},
+        "rig": _rig_record(rig),
+    }
+    if partial.is_dir():
+        try:
+            old = read_json(partial / "texcoords.json")
+        except InputError:
+            old = None
+        same = isinstance(old, dict) and all(old.get(k) == v for k, v in record.items()) and \
+            old.get("poses") == poses and old.get("cameras") == rig.names and old.get("subdiv") == options.subdiv
+        if not same:
+            print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
+            shutil.rmtree(partial)
+    if not partial.is_dir():
+        tmp = partial.with_name(partial.name + ".new")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        write_header(tmp, faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
+                     subdiv=options.subdiv, poses=poses, cameras=rig.names, **record)
+        for cam in rig.names:
+            (tmp / cam).mkdir()
+            open_memmap(tmp / cam / "displacement.npy", mode="w+", dtype=np.float32, shape=(len(poses), n_sub, 2)).flush()
+            open_memmap(tmp / cam / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), n_sub)).flush()
+            np.save(tmp / cam / "done.npy", np.zeros(len(poses), bool), allow_pickle=False)
+        os.replace(tmp, partial)
+
+    disp = {c: open_memmap(partial / c / "displacement.npy", mode="r+") for c in rig.names}
+    asg = {c: open_memmap(partial / c / "assigned.npy", mode="r+") for c in rig.names}
+    done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool) for c in rig.names}
+    for c in rig.names:
+        if disp[c].shape != (len(poses), n_sub, 2) or asg[c].shape != (len(poses), n_sub) or done[c].shape != (len(poses),):
+            raise InputError(partial / c, "unfinished result has unexpected array shapes; delete it and rerun")
+    tasks = []
+    for c in rig.names:
+        todo = np.flatnonzero(~done[c]).tolist()
+        for i in range(0, len(todo), _CHUNK):
+            tasks.append((c, todo[i:i + _CHUNK]))
+    left = sum(len(r) for _, r in tasks)
+    if workers is None:
+        workers = min(_AUTO_WORKERS, os.cpu_count() or 1) if left >= _AUTO_MIN_JOBS else 1
+    # Smaller tasks when they would not keep every worker busy.
+    if workers > 1 and not scheduler and len(tasks) < 4 * workers:
+        tasks = [(c, rows[i:i + 2]) for c, rows in tasks for i in range(0, len(rows), 2)]
+    spec = _Spec(dataset=str(ds.path), rig=rig, options=options,
+                 key=_fingerprint(np.frombuffer(json.dumps(record, sort_keys=True).encode(), np.uint8)),
+                 worker=workers > 1 and not scheduler)
+    own_ctx = None
+    if workers == 1 and not scheduler:
+        # The jobs run in this process and reuse what was just built.
+        if ctx is None:
+            from .raster import GLContext
+
+            ctx = own_ctx = GLContext()
+        _set_state(_WorkerState(spec.key, ds, topo, ctx, owns_ctx=False))
+    total = len(poses) * len(rig)
+    dirty: set = set()
+    last = time.monotonic()
+
+    def flush() -> None:
+        for c in dirty:
+            disp[c].flush()
+            asg[c].flush()
+            save_npy(partial / c / "done.npy", done[c])
+        dirty.clear()
+
+    from .parallel import map_unordered
+
+    bar = tqdm(total=total, initial=total - sum(len(r) for _, r in tasks), desc="slide", unit="job",
+               disable=not progress, file=sys.stderr)
+    try:
+        for cam, rows, d, a in map_unordered(_slide_chunk, [(spec, c, rows, poses) for c, rows in tasks],
+                                             workers=workers, scheduler=scheduler):
+            disp[cam][rows] = d
+            asg[cam][rows] = a
+            done[cam][rows] = True
+            dirty.add(cam)
+            bar.update(len(rows))
+            if time.monotonic() - last > _FLUSH_SECONDS:
+                flush()
+                last = time.monotonic()
+    finally:
+        flush()
+        bar.close()
+        _set_state(None)
+        if own_ctx is not None:
+            own_ctx.release()
+    del disp, asg
+    for c in rig.names:
+        (partial / c / "done.npy").unlink()
+    if out.exists():
+        shutil.rmtree(out)
+    os.replace(partial, out)
+    return out

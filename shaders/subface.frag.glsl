@@ -1,0 +1,26 @@
+#version 330
+// Triangle id + 1 (0 = background). With levels > 0 the id is that of the midpoint-
+// subdivided child face containing the pixel centre, found from the perspective-correct
+// barycentrics in the drawn (base) face: children of face f are k * m + f for corner
+// children k = 0, 1, 2 (barycentric of corner k above 1/2) and the centre child k = 3
+// (`mvtex.mesh.subdivide`'s order); the barycentrics are then mapped into the child.
+uniform int num_faces;
+uniform int levels;
+in vec3 v_bary;
+in float v_z;
+layout(location = 0) out int out_id;
+void main() {
+    vec3 b = v_bary;
+    int f = gl_PrimitiveID;
+    int m = num_faces;
+    for (int level = 0; level < levels; ++level) {
+        int k;
+        if (b.x > 0.5) { k = 0; b = vec3(2.0 * b.x - 1.0, 2.0 * b.y, 2.0 * b.z); }
+        else if (b.y > 0.5) { k = 1; b = vec3(2.0 * b.x, 2.0 * b.y - 1.0, 2.0 * b.z); }
+        else if (b.z > 0.5) { k = 2; b = vec3(2.0 * b.x, 2.0 * b.y, 2.0 * b.z - 1.0); }
+        else { k = 3; b = vec3(1.0 - 2.0 * b.z, 1.0 - 2.0 * b.x, 1.0 - 2.0 * b.y); }
+        f = k * m + f;
+        m = 4 * m;
+    }
+    out_id = f + 1;
+}
