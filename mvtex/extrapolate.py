@@ -5,9 +5,12 @@ Two methods:
 
 - ``harmonic``: the Laplace equation with the assigned values as Dirichlet data, solved
   with a sparse direct solver (SuperLU via `scipy.sparse.linalg.splu`; the unknowns are
-  eliminated in a minimum-degree order of the whole mesh computed once per `FillSystem`). Weights are
-  *cotangent* weights (clamped at a small positive value, see `cotangent_laplacian`), so
-  a linear field on a flat patch is reproduced exactly for any triangulation.
+  eliminated in a minimum-degree order of the whole mesh computed once per `FillSystem`).
+  The operator is potpourri3d's cotangent Laplacian (`laplacian_matrix`), so a linear
+  field on a flat patch is reproduced exactly for any triangulation. The intrinsic
+  Delaunay Laplacian (robust_laplacian) was measured against it on the built-in garment
+  (examples/fill_laplacian.py): identical on its rest shape, slightly less accurate on a
+  folded reference shape, so it serves only as the fallback for degenerate triangles.
 - ``fmm``: the paper's recipe. Geodesic distance from the assigned set by the heat method
   (potpourri3d's `MeshHeatMethodDistanceSolver`, not fast marching proper), extension of
   the values along it (each unassigned vertex, in increasing distance, takes the average
@@ -27,48 +30,53 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
+from .mesh import adjacency, edges
+
 METHODS = ("harmonic", "fmm")
 
 
-def cotangent_laplacian(positions: np.ndarray, faces: np.ndarray, n: int | None = None,
-                        min_weight: float = 1e-8) -> sp.csr_matrix:
-    """Symmetric (n,n) cotangent Laplacian L = D - W, W_ij = (cot α + cot β) / 2.
+LAPLACIANS = ("cotan", "intrinsic")
+HARMONIC_LAPLACIAN = "cotan"  # the harmonic fill's Laplacian (measured: see examples/fill_laplacian.py)
 
-    Edge weights are clamped from below at `min_weight` times the mean weight: a negative
-    weight (an edge opposite two obtuse angles) would break the maximum principle and can
-    make the Dirichlet problem ill-posed; on a Delaunay (e.g. flat regular) mesh nothing
-    is clamped, so linear precision holds.
+
+def laplacian_matrix(positions: np.ndarray, faces: np.ndarray, kind: str = "cotan") -> sp.csr_matrix:
+    """Symmetric positive semi-definite (n,n) Laplacian L = D - W of a triangle mesh, from a
+    library:
+
+    - "cotan": the cotangent Laplacian, W_ij = (cot α + cot β) / 2
+      (`potpourri3d.cotan_laplacian`). Exact for linear fields on any flat triangulation;
+      an edge opposite two obtuse angles gets a negative weight.
+    - "intrinsic": the cotangent Laplacian of the intrinsic Delaunay triangulation
+      (`robust_laplacian.mesh_laplacian`, Sharp & Crane 2020): non-negative weights by
+      construction (a maximum principle on every mesh, folded or not), and equal to
+      "cotan" where the mesh is already Delaunay.
+
+    "cotan" falls back to "intrinsic" on a mesh with zero-area triangles.
 
     Args:
-        positions: (n,3) float positions.
-        faces: (m,3) int vertex indices (vertices not referenced are isolated).
-        n: number of vertices (default len(positions)).
+        positions: (n,3) float positions. faces: (m,3) int (unreferenced vertices are isolated).
+        kind: one of `LAPLACIANS`.
     """
-    p = np.asarray(positions, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    n = len(p) if n is None else n
-    rows, cols, vals = [], [], []
-    for k in range(3):
-        i, j, o = f[:, (k + 1) % 3], f[:, (k + 2) % 3], f[:, k]
-        a = p[i] - p[o]
-        b = p[j] - p[o]
-        dot = np.einsum("ij,ij->i", a, b)
-        cross = np.linalg.norm(np.cross(a, b), axis=1)
-        cot = dot / np.maximum(cross, 1e-300)
-        rows.append(i)
-        cols.append(j)
-        vals.append(0.5 * cot)
-    rows = np.concatenate(rows)
-    cols = np.concatenate(cols)
-    vals = np.concatenate(vals)
-    w = sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
-    w = (w + w.T).tocsr()
-    w.sum_duplicates()
-    if w.nnz:
-        floor = min_weight * max(float(np.mean(np.abs(w.data))), 1e-300)
-        w.data = np.maximum(w.data, floor)
-    deg = np.asarray(w.sum(axis=1)).ravel()
-    return (sp.diags(deg) - w).tocsr()
+    p = np.ascontiguousarray(positions, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    if kind == "cotan":
+        import potpourri3d as pp3d
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            L = pp3d.cotan_laplacian(p, f)
+        if not np.all(np.isfinite(L.data)):
+            # Zero-area triangles have no cotangents; the intrinsic operator is defined on
+            # every mesh.
+            return laplacian_matrix(p, f, "intrinsic")
+    elif kind == "intrinsic":
+        import robust_laplacian
+
+        L = robust_laplacian.mesh_laplacian(p, f)[0]
+    else:
+        raise ValueError(f"unknown Laplacian {kind!r} (use {' or '.join(LAPLACIANS)})")
+    L = sp.csr_matrix(L, dtype=np.float64)
+    L.sum_duplicates()
+    return L
 
 
 def _welded(faces: np.ndarray, positions: np.ndarray, groups: np.ndarray | None):
@@ -111,15 +119,21 @@ def _zero_unreachable(adj: sp.csr_matrix, known: np.ndarray, vals: np.ndarray) -
 
 class FillSystem:
     """The pose-independent part of a harmonic fill, built once per mesh: welding and the
-    cotangent Laplacian on `positions` (e.g. a rest shape). Pass it to `fill(system=...)`
-    to fill many value sets on the same mesh without rebuilding the Laplacian.
+    Laplacian on `positions` (e.g. a rest shape). Pass it to `fill(system=...)` to fill
+    many value sets on the same mesh without rebuilding the Laplacian.
+
+    Args:
+        faces: (m,3) int. positions: (n,3) float. groups: optional (n,) seam groups.
+        laplacian: `laplacian_matrix` kind (default `HARMONIC_LAPLACIAN`).
     """
 
-    def __init__(self, faces: np.ndarray, positions: np.ndarray, groups: np.ndarray | None = None):
+    def __init__(self, faces: np.ndarray, positions: np.ndarray, groups: np.ndarray | None = None, *,
+                 laplacian: str | None = None):
         self.num_vertices = len(positions)
         faces_w, pos_w, self.index = _welded(faces, positions, groups)
         self.num_welded = len(pos_w)
-        self.laplacian = cotangent_laplacian(pos_w, faces_w, self.num_welded)
+        self.kind = HARMONIC_LAPLACIAN if laplacian is None else laplacian
+        self.laplacian = laplacian_matrix(pos_w, faces_w, self.kind)
         self.label = csgraph.connected_components(self.laplacian, directed=False)[1]
         self._rank: np.ndarray | None = None
 
@@ -218,9 +232,9 @@ def _harmonic(system: FillSystem, known: np.ndarray, vals: np.ndarray) -> np.nda
     L_u = L[u]
     L_uu = L_u[:, u].tocsc()
     rhs = -(L_u[:, k] @ vals[k])
-    # Every unknown's component touches a known vertex, so L_uu is nonsingular (an
-    # M-matrix: weights are clamped positive) and symmetric positive definite: no pivoting,
-    # and the rows are already in a fill-reducing order, so SuperLU keeps it ("NATURAL").
+    # Every unknown's component touches a known vertex, so L_uu is nonsingular and
+    # symmetric positive definite (a principal submatrix of a connected Laplacian): no
+    # pivoting, and the rows are already in a fill-reducing order, so SuperLU keeps it.
     lu = splu(L_uu, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     vals[u] = lu.solve(np.ascontiguousarray(rhs))
     return vals
@@ -236,9 +250,7 @@ def heat_distance(positions: np.ndarray, faces: np.ndarray, sources: np.ndarray)
     n = len(positions)
     used = np.zeros(n, bool)
     used[np.asarray(faces).ravel()] = True
-    adj = sp.coo_matrix((np.ones(3 * len(faces)), (np.asarray(faces)[:, [0, 1, 2]].ravel(),
-                                                    np.asarray(faces)[:, [1, 2, 0]].ravel())), shape=(n, n))
-    ncomp, label = csgraph.connected_components(adj, directed=False)
+    ncomp, label = csgraph.connected_components(adjacency(faces, n), directed=False)
     dist = np.full(n, np.inf)
     sources = np.asarray(sources, dtype=np.int64)
     for c in np.unique(label[sources]):
@@ -259,10 +271,8 @@ def heat_distance(positions: np.ndarray, faces: np.ndarray, sources: np.ndarray)
 def _fmm(faces: np.ndarray, positions: np.ndarray, known: np.ndarray, vals: np.ndarray, passes: int) -> np.ndarray:
     n = len(positions)
     f = np.asarray(faces, dtype=np.int64)
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    adj = (adj + adj.T).tocsr()
+    e = edges(f)
+    adj = adjacency(f, n)
     known = _zero_unreachable(adj, known, vals)
     sources = np.flatnonzero(known)
     if len(sources) == n:
