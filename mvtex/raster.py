@@ -71,7 +71,8 @@ class GLContext:
     @property
     def renderer(self) -> str:
         """The GL renderer string (e.g. 'llvmpipe (...)' or an NVIDIA GPU)."""
-        return str(self.mgl.info["GL_RENDERER"])
+        with self.mgl:
+            return str(self.mgl.info["GL_RENDERER"])
 
     @property
     def error(self) -> str:

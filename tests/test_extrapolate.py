@@ -89,3 +89,45 @@ def test_prebuilt_system_order_gives_the_same_solution_as_a_fresh_solve():
     u, k = np.flatnonzero(~assigned), np.flatnonzero(assigned)
     expected = np.linalg.solve(L[np.ix_(u, u)], -L[np.ix_(u, k)] @ values[k])
     assert np.abs(out[u] - expected).max() < 1e-10
+
+
+def _folded_strip():
+    """A strip whose middle row is pushed up steeply: obtuse angles, negative cotangent weights."""
+    from conftest import grid_mesh
+
+    faces, _, rest = grid_mesh(12, 6, size=0.3)
+    positions = rest.copy()
+    positions[:, 2] = 0.2 * np.exp(-(rest[:, 1] / 0.02) ** 2) * np.sin(40 * rest[:, 0])
+    return faces, positions
+
+
+def test_cotan_laplacian_is_the_textbook_operator_without_clamp():
+    from mvtex.extrapolate import laplacian_matrix
+
+    faces, positions = _folded_strip()
+    n = len(positions)
+    W = np.zeros((n, n))
+    for f in faces:  # (cot α + cot β) / 2, one corner at a time
+        for k in range(3):
+            o, i, j = f[k], f[(k + 1) % 3], f[(k + 2) % 3]
+            a, b = positions[i] - positions[o], positions[j] - positions[o]
+            cot = a @ b / np.linalg.norm(np.cross(a, b))
+            W[i, j] += cot / 2
+            W[j, i] += cot / 2
+    expected = np.diag(W.sum(axis=1)) - W
+    L = laplacian_matrix(positions, faces, "cotan").toarray()
+    assert np.abs(L - expected).max() < 1e-10 * np.abs(expected).max()
+    assert (W < 0).any()  # the fold makes negative weights: they are kept, not clamped
+
+
+def test_intrinsic_laplacian_has_nonnegative_weights_and_degenerate_faces_fall_back():
+    from mvtex.extrapolate import laplacian_matrix
+
+    faces, positions = _folded_strip()
+    L = laplacian_matrix(positions, faces, "intrinsic").toarray()
+    off = L - np.diag(np.diag(L))
+    assert off.max() <= 1e-12 and np.abs(L.sum(axis=1)).max() < 1e-9
+    flat = positions.copy()
+    flat[faces[0, 2]] = (flat[faces[0, 0]] + flat[faces[0, 1]]) / 2  # a zero-area triangle
+    L = laplacian_matrix(flat, faces, "cotan")
+    assert np.all(np.isfinite(L.data))

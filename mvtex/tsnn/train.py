@@ -178,7 +178,8 @@ class _Data:
             raise InputError(texcoords.path / camera / "displacement.npy", "NaN or infinite displacements")
         self.poses = poses
         self.d_numpy = d
-        self.x = torch.from_numpy(np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), -1)).to(device)
+        pose_dim = int(dataset.poses.shape[1])
+        self.x = torch.from_numpy(np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), pose_dim)).to(device)
         self.d = torch.from_numpy(d).to(device)
         self.w = torch.from_numpy(np.where(a, weight_assigned, 1.0).astype(np.float32)).to(device)
 
