@@ -76,6 +76,9 @@ def laplacian_matrix(positions: np.ndarray, faces: np.ndarray, kind: str = "cota
         raise ValueError(f"unknown Laplacian {kind!r} (use {' or '.join(LAPLACIANS)})")
     L = sp.csr_matrix(L, dtype=np.float64)
     L.sum_duplicates()
+    # Edges opposite two right angles (a regular grid's diagonals) weigh exactly 0: leaving
+    # them out keeps the elimination order and the factorisation sparse.
+    L.eliminate_zeros()
     return L
 
 
