@@ -123,6 +123,7 @@ def test_bad_usage_exits_2(capsys):
     assert main(["nonsense"]) == 2
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
     pytest.importorskip("torch")

@@ -19,6 +19,7 @@ def load(name: str):
     return module
 
 
+@pytest.mark.slow
 def test_quickstart(tmp_path, gl):
     result = load("quickstart").main(tmp_path, 12)
     assert result["eval"]["ratio"] > 1.0

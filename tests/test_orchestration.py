@@ -163,7 +163,6 @@ def test_triangulate_json(gl, tiny_dataset, rig_path, slid, tmp_path, capsys):
     assert (out / "reconstruction.ply").exists()
 
 
-@pytest.mark.slow
 @pytest.mark.gl
 def test_train_json(gl, tiny_dataset, slid, tmp_path, capsys):
     pytest.importorskip("torch")
@@ -174,7 +173,6 @@ def test_train_json(gl, tiny_dataset, slid, tmp_path, capsys):
     assert any(out.iterdir())
 
 
-@pytest.mark.slow
 @pytest.mark.gl
 def test_bench_json_both_paths_agree(gl, tiny_dataset, rig_path, capsys):
     """`bench` claims the raster path and the Embree ray-cast path agree: d to 1e-5 uv on

@@ -127,6 +127,7 @@ def test_overlapping_atlas_is_refused(gl):
     assert mask[inner].all() and not mask[~expected].any()
 
 
+@pytest.mark.slow
 def test_training_beats_zero_predictor_and_checkpoint_roundtrips(field_data, tmp_path):
     from mvtex.texcoords import open_texcoords
     from mvtex.tsnn.predict import load_model, predict, predict_displacements
