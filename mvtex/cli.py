@@ -180,7 +180,7 @@ def cmd_render(args) -> None:
     rig, rig_path = _load_rig(args.rig)
     rig = rig.select(_cameras(args.cameras), rig_path)
     tc = open_texcoords(args.texcoords, dataset.num_vertices) if args.texcoords else None
-    summary = render_pose(dataset, rig, args.pose, args.out, texcoords=tc, raster=args.raster, rig_path=rig_path,
+    summary = render_pose(dataset, rig, args.pose, args.out, texcoord_set=tc, raster=args.raster, rig_path=rig_path,
                           progress=not args.quiet)
     print(f"wrote {len(summary['files'])} files to {args.out}")
 

@@ -103,8 +103,9 @@ def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same
     return out
 
 
-def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, heatmaps: str | os.PathLike | None = None,
-             progress: bool = True, ctx: GLContext | None = None) -> dict:
+def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
+             heatmaps: str | os.PathLike | None = None, progress: bool = True,
+             ctx: GLContext | None = None) -> dict:
     """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
 
     "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
@@ -115,7 +116,7 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
         dataset: `Dataset` or dataset directory.
         rig: `Rig` or rig path / built-in name. A rig whose cameras are all in the set
             selects those cameras; otherwise it must contain every camera of the set.
-        texcoords: `TexcoordSet` or its directory.
+        texcoord_set: `TexcoordSet` or its directory.
         poses: dataset pose indices (default: the set's poses).
         heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
             baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
@@ -135,14 +136,14 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
 
     if ctx is None:
         with GLContext() as own:
-            return evaluate(dataset, rig, texcoords, poses=poses, heatmaps=heatmaps, progress=progress, ctx=own)
+            return evaluate(dataset, rig, texcoord_set, poses=poses, heatmaps=heatmaps, progress=progress, ctx=own)
     from tqdm import tqdm
 
     from .io import save_png
     from .viz import colorbar, heatmap, side_by_side
 
     ds = as_dataset(dataset)
-    tc = texcoords if isinstance(texcoords, TexcoordSet) else open_texcoords(texcoords, ds.num_vertices)
+    tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
     if tc.num_base_vertices != ds.num_vertices:
         from .errors import InputError
 

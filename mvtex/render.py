@@ -35,14 +35,16 @@ class MeshView:
     texcoords: np.ndarray
 
 
-def pose_views(dataset: Dataset, pose: int, camera: str, texcoords: TexcoordSet | None = None) -> dict[str, MeshView]:
+def pose_views(dataset: Dataset, pose: int, camera: str,
+               texcoord_set: TexcoordSet | None = None) -> dict[str, MeshView]:
     """The gt mesh (with T_G) and the inferred mesh (with T_G, or the set's T_N on its mesh)."""
     gt = MeshView(np.asarray(dataset.gt[pose], np.float64), dataset.faces, dataset.uv)
     inferred_pos = np.asarray(dataset.inferred[pose], np.float64)
-    if texcoords is None:
+    if texcoord_set is None:
         inferred = MeshView(inferred_pos, dataset.faces, dataset.uv)
     else:
-        inferred = MeshView(texcoords.positions(inferred_pos), texcoords.faces, texcoords.texcoords(camera, pose))
+        inferred = MeshView(texcoord_set.positions(inferred_pos), texcoord_set.faces,
+                            texcoord_set.texcoords(camera, pose))
     return {"gt": gt, "inferred": inferred}
 
 
@@ -52,7 +54,7 @@ def check_sees_mesh(raster, camera: Camera, rig_path, pose: int, what: str) -> N
 
 
 def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *,
-                texcoords: TexcoordSet | None = None, raster: bool = False, rig_path: str | None = None,
+                texcoord_set: TexcoordSet | None = None, raster: bool = False, rig_path: str | None = None,
                 progress: bool = True, ctx: GLContext | None = None) -> dict:
     """Render one pose from every camera of a rig into `out` (see module docstring).
 
@@ -70,15 +72,15 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
         cam.require_pinhole(rig_path)
     if ctx is None:
         with gl.GLContext() as own:
-            return render_pose(dataset, rig, pose, out, texcoords=texcoords, raster=raster, rig_path=rig_path,
-                               progress=progress, ctx=own)
+            return render_pose(dataset, rig, pose, out, texcoord_set=texcoord_set, raster=raster,
+                               rig_path=rig_path, progress=progress, ctx=own)
     from tqdm import tqdm
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files, tiles = [], []
     for cam in tqdm(list(rig), desc=f"render pose {pose}", unit="camera", disable=not progress):
-        views = pose_views(dataset, pose, cam.name, texcoords)
+        views = pose_views(dataset, pose, cam.name, texcoord_set)
         row = []
         for what, view in views.items():
             r = gl.rasterize(ctx, view.positions, view.faces, cam)
@@ -100,6 +102,7 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
                                               col_labels=rig.names, row_labels=["gt", "inferred"]))
     files.append("overview.png")
     summary = {"pose": int(pose), "cameras": rig.names, "dataset": str(dataset.path),
-               "texcoords": None if texcoords is None else str(texcoords.path), "raster": bool(raster), "files": files}
+               "texcoords": None if texcoord_set is None else str(texcoord_set.path), "raster": bool(raster),
+               "files": files}
     write_json(out / "render.json", summary)
     return summary
