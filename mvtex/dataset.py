@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import InputError
-from .io import atomic_path, load_npy, load_npz, read_json
+from .io import atomic_path, load_npy, load_npz, read_header, read_json
 
 FORMAT = "mvtex-dataset"
 VERSION = 1
@@ -172,13 +172,7 @@ def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = No
 def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
     """Open a dataset directory (arrays memory-mapped); problems raise InputError."""
     path = Path(path)
-    if not path.is_dir():
-        raise InputError(path, "dataset directory not found")
-    meta = read_json(path / "dataset.json")
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise InputError(path / "dataset.json", f'not an mvtex dataset (format must be "{FORMAT}")')
-    if meta.get("version") != VERSION:
-        raise InputError(path / "dataset.json", f"unsupported version {meta.get('version')!r} (expected {VERSION})")
+    meta = read_header(path, "dataset.json", FORMAT, VERSION, "an mvtex dataset")
     mesh = load_npz(path / "mesh.npz")
     for key in ("faces", "uv"):
         if key not in mesh:

@@ -52,6 +52,24 @@ def read_json(path: str | os.PathLike) -> Any:
         raise InputError(path, f"malformed JSON ({err})") from None
 
 
+def read_header(directory: str | os.PathLike, filename: str, fmt: str, version: int, what: str) -> dict:
+    """The JSON header of an mvtex directory (dataset.json, texcoords.json), checked: the
+    directory exists, the file is a JSON object with this "format" and "version".
+
+    Args:
+        what: the kind of directory for messages, with its article ("an mvtex dataset").
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(directory, f"{what.split(' ', 1)[1]} directory not found")
+    meta = read_json(directory / filename)
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        raise InputError(directory / filename, f'not {what} (format must be "{fmt}")')
+    if meta.get("version") != version:
+        raise InputError(directory / filename, f"unsupported version {meta.get('version')!r} (expected {version})")
+    return meta
+
+
 def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
     """np.save atomically."""
     with atomic_path(path) as tmp:

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import InputError
-from .io import load_npy, load_npz, read_json, atomic_path
+from .io import atomic_path, load_npy, load_npz, read_header
 from .mesh import apply_extension, extension_matrix
 
 FORMAT = "mvtex-texcoords"
@@ -107,13 +107,7 @@ class TexcoordSet:
 def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None) -> TexcoordSet:
     """Open a texcoord set directory; `num_vertices` checks it against a dataset's mesh."""
     path = Path(path)
-    if not path.is_dir():
-        raise InputError(path, "texcoord set directory not found")
-    meta = read_json(path / "texcoords.json")
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise InputError(path / "texcoords.json", f'not a texcoord set (format must be "{FORMAT}")')
-    if meta.get("version") != VERSION:
-        raise InputError(path / "texcoords.json", f"unsupported version {meta.get('version')!r}")
+    meta = read_header(path, "texcoords.json", FORMAT, VERSION, "a texcoord set")
     for key in ("poses", "cameras"):
         if not isinstance(meta.get(key), list):
             raise InputError(path / "texcoords.json", f"missing list '{key}'")
