@@ -29,6 +29,24 @@ def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
     return (a + a.T).tocsr()
 
 
+def face_neighbours(faces: np.ndarray) -> np.ndarray:
+    """(m,3) int64: the face across edge (k, k+1) of each face; -1 on a boundary (the
+    first match on a non-manifold edge)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    m = len(faces)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    key = key[:, 0] * (faces.max() + 1) + key[:, 1]
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    out = np.full(3 * m, -1, np.int64)
+    same = ks[1:] == ks[:-1]
+    a, b = order[:-1][same], order[1:][same]
+    out[a] = b % m
+    out[b] = a % m
+    return out.reshape(3, m).T
+
+
 def weld_groups(positions: np.ndarray, decimals: int = 7) -> np.ndarray:
     """For each vertex, the index of the first vertex at the same position (n,) int64.
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from .camera import Camera
 from .extrapolate import METHODS, FillSystem, fill
-from .mesh import Subdivision, edges, extension_matrix, subdivide, uv_charts, weld_groups
+from .mesh import Subdivision, edges, extension_matrix, face_neighbours, subdivide, uv_charts, weld_groups
 
 if TYPE_CHECKING:
     from .raster import GLContext
@@ -188,25 +188,7 @@ def build_topology(faces: np.ndarray, uv: np.ndarray, reference: np.ndarray, sub
                          levels=levels, extend=extend, host_keys=host_keys,
                          fill_system=FillSystem(sub_faces, ref_sub, groups),
                          reference=np.asarray(reference, np.float64), reference_sub=ref_sub,
-                         face_neighbours=_face_neighbours(faces))
-
-
-def _face_neighbours(faces: np.ndarray) -> np.ndarray:
-    """(m,3) face across edge (k, k+1) of each face; -1 where none (first match on
-    non-manifold edges)."""
-    m = len(faces)
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    key = key[:, 0] * (faces.max() + 1) + key[:, 1]
-    slot = np.arange(3 * m)
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    out = np.full(3 * m, -1, np.int64)
-    same = ks[1:] == ks[:-1]
-    a, b = order[:-1][same], order[1:][same]
-    out[a] = b % m
-    out[b] = a % m
-    return out.reshape(3, m).T
+                         face_neighbours=face_neighbours(faces))
 
 
 # -- exact ray / triangle tests ---------------------------------------------------------------
