@@ -28,6 +28,17 @@ def test_default_split_is_seeded_80_10_10():
     assert len(set(a["train"]) | set(a["val"]) | set(a["test"])) == 100
 
 
+@pytest.mark.parametrize("num_poses", [3, 4, 7, 10, 23])
+def test_default_split_of_small_datasets_has_train_and_test(num_poses):
+    split = default_split(num_poses)
+    assert split["train"] and split["test"] and split["val"]
+    assert sorted(split["train"] + split["val"] + split["test"]) == list(range(num_poses))
+
+
+def test_default_split_of_fewer_than_three_poses_is_all_train():
+    assert default_split(2) == {"train": [0, 1], "val": [], "test": []}
+
+
 @pytest.mark.parametrize("spec,expected", [("all", list(range(10))), ("2:5", [2, 3, 4]), ("3,5,7", [3, 5, 7]),
                                            ("::4", [0, 4, 8]), ("-2:", [8, 9])])
 def test_pose_specs(spec, expected):

@@ -164,13 +164,43 @@ def test_triangulate_json(gl, tiny_dataset, rig_path, slid, tmp_path, capsys):
 
 
 @pytest.mark.gl
-def test_train_json(gl, tiny_dataset, slid, tmp_path, capsys):
+def test_train_json_then_predict(gl, tiny_dataset, slid, tmp_path, capsys):
     pytest.importorskip("torch")
+    from mvtex.dataset import load_dataset
+    from mvtex.texcoords import open_texcoords
+    from mvtex.tsnn.predict import load_model, predict_displacements
+
     out = tmp_path / "model"
     result = run_json(capsys, "train", tiny_dataset, "--texcoords", slid, "--camera", "a", "--out", out,
                       "--epochs", 1, "--resolution", 32, "--device", "cpu", "--quiet")
-    assert result["camera"] == "a"
-    assert any(out.iterdir())
+    assert result["camera"] == "a" and result["resolution"] == 32
+    code, _, err = run(capsys, "predict", tiny_dataset, "--model", out, "--out", tmp_path / "pred", "--poses", "1,5",
+                       "--quiet")
+    assert code == 0, err
+    pred = open_texcoords(tmp_path / "pred", 480)
+    assert pred.cameras == ["a"] and pred.poses == [1, 5] and pred.source == "tsnn"
+    ds = load_dataset(tiny_dataset)
+    expected = predict_displacements(load_model(out), np.asarray(ds.poses)[[1, 5]], pred.uv)
+    assert np.allclose(pred.displacement("a", 5), expected[1], atol=1e-6)
+
+
+def test_import_through_main(tmp_path, capsys):
+    from conftest import grid_mesh, wave
+    from test_dataset import _write_obj
+
+    from mvtex.dataset import load_dataset
+
+    faces, uv, rest = grid_mesh(6, 5)
+    for k in range(2):
+        _write_obj(tmp_path / f"gt_{k}.obj", wave(rest, 0.01, k), uv, faces)
+        _write_obj(tmp_path / f"inf_{k}.obj", wave(rest, 0.003, k), uv, faces)
+    code, out, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "gt_*.obj", "--inferred",
+                         tmp_path / "inf_*.obj", "--name", "sheet", "--quiet")
+    assert code == 0, err
+    ds = load_dataset(tmp_path / "ds")
+    assert ds.name == "sheet" and ds.num_poses == 2 and np.array_equal(ds.faces, faces)
+    assert np.allclose(ds.gt[1], wave(rest, 0.01, 1), atol=1e-6)
+    assert np.allclose(ds.inferred[0], wave(rest, 0.003, 0), atol=1e-6)
 
 
 @pytest.mark.gl
