@@ -22,7 +22,7 @@ import numpy as np
 from mvtex.camera import as_rig
 from mvtex.dataset import load_dataset, reference_shape
 from mvtex.extrapolate import LAPLACIANS, FillSystem, fill
-from mvtex.metrics import _error, texcoord_image
+from mvtex.metrics import masked_uv_error, texcoord_image
 from mvtex.raster import GLContext
 from mvtex.sliding import SlideOptions, build_topology, slide_pose
 
@@ -64,10 +64,10 @@ def main(dataset_path: str, rig_spec: str = "stereo", spec: str = "test", seed: 
                     uv_t, r_t = texcoord_image(ctx, X, topo.faces, topo.uv + d, cam)
                     chart_t = np.where(r_t.mask, base.chart[topo.faces[np.maximum(r_t.tri_id, 0), 0]], -1)
                     s = stats[kind]
-                    s["base"].append(_error(uv_b, r_b.mask, uv_g, r_g.mask)[1])
-                    s["tc"].append(_error(uv_t, r_t.mask, uv_g, r_g.mask)[1])
-                    s["base_same"].append(_error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1])
-                    s["tc_same"].append(_error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1])
+                    s["base"].append(masked_uv_error(uv_b, r_b.mask, uv_g, r_g.mask)[1])
+                    s["tc"].append(masked_uv_error(uv_t, r_t.mask, uv_g, r_g.mask)[1])
+                    s["base_same"].append(masked_uv_error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1])
+                    s["tc_same"].append(masked_uv_error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1])
                     refilled = fill(topo.faces, X, d, assigned & ~held, "harmonic", topo.groups,
                                     system=topo.fill_system)
                     s["held_out_sq"].append(float(np.sum((refilled[held] - d[held]).astype(np.float64) ** 2)))

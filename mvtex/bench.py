@@ -172,7 +172,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         with GLContext() as own:
             return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,
                              workers=workers, ctx=own)
-    from .metrics import _error, texcoord_image
+    from .metrics import masked_uv_error, texcoord_image
 
     options = SlideOptions(subdiv=subdiv)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
@@ -213,10 +213,10 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     for k, cam in jobs:
         uv_g, r_g = texcoord_image(ctx, gts[k], faces, ds.uv, cam)
         uv_b, r_b = texcoord_image(ctx, infs[k], faces, ds.uv, cam)
-        _error(uv_b, r_b.mask, uv_g, r_g.mask)
+        masked_uv_error(uv_b, r_b.mask, uv_g, r_g.mask)
         d, _ = results["raster", k, cam.name]
         uv_t, r_t = texcoord_image(ctx, topo.positions(infs[k]), topo.faces, topo.uv + d, cam)
-        _error(uv_t, r_t.mask, uv_g, r_g.mask)
+        masked_uv_error(uv_t, r_t.mask, uv_g, r_g.mask)
     eval_time = time.perf_counter() - start
     return {
         "jobs": len(jobs),

@@ -55,7 +55,16 @@ def chart_image(raster: Raster, faces: np.ndarray, charts: np.ndarray) -> np.nda
     return label
 
 
-def _error(uv_a: np.ndarray, mask_a: np.ndarray, uv_b: np.ndarray, mask_b: np.ndarray) -> tuple[np.ndarray, float]:
+def masked_uv_error(uv_a: np.ndarray, mask_a: np.ndarray, uv_b: np.ndarray,
+                    mask_b: np.ndarray) -> tuple[np.ndarray, float]:
+    """Per-pixel ‖uv_a − uv_b‖ where both masks hold.
+
+    Args:
+        uv_a, uv_b: (H,W,2) uv images (`texcoord_image`). mask_a, mask_b: (H,W) bool.
+
+    Returns:
+        error (H,W) float32 (NaN outside both masks) and its SqrtMSE (NaN if no pixel).
+    """
     both = mask_a & mask_b
     err = np.full(mask_a.shape, np.nan, np.float32)
     diff = uv_a[both].astype(np.float64) - uv_b[both].astype(np.float64)
@@ -82,7 +91,7 @@ def uv_error_image(ctx: GLContext, gt_positions: np.ndarray, faces_gt: np.ndarra
     """
     uv_g, raster_g = texcoord_image(ctx, gt_positions, faces_gt, uv_gt, camera)
     uv_i, raster_i = texcoord_image(ctx, inf_positions, faces_inf, texcoords_inf, camera)
-    return _error(uv_i, raster_i.mask, uv_g, raster_g.mask)
+    return masked_uv_error(uv_i, raster_i.mask, uv_g, raster_g.mask)
 
 
 def _stats(values: Sequence[float]) -> dict:
@@ -171,10 +180,10 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         uv_t, raster_t = texcoord_image(ctx, tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam)
         chart_g, chart_b = chart_image(raster_g, ds.faces, charts), chart_image(raster_b, ds.faces, charts)
         chart_t = chart_image(raster_t, tc.faces, charts_tc)
-        err_b, s_b = _error(uv_b, chart_b >= 0, uv_g, chart_g >= 0)
-        err_t, s_t = _error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
-        same_b = _error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
-        same_t = _error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]
+        err_b, s_b = masked_uv_error(uv_b, chart_b >= 0, uv_g, chart_g >= 0)
+        err_t, s_t = masked_uv_error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
+        same_b = masked_uv_error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
+        same_t = masked_uv_error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]
         for values, value in zip(per_cam[cam.name], (s_b, s_t, same_b, same_t)):
             values.append(value)
         if out_dir is not None:

@@ -169,6 +169,7 @@ def test_training_beats_zero_predictor_and_checkpoint_roundtrips(field_data, tmp
     assert pset.assigned("cam", test[0]).all()
 
 
+@pytest.mark.slow
 def test_training_is_deterministic_on_cpu(field_data, tmp_path):
     from mvtex.tsnn.train import TrainOptions, train_camera
     from safetensors.torch import load_file
