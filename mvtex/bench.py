@@ -16,13 +16,16 @@ import os
 import platform
 import sys
 import time
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from .camera import Camera, Rig
 from .sliding import (Hits, SlideOptions, SlideTopology, build_topology, displacement_from_hits, find_hits_raster,
                       intersect_pairs, seen_from_inside)
+
+if TYPE_CHECKING:
+    from .raster import GLContext
 
 
 def _intersector(positions: np.ndarray, faces: np.ndarray):
@@ -88,7 +91,7 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
                 from_inside=seen_from_inside(X, topo.faces, origin))
 
 
-def _job(ctx, path: str, gt, inferred, faces, uv, topo, camera, options):
+def _job(ctx: GLContext, path: str, gt, inferred, faces, uv, topo, camera, options):
     gt = np.asarray(gt, np.float64)
     inferred = np.asarray(inferred, np.float64)
     X = topo.positions(inferred)
@@ -141,7 +144,7 @@ def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats
 
 
 def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
-              progress: bool = True, workers: int = 2, ctx=None) -> dict:
+              progress: bool = True, workers: int = 2, ctx: GLContext | None = None) -> dict:
     """Measure jobs/s of the raster and ray-cast sliding paths and the eval throughput.
 
     Args:

@@ -17,12 +17,17 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .camera import Rig
 from .errors import InputError
 from .sliding import SlideOptions, SlideTopology, build_topology, slide_pose
+
+if TYPE_CHECKING:
+    from .dataset import Dataset
+    from .raster import GLContext
 
 _FLUSH_SECONDS = 5.0
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
@@ -62,9 +67,9 @@ class _WorkerState:
     the process's GL context."""
 
     key: str
-    dataset: object
+    dataset: Dataset
     topology: SlideTopology
-    ctx: object
+    ctx: GLContext
     owns_ctx: bool
 
 
@@ -118,7 +123,7 @@ def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
 
 def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], options: SlideOptions,
                   cameras: list[str] | None = None, workers: int | None = None, scheduler: str | None = None,
-                  progress: bool = True, ctx=None) -> Path:
+                  progress: bool = True, ctx: GLContext | None = None) -> Path:
     """Texture-slide every (pose, camera) of a dataset into a texcoord set (DESIGN §4).
 
     Results stream into memory-mapped .npy files in ``<out>.partial/``; a per-camera done
