@@ -77,3 +77,21 @@ def tiny_dataset(tmp_path_factory, sheet):
     path = tmp_path_factory.mktemp("data") / "sheet"
     save_dataset(path, faces=faces, uv=uv, gt=gt, inferred=inferred, poses=poses, name="sheet", rest=rest)
     return path
+
+
+def fail_slide_pose(monkeypatch, first_failure: int, error: BaseException) -> dict:
+    """Make `mvtex.slide_jobs.slide_pose` raise `error` from its `first_failure`-th call on
+    (1-based). Returns the call counter {"n": calls so far}; lowering it postpones failures."""
+    import mvtex.slide_jobs as jobs
+
+    original = jobs.slide_pose
+    calls = {"n": 0}
+
+    def failing(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] >= first_failure:
+            raise error
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(jobs, "slide_pose", failing)
+    return calls

@@ -12,6 +12,7 @@ import json
 import numpy as np
 import pytest
 
+from conftest import fail_slide_pose
 from mvtex.camera import look_at, save_rig
 from mvtex.cli import build_parser, main
 
@@ -115,15 +116,7 @@ def test_resume_starts_over_when_the_reference_shape_changed(gl, norest, rig_pat
 
     monkeypatch.setattr(jobs, "_CHUNK", 1)
     original = jobs.slide_pose
-    calls = {"n": 0}
-
-    def interrupted(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(jobs, "slide_pose", interrupted)
+    fail_slide_pose(monkeypatch, 2, KeyboardInterrupt())
     ds = load_dataset(norest)
     with pytest.raises(KeyboardInterrupt):
         jobs.slide_dataset(ds, rig_path, tmp_path / "tc", poses=[1, 2], options=SlideOptions(subdiv=0), progress=False)

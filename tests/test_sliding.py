@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from conftest import fail_slide_pose
 from mvtex.camera import Rig, look_at
 from mvtex.mesh import apply_parent, subdivide
 from mvtex.slide_jobs import slide_dataset
@@ -157,17 +158,8 @@ def test_slide_dataset_resumes_after_interruption(gl, tiny_dataset, front_rig, t
     assert tc.meta["options"] == options.to_json()
     assert not list(full.glob("*/done.npy"))
 
-    original = jobs.slide_pose
-    calls = {"n": 0}
-
-    def flaky(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] > 5:
-            raise KeyboardInterrupt("simulated interruption")
-        return original(*args, **kwargs)
-
     monkeypatch.setattr(jobs, "_CHUNK", 2)
-    monkeypatch.setattr(jobs, "slide_pose", flaky)
+    calls = fail_slide_pose(monkeypatch, 6, KeyboardInterrupt("simulated interruption"))
     out = tmp_path / "resumed"
     with pytest.raises(KeyboardInterrupt):
         slide_dataset(tiny_dataset, front_rig, out, poses=poses, options=options, progress=False)
@@ -186,15 +178,7 @@ def test_slide_dataset_starts_over_with_other_options(gl, tiny_dataset, front_ri
     poses = [1, 4]
     monkeypatch.setattr(jobs, "_CHUNK", 1)
     original = jobs.slide_pose
-    calls = {"n": 0}
-
-    def flaky(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise RuntimeError("boom")
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(jobs, "slide_pose", flaky)
+    fail_slide_pose(monkeypatch, 2, RuntimeError("boom"))
     with pytest.raises(RuntimeError):
         slide_dataset(tiny_dataset, front_rig, tmp_path / "tc", poses=poses, options=SlideOptions(subdiv=0), progress=False)
     monkeypatch.setattr(jobs, "slide_pose", original)
