@@ -46,3 +46,14 @@ def test_make_rigs_matches_shipped_rigs(tmp_path):
         assert shipped.names == rig.names
         for a, b in zip(shipped, rig):
             assert np.allclose(a.R, b.R) and np.allclose(a.t, b.t) and np.allclose(a.K, b.K)
+
+
+def test_fill_laplacian_compares_both_operators(tmp_path, gl, tiny_dataset, front_rig):
+    from mvtex.camera import save_rig
+
+    save_rig(front_rig, tmp_path / "rig.yaml")
+    result = load("fill_laplacian").main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0,3")
+    assert set(result) == {"cotan", "intrinsic"}
+    for r in result.values():
+        assert r["images"] == 4 and r["held_out_vertices"] > 0
+        assert 0 <= r["held_out_rmse_uv"] < 0.01 and r["ratio_same_chart"] > 1
