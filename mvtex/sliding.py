@@ -95,8 +95,8 @@ class SlideTopology:
         host_keys: sorted int64 keys v * m + f for every subdivided vertex v lying on base
             face f (such a face passes through v and can never hide it).
         fill_system: `extrapolate.FillSystem` on the reference shape (harmonic fill).
-        reference: (n,3) float64 reference (rest) positions, the material coordinates in
-            which edge breaking measures how far apart two hits are on the cloth.
+        reference: (n,3) float64 reference shape (`dataset.reference_shape`): the material
+            coordinates in which edge breaking measures how far apart two hits are on the cloth.
         reference_sub: (n',3) the same on the subdivided mesh.
         face_neighbours: (m,3) int64 base faces across each edge of each base face (-1 on
             a boundary); candidates include them, for thin (sub-pixel) triangles at fold
