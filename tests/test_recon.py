@@ -64,7 +64,7 @@ def test_locate_uv_matches_brute_force(gl):
 def test_dlt_matches_opencv_and_truth_without_noise():
     import cv2
 
-    from mvtex.recon import triangulate_dlt
+    from mvtex.geometry import triangulate_dlt
 
     rng = np.random.default_rng(0)
     rig = random_rig(rng, 2)
@@ -84,7 +84,7 @@ def test_refined_triangulation_matches_scipy_and_pycolmap_with_noise():
     from scipy.optimize import least_squares
 
     from mvtex.colmap import triangulate_colmap
-    from mvtex.recon import reprojection_errors, triangulate_dlt, refine_points
+    from mvtex.geometry import refine_points, reprojection_errors, triangulate_dlt
 
     rng = np.random.default_rng(1)
     rig = random_rig(rng, 4)
@@ -308,7 +308,8 @@ def test_colmap_model_reads_back(identity_run):
 def test_colmap_model_reprojection_equals_ours_with_noise(gl, tmp_path):
     """Noisy texcoords: COLMAP's reprojection error of the exported model equals ours."""
     from mvtex.colmap import model_summary
-    from mvtex.recon import ReconOptions, export_reconstruction, reconstruct
+    from mvtex.export import export_reconstruction
+    from mvtex.recon import ReconOptions, reconstruct
 
     faces, uv, rest = grid_mesh(24, 20)
     gt = wave(rest, 0.015, 0.4)
