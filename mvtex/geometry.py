@@ -15,6 +15,7 @@ the shape received.
     refine_points         Gauss-Newton on the summed squared reprojection error
     triangulate_points    both (what `mvtex triangulate --engine mvtex` runs per track)
     project_points        all points into all cameras
+    in_image              which pixels fall inside an image
     reprojection_errors   (N,C) pixel distances
     least_disagreement    which of several observation combinations agrees best
     surface_distance      distance from points to a triangle mesh
@@ -97,6 +98,19 @@ def project_points(cameras: Sequence[Camera], points: np.ndarray) -> tuple[np.nd
     points = np.asarray(points, dtype=np.float64)
     check_shape(points, "points", ("N", 3))
     return _project(*camera_arrays(cameras), points)
+
+
+def in_image(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Which OpenCV pixel positions (..., 2) lie on a width x height image, (...) bool.
+
+    Pixel centres are integers, so the image spans (-0.5, width - 0.5) x (-0.5, height - 0.5);
+    NaN is outside.
+    """
+    pixels = np.asarray(pixels)
+    if pixels.shape[-1:] != (2,):
+        raise ValueError(f"pixels must have shape (...,2), got {pixels.shape}")
+    u, v = pixels[..., 0], pixels[..., 1]
+    return (u > -0.5) & (u < width - 0.5) & (v > -0.5) & (v < height - 0.5)
 
 
 def reprojection_errors(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndarray) -> np.ndarray:

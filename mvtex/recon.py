@@ -39,8 +39,8 @@ import scipy.sparse as sp
 
 from .camera import Camera, Rig
 from .errors import InputError
-from .geometry import (check_shape, least_disagreement, project_points, refine_points, reprojection_errors, rmse,
-                       surface_distance, triangulate_points)
+from .geometry import (check_shape, in_image, least_disagreement, project_points, refine_points,
+                       reprojection_errors, rmse, surface_distance, triangulate_points)
 from .mesh import barycentric_2d, edge_strain, edges, weld_groups, welded_adjacency
 
 # Barycentric slack for "contains": points on a shared edge belong to both triangles
@@ -53,6 +53,7 @@ ENGINES = ("mvtex", "pycolmap")
 
 # A triangulation engine: (cameras, pixels (N,C,2), weights (N,C)) -> points (N,3), NaN where degenerate.
 Triangulator = Callable[[Sequence[Camera], np.ndarray, np.ndarray], np.ndarray]
+
 
 @dataclass(frozen=True)
 class ReconOptions:
@@ -70,7 +71,8 @@ class ReconOptions:
         require_assigned: drop hypotheses in triangles with an unassigned (extrapolated)
             corner, when the texcoord set says which are assigned.
         max_combinations: at most this many hypothesis combinations are tried per vertex.
-        refine_iterations: Gauss-Newton steps after the DLT.
+        refine_iterations: Gauss-Newton steps after the DLT (engine "mvtex", and the
+            hypothesis choice of both engines).
         error_scale_m: error heatmaps run from blue (0) to red (≥ this).
         strain_scale: strain pictures run from blue (-this, compression) to red (+this).
         engine: who triangulates the tracks: "mvtex" (vectorised DLT + Gauss-Newton, the
@@ -243,8 +245,7 @@ def _visible(camera: Camera, raster, points: np.ndarray, face: np.ndarray, toler
     """
     pixels, z = camera.project(points)
     W, H = camera.width, camera.height
-    ok = (z > 0) & np.all(np.isfinite(pixels), axis=1)
-    ok &= (pixels[:, 0] > -0.5) & (pixels[:, 0] < W - 0.5) & (pixels[:, 1] > -0.5) & (pixels[:, 1] < H - 0.5)
+    ok = (z > 0) & np.all(np.isfinite(pixels), axis=1) & in_image(pixels, W, H)
     u0 = np.floor(np.where(ok, pixels[:, 0], 0)).astype(np.int64)
     v0 = np.floor(np.where(ok, pixels[:, 1], 0)).astype(np.int64)
     own = np.zeros(len(points), bool)

@@ -92,6 +92,17 @@ def test_projection_jacobian_matches_finite_differences_with_skew():
         assert np.abs(J[..., axis] - numeric).max() < 1e-4 * np.abs(numeric).max()
 
 
+def test_in_image_against_pixel_centres():
+    from mvtex.geometry import in_image
+
+    # A 4x3 image: pixel centres 0..3 by 0..2, edges half a pixel beyond them.
+    pixels = np.array([[0, 0], [3, 2], [-0.49, 1], [-0.5, 1], [3.49, 0], [3.5, 0], [1, 2.6], [np.nan, 1]])
+    assert in_image(pixels, 4, 3).tolist() == [True, True, True, False, True, False, False, False]
+    assert in_image(pixels.reshape(2, 4, 2), 4, 3).shape == (2, 4)
+    with pytest.raises(ValueError, match=r"pixels must have shape \(...,2\), got \(3,\)"):
+        in_image(np.zeros(3), 4, 3)
+
+
 # -- triangulation -----------------------------------------------------------------------------
 
 def test_dlt_matches_opencv_and_truth_without_noise():
