@@ -16,12 +16,15 @@ from __future__ import annotations
 import contextlib
 import os
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
 from .camera import Rig
 from .recon import ReconOptions, Reconstruction
+
+if TYPE_CHECKING:
+    from .raster import GLContext
 
 
 @contextlib.contextmanager
@@ -38,7 +41,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
                           uv: np.ndarray, gt: np.ndarray | None, rest: np.ndarray | None,
                           inferred_mesh: tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]] | None,
                           report: dict, options: ReconOptions = ReconOptions(), progress: bool = False,
-                          ctx=None) -> Path:
+                          ctx: GLContext | None = None) -> Path:
     """Write a reconstruction directory atomically (layout in the module docstring).
 
     Args:

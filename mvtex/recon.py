@@ -32,7 +32,7 @@ import itertools
 import os
 from dataclasses import asdict, dataclass, field
 from functools import partial
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -42,6 +42,9 @@ from .errors import InputError
 from .geometry import (check_shape, in_image, least_disagreement, project_points, refine_points,
                        reprojection_errors, rmse, surface_distance, triangulate_points)
 from .mesh import barycentric_2d, edge_strain, edges, weld_groups, welded_adjacency
+
+if TYPE_CHECKING:
+    from .raster import GLContext
 
 # Barycentric slack for "contains": points on a shared edge belong to both triangles
 # (the duplicate 3-D points are merged afterwards).
@@ -141,7 +144,8 @@ class Reconstruction:
 # -- locating material coordinates on the texture-corrected inferred mesh --------------------
 
 def locate_uv(points: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, resolution: int = 1024,
-              radius: int = 1, *, ctx=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              radius: int = 1, *, ctx: GLContext | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every triangle of a UV mesh that contains each query point.
 
     The mesh is rasterized in UV space into triangle-id buffers, each orientation (CCW and
@@ -284,7 +288,8 @@ class Hypotheses:
 def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray,
                        texcoords: dict[str, np.ndarray], cameras: Sequence[Camera],
                        options: ReconOptions = ReconOptions(), *, assigned: dict[str, np.ndarray] | None = None,
-                       progress: bool = False, ctx=None) -> tuple[Hypotheses, dict[str, int]]:
+                       progress: bool = False, ctx: GLContext | None = None
+                       ) -> tuple[Hypotheses, dict[str, int]]:
     """Step 1: per camera, the surface points showing each gt vertex's material, if visible.
 
     Args:
@@ -606,7 +611,7 @@ def taubin_smooth(values: np.ndarray, adjacency: sp.csr_matrix, iterations: int 
 def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray, uv: np.ndarray,
                 texcoords: dict[str, np.ndarray], rig: Rig, options: ReconOptions = ReconOptions(), *,
                 gt_faces: np.ndarray | None = None, assigned: dict[str, np.ndarray] | None = None,
-                progress: bool = False, ctx=None) -> Reconstruction:
+                progress: bool = False, ctx: GLContext | None = None) -> Reconstruction:
     """Triangulate the gt vertices from per-camera texture coordinates of an inferred mesh.
 
     Runs steps 1-5 of the module docstring.
@@ -719,7 +724,8 @@ def reconstruction_report(rec: Reconstruction, gt: np.ndarray, faces: np.ndarray
 
 
 def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike | None,
-                     options: ReconOptions = ReconOptions(), progress: bool = True, *, ctx=None) -> dict:
+                     options: ReconOptions = ReconOptions(), progress: bool = True, *,
+                     ctx: GLContext | None = None) -> dict:
     """`mvtex triangulate`: reconstruct one pose of a dataset from a texcoord set.
 
     Args:

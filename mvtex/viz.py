@@ -8,9 +8,12 @@ colours both use it. GL renders go through `mvtex.raster`.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .raster import GLContext
 
 BACKGROUND = (24, 24, 28)
 
@@ -130,7 +133,8 @@ def texture_colors(uv: np.ndarray, size: int = 1024) -> np.ndarray:
 
 
 def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.ndarray, camera,
-                         background: tuple[int, int, int] = (40, 40, 46), *, ctx=None) -> np.ndarray:
+                         background: tuple[int, int, int] = (40, 40, 46), *,
+                         ctx: GLContext | None = None) -> np.ndarray:
     """Render per-vertex colours, interpolated and shaded by |cos| of the camera-space normal.
 
     Args:
@@ -156,7 +160,8 @@ def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.nd
 
 def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray, inferred: np.ndarray,
                        reconstructed: np.ndarray, rest: np.ndarray | None, *, error_scale_m: float = 0.01,
-                       strain_scale: float = 0.1, triangulated: np.ndarray | None = None, ctx=None) -> np.ndarray:
+                       strain_scale: float = 0.1, triangulated: np.ndarray | None = None,
+                       ctx: GLContext | None = None) -> np.ndarray:
     """gt / inferred / reconstruction side by side from one camera.
 
     Rows: textured with T_G; signed strain against `rest` (if given); the error ‖x - gt‖
@@ -192,5 +197,5 @@ def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray
         grey = np.where(triangulated[:, None], np.array([[60, 200, 90]]), np.array([[120, 120, 120]])).astype(np.uint8)
         err_row[0] = render_vertex_colors(gt, faces, grey, camera, ctx=ctx)
     rows.append(err_row)
-    labels.append(f"error 0-{error_scale_m * 1e3:g}mm" + (" (gt: green = triangulated)" if triangulated is not None else ""))
+    labels.append(f"error 0-{error_scale_m * 1e3:g}mm" + ("" if triangulated is None else " (gt: green = triangulated)"))
     return grid_image(rows, col_labels=list(meshes), row_labels=labels)
