@@ -20,7 +20,8 @@ import numpy as np
 
 from mvtex.camera import load_rig, resolve_rig
 from mvtex.dataset import load_dataset
-from mvtex.recon import ReconOptions, collect_hypotheses, resolve_ambiguity, triangulate_observations
+from mvtex.locate import collect_hypotheses
+from mvtex.recon import ReconOptions, resolve_ambiguity, triangulate_observations
 from mvtex.texcoords import open_texcoords
 
 
@@ -33,7 +34,8 @@ def main(dataset: str, rig: str, texcoords: str, pose: int, repeats: int = 5) ->
     T = {c.name: np.asarray(tc.texcoords(c.name, pose), np.float64) for c in cameras}
     assigned = {c.name: tc.assigned(c.name, pose) for c in cameras}
     options = ReconOptions()
-    hypotheses, _ = collect_hypotheses(ds.uv, X_N, tc.faces, T, cameras, options, assigned=assigned)
+    hypotheses, _ = collect_hypotheses(ds.uv, X_N, tc.faces, T, cameras, uv_resolution=options.uv_resolution,
+                                       assigned=assigned)
     pixels, weights, _ = resolve_ambiguity(hypotheses, ds.num_vertices, cameras, options)
 
     seconds: dict[str, list[float]] = {"mvtex": [], "pycolmap": []}

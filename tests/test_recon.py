@@ -29,7 +29,7 @@ def three_camera_rig(width: int = 160, height: int = 120) -> Rig:
 
 def test_locate_uv_matches_brute_force(gl):
     """Every (point, containing triangle) pair, also where jittered texcoords fold over."""
-    from mvtex.recon import locate_uv
+    from mvtex.locate import locate_uv
 
     rng = np.random.default_rng(3)
     faces, uv, _ = grid_mesh(20, 18)
@@ -109,7 +109,8 @@ def test_fold_over_hypotheses_are_disambiguated(gl):
     """Camera b's texcoords fold over (one vertex dragged across its neighbours): several
     triangles contain some T_G. With two cameras no observation can be voted out, so only
     the choice of the hypotheses whose rays agree gives back the gt points."""
-    from mvtex.recon import locate_uv, reconstruct
+    from mvtex.locate import locate_uv
+    from mvtex.recon import reconstruct
 
     faces, uv, rest = grid_mesh(30, 26)
     gt = wave(rest, 0.015, 0.4)
