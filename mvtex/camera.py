@@ -27,6 +27,14 @@ RIG_FORMAT = "mvtex-rig"
 RIG_VERSION = 1
 
 
+def image_contains(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(...,) bool: which pixel positions (..., 2) lie on a width x height image, i.e. within
+    the outer edges of the border pixels (u in (-0.5, W - 0.5), v in (-0.5, H - 0.5)); NaN is
+    outside."""
+    u, v = pixels[..., 0], pixels[..., 1]
+    return (u > -0.5) & (u < width - 0.5) & (v > -0.5) & (v < height - 0.5)
+
+
 @dataclass(frozen=True)
 class Camera:
     """A pinhole camera.
@@ -107,8 +115,7 @@ class Camera:
             pixels: (..., 2) float pixel coordinates and depth (...,) camera-space z, as
                 returned by `project`.
         """
-        u, v = pixels[..., 0], pixels[..., 1]
-        return (depth > 0) & (u > -0.5) & (u < self.width - 0.5) & (v > -0.5) & (v < self.height - 0.5)
+        return (depth > 0) & image_contains(pixels, self.width, self.height)
 
     def require_pinhole(self, source: str | os.PathLike | None = None) -> None:
         """Raise InputError (naming `source`, e.g. the rig file) unless `dist` is all zero:

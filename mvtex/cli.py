@@ -85,14 +85,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("triangulate", help="multi-view reconstruction of one pose -> PLY + COLMAP model")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    p.add_argument("--rig", required=True, help="rig YAML or built-in rig name (the texcoord set's cameras are used)")
-    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set with at least two cameras")
-    p.add_argument("--pose", type=int, required=True, help="pose index to reconstruct")
-    p.add_argument("--out", type=Path, required=True, help="output directory (PLY, COLMAP model, report.json)")
+    p.add_argument("--rig", required=True, help="rig YAML or built-in rig name (e.g. trapezoid12)")
+    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set directory (from slide or predict)")
+    p.add_argument("--pose", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
+    p.add_argument("--out", type=Path, required=True, help="output directory (PLY, COLMAP model, pictures, report)")
     p.add_argument("--smooth", action="store_true", help="smooth the reconstructed displacement (noisy inputs)")
     p.add_argument("--max-reprojection-px", type=float, default=2.0, help="reject points above this (default 2 px)")
     p.add_argument("--max-surface-distance", type=float, default=0.05,
                    help="reject points farther than this from the inferred surface (default 0.05 m)")
+    p.add_argument("--engine", choices=("mvtex", "pycolmap"), default="mvtex",
+                   help="who triangulates the tracks: mvtex (vectorised DLT + Gauss-Newton, faster) or pycolmap "
+                        "(COLMAP multi-view triangulation + points-only bundle adjustment); same points (default mvtex)")
     _add_json(p)
     _add_progress(p)
 
@@ -230,7 +233,7 @@ def cmd_triangulate(args) -> dict:
     tc = open_texcoords(args.texcoords, dataset.num_vertices)
     result = triangulate_pose(dataset, rig.select(tc.cameras, rig_path), tc, args.pose, args.out,
                               ReconOptions(smooth=args.smooth, max_reprojection_px=args.max_reprojection_px,
-                                           max_surface_distance_m=args.max_surface_distance),
+                                           max_surface_distance_m=args.max_surface_distance, engine=args.engine),
                               progress=not args.quiet)
     _emit(args, result, f"pose {result['pose']}: {result['num_triangulated']}/{result['num_vertices']} vertices "
           f"triangulated; RMSE inferred {result['rmse_m']['inferred']*1e3:.2f} mm -> reconstructed "

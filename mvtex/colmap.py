@@ -16,6 +16,7 @@ import numpy as np
 
 from .camera import Camera, Rig
 from .errors import InputError
+from .geometry import check_shape
 
 COLMAP_PIXEL_OFFSET = 0.5
 
@@ -72,14 +73,8 @@ def write_rig(rig: Rig, path: str | os.PathLike, text: bool = False) -> Path:
 def read_rig(path: str | os.PathLike) -> Rig:
     """Import a rig from a COLMAP model directory (binary or text): PINHOLE or SIMPLE_PINHOLE
     cameras with no distortion; each image becomes a camera named after its file stem."""
-    pycolmap = _pycolmap()
     path = Path(path)
-    if not path.is_dir():
-        raise InputError(path, "COLMAP model directory not found")
-    try:
-        rec = pycolmap.Reconstruction(str(path))
-    except Exception as err:  # pycolmap raises generic errors for unreadable models
-        raise InputError(path, f"cannot read COLMAP model ({err})") from None
+    rec = read_model(path)
     cameras = []
     for image_id in sorted(rec.images):
         image = rec.images[image_id]
@@ -146,6 +141,22 @@ def write_model(reconstruction, path: str | os.PathLike, text: bool = False) -> 
     return path
 
 
+def read_model(path: str | os.PathLike):
+    """Read a COLMAP model directory (binary or text) as a pycolmap.Reconstruction.
+
+    Raises:
+        InputError: the directory is missing or not a readable model.
+    """
+    pycolmap = _pycolmap()
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError(path, "COLMAP model directory not found")
+    try:
+        return pycolmap.Reconstruction(str(path))
+    except Exception as err:  # pycolmap raises generic errors for unreadable models
+        raise InputError(path, f"cannot read COLMAP model ({err})") from None
+
+
 def model_summary(path: str | os.PathLike) -> dict:
     """Read a COLMAP model directory back and summarise it.
 
@@ -154,14 +165,7 @@ def model_summary(path: str | os.PathLike) -> dict:
         mean_track_length and mean_reprojection_error_px (COLMAP's own computation:
         the mean over 3-D points of each point's mean reprojection error).
     """
-    pycolmap = _pycolmap()
-    path = Path(path)
-    if not path.is_dir():
-        raise InputError(path, "COLMAP model directory not found")
-    try:
-        rec = pycolmap.Reconstruction(str(path))
-    except Exception as err:  # pycolmap raises generic errors for unreadable models
-        raise InputError(path, f"cannot read COLMAP model ({err})") from None
+    rec = read_model(path)
     rec.update_point_3d_errors()
     return {"num_cameras": rec.num_cameras(), "num_images": rec.num_images(), "num_points3D": rec.num_points3D(),
             "num_observations": rec.compute_num_observations(),
@@ -192,3 +196,101 @@ def triangulate_colmap(cameras: Sequence[Camera], pixels: np.ndarray, max_error_
     if result is None:
         return None
     return np.asarray(result["xyz"], dtype=np.float64).reshape(3)
+
+
+def track_tables(names: Sequence[str], pixels: np.ndarray, observed: np.ndarray
+                 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Per-point observations (N,C,2) as the per-image lists `point_reconstruction` takes.
+
+    Args:
+        names: the C camera names.
+        pixels: (N,C,2) OpenCV pixels; observed: (N,C) bool.
+
+    Returns:
+        observations: name -> (k_c,2) the pixels camera c observes, in point order;
+        tracks: name -> (N,) int index into observations[name], -1 where unobserved.
+    """
+    observations, tracks = {}, {}
+    for c, name in enumerate(names):
+        seen = np.flatnonzero(observed[:, c])
+        observations[name] = np.asarray(pixels[seen, c], dtype=np.float64)
+        track = np.full(len(observed), -1, dtype=np.int64)
+        track[seen] = np.arange(len(seen))
+        tracks[name] = track
+    return observations, tracks
+
+
+def _bearing_vectors(camera: Camera, pixels: np.ndarray) -> np.ndarray:
+    """Unit camera-frame rays (k,3) through OpenCV pixels (k,2)."""
+    rays = np.concatenate([pixels, np.ones((len(pixels), 1))], axis=1) @ np.linalg.inv(camera.K).T
+    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+def triangulate_tracks(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Triangulate tracks with COLMAP: multi-view triangulation, then a points-only bundle
+    adjustment with every camera pose and intrinsic held constant.
+
+    The initial point of each track is `pycolmap.triangulate_multi_view_point` on the
+    track's bearing vectors; Ceres then minimises the summed squared reprojection error
+    (trivial loss) of all points at once, which for fixed cameras is each point's own
+    least-squares problem, the one `mvtex.geometry.refine_points` solves.
+
+    Args:
+        cameras: the C cameras (PINHOLE: no skew, no distortion).
+        pixels: (N,C,2) OpenCV pixel observations.
+        weights: (N,C): > 0 where camera c observes point n (≥ 2 per point); values other
+            than 0/1 do not weight the residuals.
+
+    Returns:
+        (N,3) float64 points (NaN where the linear triangulation is degenerate).
+    """
+    pycolmap = _pycolmap()
+    sizes = check_shape(pixels, "pixels", ("N", len(cameras), 2))
+    check_shape(weights, "weights", ("N", len(cameras)), sizes)
+    pixels = np.asarray(pixels, dtype=np.float64)
+    observed = np.asarray(weights) > 0
+    out = np.full((len(pixels), 3), np.nan)
+    if not len(pixels):
+        return out
+    if np.any(observed.sum(axis=1) < 2):
+        raise ValueError("every track needs ≥ 2 observations (weights > 0)")
+    cams_from_world = [np.concatenate([c.R, c.t[:, None]], axis=1) for c in cameras]
+    rays = [_bearing_vectors(c, np.nan_to_num(pixels[:, k])) for k, c in enumerate(cameras)]
+    for j in range(len(pixels)):
+        used = np.flatnonzero(observed[j])
+        xyz = pycolmap.triangulate_multi_view_point([cams_from_world[k] for k in used],
+                                                    np.stack([rays[k][j] for k in used]))
+        if xyz is not None:
+            out[j] = np.asarray(xyz, dtype=np.float64).reshape(3)
+    good = np.flatnonzero(np.all(np.isfinite(out), axis=1))
+    if not len(good):
+        return out
+    rig = Rig(tuple(cameras))
+    observations, tracks = track_tables(rig.names, pixels[good], observed[good])
+    model, point_ids = point_reconstruction(rig, observations, out[good], tracks)
+    _adjust_points_only(model)
+    out[good] = np.stack([model.points3D[int(i)].xyz for i in point_ids])
+    return out
+
+
+def _adjust_points_only(model) -> None:
+    """Ceres bundle adjustment of a model's 3-D points; poses and intrinsics constant."""
+    pycolmap = _pycolmap()
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
+    options.refine_rig_from_world = options.refine_sensor_from_rig = False
+    options.print_summary = False
+    solver = options.ceres.solver_options
+    # Converge to the optimum, not to Ceres' default gradient tolerance (1e-4 px² / m).
+    solver.function_tolerance = 0.0
+    solver.gradient_tolerance = 1e-12
+    solver.parameter_tolerance = 1e-14
+    solver.num_threads = 1
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id, image in model.images.items():
+        config.add_image(image_id)
+        config.set_constant_cam_intrinsics(image.camera_id)
+        config.set_constant_rig_from_world_pose(image.frame_id)
+    summary = pycolmap.create_default_bundle_adjuster(options, config, model).solve()
+    if summary.termination_type == pycolmap.BundleAdjustmentTerminationType.FAILURE:
+        raise RuntimeError(f"COLMAP bundle adjustment failed: {summary.summary()}")

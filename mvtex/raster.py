@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import hashlib
 from collections import OrderedDict
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Iterator
 
 import numpy as np
 
@@ -122,6 +124,21 @@ class GLContext:
                 _release_framebuffer(old)
         self._targets.move_to_end(key)
         return self._targets[key]
+
+
+
+@contextmanager
+def context_or_new(ctx: GLContext | None) -> Iterator[GLContext]:
+    """`ctx` itself when given; otherwise a new `GLContext`, released when the block ends.
+
+    For library functions whose `ctx` argument is optional:
+    `with context_or_new(ctx) as ctx: rasterize(ctx, ...)`.
+    """
+    if ctx is not None:
+        yield ctx
+        return
+    with GLContext() as own:
+        yield own
 
 
 def _release_framebuffer(fbo) -> None:

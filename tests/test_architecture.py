@@ -13,17 +13,18 @@ PACKAGE = Path(__file__).resolve().parent.parent / "mvtex"
 # docs/architecture.md, in order: a module may import modules of lower layers and modules
 # listed before it in its own layer.
 LAYERS = [
-    ["errors", "io", "resources", "parallel", "viz", "mesh"],
+    ["errors", "io", "resources", "parallel", "mesh"],
     ["camera", "dataset", "texcoords"],
-    ["raster", "extrapolate", "synth"],
-    ["sliding"],
-    ["slide_jobs", "metrics", "render", "recon", "tsnn.atlas", "tsnn.model", "tsnn.train", "tsnn.predict",
+    ["geometry", "ply", "raster", "extrapolate", "synth"],
+    ["colmap", "viz", "sliding"],
+    ["locate"],
+    ["recon", "slide_jobs", "metrics", "render", "tsnn.atlas", "tsnn.model", "tsnn.train", "tsnn.predict",
      "tsnn", "bench"],
-    ["colmap", "ply"],
+    ["export"],
     ["demo", "cli", "__main__"],
 ]
-# Reconstruction still writes its own PLY and COLMAP files.
-ALLOWED_UPWARD = {("recon", "colmap"), ("recon", "ply")}
+# `triangulate_pose` (the command's library call) writes its output directory through export.
+ALLOWED_UPWARD = {("recon", "export")}
 
 
 def _rank() -> dict[str, tuple[int, int]]:

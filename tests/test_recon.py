@@ -25,21 +25,11 @@ def three_camera_rig(width: int = 160, height: int = 120) -> Rig:
     return Rig(tuple(cams))
 
 
-def random_rig(rng, count: int) -> Rig:
-    cams = []
-    for i in range(count):
-        az, el = rng.uniform(-0.6, 0.6), rng.uniform(-0.3, 0.3)
-        center = 2.0 * np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
-        cams.append(look_at(f"c{i}", center, rng.normal(scale=0.02, size=3), width=640, height=480,
-                            focal=rng.uniform(600, 900)))
-    return Rig(tuple(cams))
-
-
 # -- UV lookup ----------------------------------------------------------------------------
 
 def test_locate_uv_matches_brute_force(gl):
     """Every (point, containing triangle) pair, also where jittered texcoords fold over."""
-    from mvtex.recon import locate_uv
+    from mvtex.locate import locate_uv
 
     rng = np.random.default_rng(3)
     faces, uv, _ = grid_mesh(20, 18)
@@ -60,61 +50,6 @@ def test_locate_uv_matches_brute_force(gl):
 
 
 # -- triangulation -----------------------------------------------------------------------------
-
-def test_dlt_matches_opencv_and_truth_without_noise():
-    import cv2
-
-    from mvtex.recon import triangulate_dlt
-
-    rng = np.random.default_rng(0)
-    rig = random_rig(rng, 2)
-    X = rng.uniform(-0.3, 0.3, size=(50, 3))
-    pix = np.stack([cam.project(X)[0] for cam in rig], axis=1)
-    ours = triangulate_dlt(list(rig), pix, np.ones((50, 2)))
-    a, b = rig.cameras
-    h = cv2.triangulatePoints(a.projection, b.projection, pix[:, 0].T.copy(), pix[:, 1].T.copy())  # 2xN
-    ref = (h[:3] / h[3]).T
-    assert np.abs(ours - X).max() < 1e-9
-    assert np.abs(ours - ref).max() < 1e-8
-
-
-def test_refined_triangulation_matches_scipy_and_pycolmap_with_noise():
-    """Noisy observations: Gauss-Newton reaches scipy's least-squares optimum of the same
-    reprojection error; COLMAP's estimator (its own linear + refinement) lands next to it."""
-    from scipy.optimize import least_squares
-
-    from mvtex.colmap import triangulate_colmap
-    from mvtex.recon import reprojection_errors, triangulate_dlt, refine_points
-
-    rng = np.random.default_rng(1)
-    rig = random_rig(rng, 4)
-    cams = list(rig)
-    X = rng.uniform(-0.3, 0.3, size=(30, 3))
-    pix = np.stack([cam.project(X)[0] for cam in cams], axis=1) + rng.normal(scale=0.7, size=(30, 4, 2))
-    w = np.ones((30, 4))
-    w[:10, 3] = 0  # some points seen by 3 cameras only
-    ours = refine_points(cams, triangulate_dlt(cams, pix, w), pix, w, iterations=10)
-    for i in range(30):
-        used = np.flatnonzero(w[i])
-
-        def residual(p):
-            return np.concatenate([cams[c].project(p)[0] - pix[i, c] for c in used])
-
-        ref = least_squares(residual, X[i], xtol=1e-14, ftol=1e-14, gtol=1e-14).x
-        assert np.linalg.norm(ours[i] - ref) < 1e-7
-        # COLMAP minimises an angular error: a point within the noise of ours (~1-5 mm from
-        # the truth here), never with a lower reprojection error than ours.
-        colmap = triangulate_colmap([cams[c] for c in used], pix[i, used], max_error_px=10.0)
-        assert colmap is not None
-        assert np.linalg.norm(colmap - ours[i]) < 2e-3
-        assert np.sum(residual(ours[i]) ** 2) <= np.sum(residual(colmap) ** 2) + 1e-9
-        # Noise-free, all three are the truth.
-        exact = np.stack([cams[c].project(X[i])[0] for c in used])
-        assert np.linalg.norm(triangulate_colmap([cams[c] for c in used], exact) - X[i]) < 1e-7
-        assert np.linalg.norm(triangulate_dlt([cams[c] for c in used], exact[None], np.ones((1, len(used))))[0] - X[i]) < 1e-9
-    err = reprojection_errors(cams, ours, pix)
-    assert np.all(err[w > 0] < 4)
-
 
 def test_taubin_keeps_constants_and_damps_noise():
     from mvtex.mesh import adjacency
@@ -174,7 +109,8 @@ def test_fold_over_hypotheses_are_disambiguated(gl):
     """Camera b's texcoords fold over (one vertex dragged across its neighbours): several
     triangles contain some T_G. With two cameras no observation can be voted out, so only
     the choice of the hypotheses whose rays agree gives back the gt points."""
-    from mvtex.recon import locate_uv, reconstruct
+    from mvtex.locate import locate_uv
+    from mvtex.recon import reconstruct
 
     faces, uv, rest = grid_mesh(30, 26)
     gt = wave(rest, 0.015, 0.4)
@@ -212,6 +148,46 @@ def test_untriangulated_get_the_extended_displacement(gl):
     rec = reconstruct(uv, inferred, faces, uv, T, rig)
     assert 0.3 < rec.triangulated.mean() < 0.97
     assert np.abs(rec.points - rest).max() < 1e-6
+
+
+def test_engines_agree_on_a_noisy_reconstruction(gl):
+    """Noisy texcoords, three cameras: `engine="pycolmap"` triangulates the same vertices
+    to the same points as the default engine (< 1e-6 m), through every step."""
+    from mvtex.recon import ReconOptions, reconstruct
+
+    faces, uv, rest = grid_mesh(24, 20)
+    gt = wave(rest, 0.015, 0.4)
+    rig = three_camera_rig()
+    rng = np.random.default_rng(5)
+    T = {c.name: uv + rng.normal(scale=1e-3, size=uv.shape) for c in rig}
+    T["c"][rng.choice(len(uv), 40, replace=False)] += 0.03  # ~3.5 px outliers
+    for k in (13 * 24 + 12, 7 * 24 + 8):
+        T["b"][k] = uv[k + 5]  # fold-overs: ambiguous hypotheses
+    runs = {engine: reconstruct(uv, gt, faces, uv, T, rig, ReconOptions(max_reprojection_px=1.0, engine=engine))
+            for engine in ("mvtex", "pycolmap")}
+    ours, colmap = runs["mvtex"], runs["pycolmap"]
+    # Every step ran: ambiguity, outlier removal, rejection.
+    assert ours.triangulated.sum() > 400 and ours.stats["ambiguous_vertices"] > 0
+    assert ours.stats["outlier_observations"] > 20 and ours.rejected["reprojection"] > 0
+    assert ours.stats == colmap.stats
+    assert np.array_equal(ours.triangulated, colmap.triangulated)
+    assert np.abs(ours.points - colmap.points).max() < 1e-6
+    assert ours.rejected == colmap.rejected
+
+
+def test_reconstruct_input_errors():
+    from mvtex.recon import ReconOptions, reconstruct
+
+    faces, uv, rest = grid_mesh(6, 5)
+    rig = three_camera_rig()
+    with pytest.raises(ValueError, match=r"inferred_positions must have shape \(n',3\), got \(30, 2\)"):
+        reconstruct(uv, rest[:, :2], faces, uv, {c.name: uv for c in rig}, rig)
+    with pytest.raises(ValueError, match=r"texcoords\['a'\] must have shape \(30,2\), got \(29, 2\)"):
+        reconstruct(uv, rest, faces, uv, {c.name: uv[:-1] for c in rig}, rig)
+    with pytest.raises(ValueError, match="≥ 2 rig cameras"):
+        reconstruct(uv, rest, faces, uv, {"a": uv}, rig)
+    with pytest.raises(ValueError, match="engine must be one of mvtex, pycolmap, got 'ceres'"):
+        ReconOptions(engine="ceres")
 
 
 # -- the command: files ---------------------------------------------------------------------------
@@ -309,7 +285,8 @@ def test_colmap_model_reads_back(identity_run):
 def test_colmap_model_reprojection_equals_ours_with_noise(gl, tmp_path):
     """Noisy texcoords: COLMAP's reprojection error of the exported model equals ours."""
     from mvtex.colmap import model_summary
-    from mvtex.recon import ReconOptions, export_reconstruction, reconstruct
+    from mvtex.export import export_reconstruction
+    from mvtex.recon import ReconOptions, reconstruct
 
     faces, uv, rest = grid_mesh(24, 20)
     gt = wave(rest, 0.015, 0.4)
@@ -344,3 +321,45 @@ def test_bad_inputs(identity_run):
         triangulate_pose(ds, rig, tc, 0, None, progress=False)
     with pytest.raises(InputError, match="2 cameras"):
         triangulate_pose(ds, rig.select(["a"]), tc, 4, None, progress=False)
+
+
+def test_triangulate_smooth_through_the_command_line(identity_run, tmp_path, capsys):
+    """`mvtex triangulate --smooth --json` on noisy texcoords prints one JSON object: the
+    unsmoothed numbers equal a plain run's, and smoothing lowers the strain of the noisy
+    reconstruction toward gt's."""
+    import json
+
+    from mvtex.camera import save_rig
+    from mvtex.cli import main
+    from mvtex.texcoords import save_texcoords
+
+    ds, rig, tc, report, out = identity_run
+    n = ds.num_vertices
+    rng = np.random.default_rng(11)
+    save_texcoords(tmp_path / "noisy", faces=ds.faces, uv=ds.uv, parent=np.stack([np.arange(n)] * 2, 1),
+                   source="identity+noise", subdiv=0, poses=[4],
+                   displacement={c: rng.normal(scale=4e-4, size=(1, n, 2)) for c in rig.names},
+                   assigned={c: np.ones((1, n), bool) for c in rig.names})
+    save_rig(rig, tmp_path / "rig.yaml")
+    runs = {}
+    for flags in ((), ("--smooth",)):
+        argv = [str(ds.path), "--rig", str(tmp_path / "rig.yaml"), "--texcoords", str(tmp_path / "noisy"),
+                "--pose", "4", "--out", str(tmp_path / f"out{len(flags)}"), "--max-reprojection-px", "5",
+                "--json", "--quiet", *flags]
+        assert main(["triangulate", *argv]) == 0
+        stdout = capsys.readouterr().out
+        runs[flags] = json.loads(stdout)  # exactly one JSON object: json.loads rejects trailing text
+    plain, smooth = runs[()], runs[("--smooth",)]
+    assert plain["smooth"] == {"enabled": False} and plain["options"]["smooth"] is False
+    assert smooth["options"]["smooth"] is True and smooth["smooth"]["enabled"] is True
+    assert smooth["smooth"]["iterations"] == smooth["options"]["smooth_iterations"] == 10
+    assert smooth["num_triangulated"] == plain["num_triangulated"] > 0.5 * n
+    assert smooth["smooth"]["before"]["rmse_m"] == pytest.approx(plain["rmse_m"]["reconstructed"], rel=1e-12)
+    before = smooth["smooth"]["before"]["strain_energy"]["mean_abs_strain"]
+    after = smooth["strain_energy"]["reconstructed"]["mean_abs_strain"]
+    assert before == pytest.approx(plain["strain_energy"]["reconstructed"]["mean_abs_strain"], rel=1e-12)
+    gt_strain = smooth["strain_energy"]["gt"]["mean_abs_strain"]
+    assert abs(after - gt_strain) < 0.2 * abs(before - gt_strain)
+    assert smooth["rmse_m"]["reconstructed"] < plain["rmse_m"]["reconstructed"]
+    on_disk = json.loads((tmp_path / "out1" / "report.json").read_text())
+    assert on_disk == smooth
