@@ -35,8 +35,7 @@ def to_colmap_camera(camera: Camera, camera_id: int):
     K = camera.K
     if abs(K[0, 1]) > 1e-12:
         raise ValueError(f"camera {camera.name!r}: skewed intrinsics cannot be written as COLMAP PINHOLE")
-    if np.any(camera.dist != 0):
-        raise ValueError(f"camera {camera.name!r}: non-zero distortion; COLMAP export expects undistorted images")
+    camera.require_pinhole()
     return pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height, camera_id=camera_id,
                            params=[K[0, 0], K[1, 1], K[0, 2] + COLMAP_PIXEL_OFFSET, K[1, 2] + COLMAP_PIXEL_OFFSET])
 
