@@ -644,16 +644,26 @@ def _frustum(camera: Camera, depth: float) -> np.ndarray:
 
 def plot_rig(rig: Rig, path: str | os.PathLike, *, board: BoardSpec | None = None,
              world_from_board: np.ndarray | None = None, title: str = "") -> None:
-    """A 3-D picture of the rig: camera frusta, names, and the board outlines.
+    """A 3-D picture of the rig: camera frusta (image top edge in black), names, and the
+    board outlines (their x edge thicker).
 
-    World axes are drawn as x right, z away, -y up (OpenCV's y points down).
+    Drawn in the cameras' mean axes: right, forward (mean viewing direction) and up (mean
+    of the cameras' -y), so a rig looks upright whichever world frame it uses.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    def show(p):  # OpenCV world (x, y, z) -> plot (x, z, -y)
-        p = np.asarray(p)
-        return p[..., 0], p[..., 2], -p[..., 1]
+    up = -np.mean([cam.R[1] for cam in rig], axis=0)
+    up /= np.linalg.norm(up)
+    forward = np.mean([cam.R[2] for cam in rig], axis=0)
+    forward -= up * np.dot(forward, up)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    display = np.stack([right, forward, up])
+
+    def show(p):  # world points (..., 3) -> plot coordinates (right, forward, up)
+        q = np.asarray(p) @ display.T
+        return q[..., 0], q[..., 1], q[..., 2]
 
     fig = Figure(figsize=(8, 6.5), dpi=110)
     FigureCanvasAgg(fig)
@@ -680,16 +690,17 @@ def plot_rig(rig: Rig, path: str | os.PathLike, *, board: BoardSpec | None = Non
             ax.plot(*show(f[[0, k]]), color="tab:red", lw=1.0)
         ax.plot(*show(f[[1, 2, 3, 4, 1]]), color="tab:red", lw=1.4)
         ax.plot(*show(f[[1, 2]]), color="black", lw=2.0)  # image top edge
-        ax.text(*show(cam.center + np.array([0, -0.02 * scale, 0])), cam.name, fontsize=9)
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
+        ax.text(*show(cam.center + up * 0.03 * scale), cam.name, fontsize=9)
+    shown = pts @ display.T
+    lo, hi = shown.min(axis=0), shown.max(axis=0)
     mid, half = (lo + hi) / 2, (hi - lo).max() / 2 + 0.05 * scale
     ax.set_xlim(mid[0] - half, mid[0] + half)
-    ax.set_ylim(mid[2] - half, mid[2] + half)
-    ax.set_zlim(-mid[1] - half, -mid[1] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
     ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("z (m)")
-    ax.set_zlabel("-y (m)")
+    ax.set_xlabel("right (m)")
+    ax.set_ylabel("forward (m)")
+    ax.set_zlabel("up (m)")
     ax.view_init(elev=22, azim=-62)
     ax.set_title(title or f"{len(rig)} cameras", fontsize=10)
     fig.tight_layout()
