@@ -299,41 +299,77 @@ class BoardRenderer:
         self._vbo = self.ctx.buffer(quad.tobytes())
         self._vao = self.ctx.vertex_array(self._program, [(self._vbo, "3f 2f", "in_board", "in_texcoord")])
         self._targets: dict[tuple[int, int], object] = {}
+        self._maps: dict[tuple, tuple] = {}
 
     def render(self, camera: Camera, cam_from_board: np.ndarray, *, background: int = 90,
                supersample: int = 3) -> np.ndarray:
-        """The board seen by `camera`.
+        """The board seen by `camera`, through its lens distortion if it has one.
 
         Args:
-            camera: pinhole camera (zero distortion); only K and the size are used.
+            camera: the camera; only K, `dist` and the size are used.
             cam_from_board: (4,4) or (3,4) float64 rigid transform, board frame -> camera frame.
             background: gray level where the board is not seen.
             supersample: render at this factor and average blocks (anti-aliasing).
 
         Returns:
-            (H,W) uint8 gray image, OpenCV row order.
+            (H,W) uint8 gray image, OpenCV row order. With distortion, a pinhole image of a
+            wider field is rendered at the supersampled size and resampled through OpenCV's
+            distortion model (`cv2.undistortPoints` of every output pixel, `cv2.remap`).
         """
         import cv2
+
+        pose = np.eye(4)
+        pose[:3, :] = np.asarray(cam_from_board, dtype=np.float64)[:3, :]
+        s = max(1, int(supersample))
+        if np.any(camera.dist != 0):
+            pinhole, map_x, map_y = self._distortion_map(camera, s)
+            image = cv2.remap(self._draw(pinhole, pose, background), map_x, map_y, cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=background)
+        else:
+            K = np.diag([s, s, 1.0]) @ camera.K
+            K[:2, 2] += (s - 1) / 2.0  # pixel centres of the big image average onto the small one
+            image = self._draw(Camera(camera.name, camera.width * s, camera.height * s, K=K, R=np.eye(3),
+                                      t=np.zeros(3)), pose, background)
+        if s > 1:
+            image = cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+        return np.ascontiguousarray(image)
+
+    def _distortion_map(self, camera: Camera, s: int):
+        """A pinhole camera covering the distorted image's field at s x the resolution, and
+        the (H*s, W*s) float32 maps from distorted pixels into it (cached per camera)."""
+        import cv2
+
+        key = (camera.width, camera.height, s, camera.K.tobytes(), camera.dist.tobytes())
+        if key not in self._maps:
+            width, height = camera.width * s, camera.height * s
+            v, u = np.mgrid[:height, :width].astype(np.float64)
+            small = np.stack([(u - (s - 1) / 2) / s, (v - (s - 1) / 2) / s], axis=-1).reshape(-1, 1, 2)
+            criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 20, 1e-10)
+            normal = cv2.undistortPoints(small, camera.K, camera.dist, criteria=criteria).reshape(height, width, 2)
+            fx, fy, cx, cy = s * camera.K[0, 0], s * camera.K[1, 1], s * camera.K[0, 2], s * camera.K[1, 2]
+            px = fx * normal[..., 0] + cx + (s - 1) / 2
+            py = fy * normal[..., 1] + cy + (s - 1) / 2
+            x0, y0 = np.floor(px.min()) - 2, np.floor(py.min()) - 2
+            wide = (int(np.ceil(px.max() - x0)) + 3, int(np.ceil(py.max() - y0)) + 3)
+            K = np.array([[fx, 0, cx + (s - 1) / 2 - x0], [0, fy, cy + (s - 1) / 2 - y0], [0, 0, 1.0]])
+            pinhole = Camera(camera.name, wide[0], wide[1], K=K, R=np.eye(3), t=np.zeros(3))
+            self._maps[key] = (pinhole, (px - x0).astype(np.float32), (py - y0).astype(np.float32))
+        return self._maps[key]
+
+    def _draw(self, camera: Camera, pose: np.ndarray, background: int) -> np.ndarray:
+        """Draw the quad with a pinhole camera at its size; (H,W) uint8."""
         import moderngl
 
         from .raster import clip_from_camera
 
-        if np.any(camera.dist != 0):
-            raise ValueError(f"camera {camera.name!r}: the board renderer needs zero distortion")
-        pose = np.eye(4)
-        pose[:3, :] = np.asarray(cam_from_board, dtype=np.float64)[:3, :]
-        s = max(1, int(supersample))
-        K = np.diag([s, s, 1.0]) @ camera.K
-        K[:2, 2] += (s - 1) / 2.0  # pixel centres of the big image average onto the small one
-        big = Camera(camera.name, camera.width * s, camera.height * s, K=K, R=np.eye(3), t=np.zeros(3))
         z = self._quad_corners @ pose[2, :3] + pose[2, 3]
         if z.min() <= 0:
             raise ValueError(f"camera {camera.name!r}: the board is (partly) behind the camera")
         near, far = max(1e-3, 0.5 * float(z.min())), 2.0 * float(z.max()) + 1e-3
-        self._program["clip_from_cam"].write(clip_from_camera(big, near, far).T.astype("f4").tobytes())
+        self._program["clip_from_cam"].write(clip_from_camera(camera, near, far).T.astype("f4").tobytes())
         self._program["cam_from_board"].write(pose.T.astype("f4").tobytes())
         self._program["board"].value = 0
-        key = (big.width, big.height)
+        key = (camera.width, camera.height)
         if key not in self._targets:
             self._targets[key] = self.ctx.framebuffer(color_attachments=[self.ctx.texture(key, 1)])
         fbo = self._targets[key]
@@ -342,10 +378,7 @@ class BoardRenderer:
         self.ctx.disable(moderngl.CULL_FACE | moderngl.DEPTH_TEST)
         self._texture.use(0)
         self._vao.render(moderngl.TRIANGLES)
-        image = np.frombuffer(fbo.read(components=1), dtype=np.uint8).reshape(big.height, big.width)
-        if s > 1:
-            image = cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
-        return np.ascontiguousarray(image)
+        return np.frombuffer(fbo.read(components=1), dtype=np.uint8).reshape(camera.height, camera.width).copy()
 
     def release(self) -> None:
         """Free the GL objects (the context too if this renderer made it)."""

@@ -1,46 +1,44 @@
-"""Calibration: a ChArUco board rendered with moderngl from a known 4-camera rig is
-calibrated back through `mvtex calibrate`; boards, undistortion and COLMAP rigs are checked
-against OpenCV and pycolmap computations."""
+"""Calibration: a ChArUco board rendered with moderngl from a known 4-camera rig (the rig
+of examples/calibrate_rig.py) is calibrated back through `mvtex calibrate`; boards,
+undistortion and COLMAP rigs are checked against OpenCV and pycolmap computations."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from mvtex.board import BoardDetector, board_image, parse_board_spec, random_board_poses, render_calibration_images
-from mvtex.camera import Camera, Rig, load_rig, look_at, save_rig
+from mvtex.board import BoardDetector, board_image, parse_board_spec
+from mvtex.camera import Camera, Rig, load_rig, save_rig
 from mvtex.cli import main
 
-SPEC = "charuco:9x6:0.05:0.0375:DICT_4X4_50"
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def _example():
+    spec = importlib.util.spec_from_file_location("calibrate_rig", EXAMPLES / "calibrate_rig.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+example = _example()
+SPEC = example.SPEC  # charuco:9x6:0.05:0.0375:DICT_4X4_50
 NUM_POSES = 12
-
-
-def true_rig() -> Rig:
-    """Four 640x480 cameras 0.9-1.0 m from the origin, 0.2 m apart, each with its own K."""
-    cameras = []
-    for name, centre, fx, fy, cx, cy in (("cam0", (-0.3, -0.08, -0.95), 600, 604, 318, 242),
-                                         ("cam1", (-0.1, 0.04, -1.0), 640, 640, 325, 238),
-                                         ("cam2", (0.1, -0.04, -0.98), 580, 583, 316, 245),
-                                         ("cam3", (0.3, 0.08, -0.92), 620, 618, 322, 236)):
-        pose = look_at(name, centre, (0, 0, 0), width=640, height=480, focal=fx)
-        cameras.append(Camera(name, 640, 480, K=np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), R=pose.R, t=pose.t))
-    return Rig(tuple(cameras))
 
 
 @pytest.fixture(scope="session")
 def board_images(tmp_path_factory):
-    """IMAGES/<camera>/frame_NNN.png of 12 board poses (noise sigma 2 gray levels), plus
-    one frame of cam1 where the board is not in view."""
-    rig = true_rig()
-    spec = parse_board_spec(SPEC)
-    poses = random_board_poses(rig, spec, NUM_POSES, seed=1, max_tilt_deg=30, depth_range_m=(-0.3, 0.05),
-                               spread_m=0.12)
+    """The example's rig (4 cameras, 640x480, cam2 with barrel distortion) and its images
+    of 12 board poses (noise sigma 2 gray levels), plus a frame of cam1 without the board."""
+    rig = example.true_rig()
     folder = tmp_path_factory.mktemp("calib") / "images"
-    render_calibration_images(rig, spec, poses, folder, noise=2.0, seed=0)
+    example.render_images(rig, folder, NUM_POSES)
     cv2.imwrite(str(folder / "cam1" / "frame_blank.png"), np.full((480, 640), 90, np.uint8))
     return folder, rig
 
@@ -103,6 +101,10 @@ def test_calibrate_recovers_the_rig(calibrated):
         angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
         assert angle < 0.2, (cam.name, angle)
         assert np.linalg.norm(cam.t - expected[:3, 3]) < 0.002, (cam.name, cam.t, expected[:3, 3])
+        # Distortion: where the lens moves a pixel at the image corner, the fit moves it alike.
+        corner = np.array([[[0.0, 0.0]]])
+        moved = [cv2.undistortPoints(corner, c.K, c.dist, P=c.K).reshape(2) for c in (cam, true)]
+        assert np.linalg.norm(moved[0] - moved[1]) < 1.0, (cam.name, cam.dist, true.dist, moved)
 
 
 @pytest.mark.gl
@@ -298,3 +300,12 @@ def test_rig_summary_and_plot(tmp_path):
     assert summary["num_cameras"] == 2 and abs(summary["baseline_m"]["max"] - baseline) < 1e-12
     _run_json(["rig", "trapezoid12", "--plot", str(tmp_path / "rig.png"), "--json"])
     assert cv2.imread(str(tmp_path / "rig.png")).std() > 10
+
+
+@pytest.mark.gl
+def test_example_runs_every_step(tmp_path):
+    result = example.main(tmp_path / "demo", num_poses=4)
+    assert all(c["frames"] == 4 for c in result["calibrate"]["per_camera"].values())
+    for path in ("board.png", "rig.yaml", "rig_pinhole.yaml", "rig_calibration/rig.png", "undistorted/rig.yaml",
+                 "undistorted/cam2/frame_003.png", "colmap/cameras.bin"):
+        assert (tmp_path / "demo" / path).is_file(), path
