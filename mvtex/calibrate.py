@@ -129,6 +129,13 @@ class Calibration:
         r = self.residuals[name]
         return float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) if len(r) else float("nan")
 
+    def frame_rms_px(self, name: str) -> dict[str, float]:
+        """Camera `name`'s RMS reprojection error per frame (pixels): find the bad frames."""
+        obs, r = self.observations[name], self.residuals[name]
+        ends = np.cumsum([len(d) for d in obs.detections])
+        return {frame: float(np.sqrt(np.mean(np.sum(part ** 2, axis=1))))
+                for frame, part in zip(obs.frames, np.split(r, ends[:-1]))}
+
     def summary(self) -> dict:
         """The JSON of `mvtex calibrate --json` (DESIGN §7), plus skipped frame counts."""
         return {"num_cameras": len(self.rig), "num_frames": len(self.frames), "rms_reprojection_px": self.rms_px,
@@ -605,11 +612,13 @@ def write_calibration(calibration: Calibration, rig_path: str | os.PathLike) -> 
     with atomic_path(folder) as tmp:
         tmp.mkdir()
         record = {"format": CALIBRATION_FORMAT, "version": 1, "rig": rig_path.name,
-                  "options": calibration.options.to_json() if calibration.options else None,
+                  "options": {**calibration.options.to_json(), "reference": calibration.reference}
+                  if calibration.options else None,
                   **calibration.summary(),
                   "frames": list(calibration.frames),
                   "cameras": {name: {"frames": list(obs.frames), "skipped": list(obs.skipped),
-                                     "corners": int(sum(len(d) for d in obs.detections))}
+                                     "corners": int(sum(len(d) for d in obs.detections)),
+                                     "frame_rms_px": calibration.frame_rms_px(name)}
                               for name, obs in calibration.observations.items()}}
         import json
 
@@ -720,7 +729,8 @@ def plot_residuals(calibration: Calibration, path: str | os.PathLike, *, columns
     FigureCanvasAgg(fig)
     everything = np.concatenate([np.linalg.norm(r, axis=1) for r in calibration.residuals.values()])
     vmax = max(float(np.percentile(everything, 99)), 1e-3) if everything.size else 1.0
-    magnify = 0.04 * max(c.width for c in calibration.rig) / vmax
+    typical = max(float(np.median(everything)), 1e-3) if everything.size else 1.0
+    magnify = float(np.round(0.03 * max(c.width for c in calibration.rig) / typical, -1) or 1.0)
     for i, name in enumerate(names):
         cam = calibration.rig[name]
         ax = fig.add_subplot(rows, cols, i + 1)
@@ -728,9 +738,9 @@ def plot_residuals(calibration: Calibration, path: str | os.PathLike, *, columns
         pixels = np.concatenate([d.pixels for d in obs.detections])
         r = calibration.residuals[name]
         length = np.linalg.norm(r, axis=1)
-        sc = ax.scatter(pixels[:, 0], pixels[:, 1], c=length, cmap="viridis", vmin=0, vmax=vmax, s=6)
+        sc = ax.scatter(pixels[:, 0], pixels[:, 1], c=length, cmap="viridis", vmin=0, vmax=vmax, s=3)
         ax.quiver(pixels[:, 0], pixels[:, 1], r[:, 0] * magnify, r[:, 1] * magnify, length, cmap="viridis",
-                  angles="xy", scale_units="xy", scale=1, width=0.003, clim=(0, vmax))
+                  angles="xy", scale_units="xy", scale=1, width=0.0025, clim=(0, vmax))
         ax.set_xlim(-0.5, cam.width - 0.5)
         ax.set_ylim(cam.height - 0.5, -0.5)
         ax.set_aspect("equal")
