@@ -481,13 +481,15 @@ def calibrate(cameras: Sequence[CameraImages], options: CalibrateOptions, *, pro
         InputError: unreadable images, a camera with too few usable frames, a camera that
             shares no frame with the others, an unknown reference camera.
     """
+    import cv2
     from scipy.optimize import least_squares
     from tqdm import tqdm
 
     names = [c.name for c in cameras]
+    root = next(iter(cameras[0].files.values())).parent.parent
     reference = options.reference or names[0]
     if reference not in names:
-        raise InputError(None, f"no camera named {reference} (the image folder has {', '.join(names)})")
+        raise InputError(root, f"no camera named {reference} (the image folder has {', '.join(names)})")
     detector = BoardDetector(options.board)
     total = sum(len(c.files) for c in cameras)
     observations: dict[str, Observations] = {}
@@ -504,11 +506,18 @@ def calibrate(cameras: Sequence[CameraImages], options: CalibrateOptions, *, pro
 
     intrinsics, board_poses = {}, {}
     for name in names:
-        K, dist, _, poses = calibrate_intrinsics(observations[name], options.board, options.distortion)
+        try:
+            K, dist, _, poses = calibrate_intrinsics(observations[name], options.board, options.distortion)
+        except cv2.error as err:  # degenerate views that slipped through the checks above
+            raise InputError(root / name, f"camera {name}: OpenCV could not calibrate it "
+                             f"({str(err).strip().splitlines()[-1]})") from None
         intrinsics[name] = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dist])
         board_poses[name] = dict(zip(observations[name].frames, poses))
     frames_of = {n: list(observations[n].frames) for n in names}
-    cam_from_ref = initial_extrinsics(names, reference, frames_of, board_poses)
+    try:
+        cam_from_ref = initial_extrinsics(names, reference, frames_of, board_poses)
+    except InputError as err:
+        raise InputError(root, err.problem) from None
 
     frame_names = sorted(set().union(*frames_of.values()))
     world_from_board = []
