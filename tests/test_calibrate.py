@@ -147,6 +147,26 @@ def test_camera_sharing_no_frame_is_named(board_images, tmp_path, capsys):
     assert not (tmp_path / "rig.yaml").exists()
 
 
+@pytest.mark.gl
+def test_cameras_linked_through_another_camera(board_images, tmp_path):
+    """cam0 and cam2 share no frame, but both share frames with cam1: cam2's pose reaches
+    the reference through cam1."""
+    folder, truth = board_images
+    images = tmp_path / "images"
+    for cam, frames in (("cam0", range(0, 6)), ("cam1", range(0, 12)), ("cam2", range(6, 12))):
+        (images / cam).mkdir(parents=True)
+        for f in frames:
+            shutil.copy(folder / cam / f"frame_{f:03d}.png", images / cam)
+    out = tmp_path / "rig.yaml"
+    result = _run_json(["calibrate", str(images), "--board", SPEC, "--out", str(out), "--quiet", "--json"])
+    assert result["num_frames"] == 12 and result["per_camera"]["cam2"]["frames"] == 6
+    rig = load_rig(out)
+    expected = _relative(truth["cam2"], truth["cam0"])
+    dR = expected[:3, :3].T @ rig["cam2"].R
+    assert np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))) < 0.3
+    assert np.linalg.norm(rig["cam2"].t - expected[:3, 3]) < 0.003
+
+
 def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
     out = str(tmp_path / "out" / "rig.yaml")
     empty = tmp_path / "empty"
