@@ -264,21 +264,39 @@ void main() {
 """
 
 
+def _process_gl_context():
+    """The process-wide moderngl context of `mvtex.raster`."""
+    from .raster import gl_context
+
+    return gl_context()
+
+
 class BoardRenderer:
-    """Renders the printed board (a textured quad, white margin included) seen by pinhole
-    cameras, with moderngl on a standalone EGL context made once per renderer.
+    """Renders the printed board (a textured quad, white margin included) seen by a camera,
+    with moderngl.
 
     `mvtex.raster.render_textured` shades meshes with the built-in fabric texture only, so
     the board quad has its own small program here; the projection is the shared
     `mvtex.raster.clip_from_camera`, so rendered pixels follow the OpenCV convention.
+
+    It draws on the process's one GL context (`mvtex.raster`'s) unless given another: a
+    second standalone EGL context in the same process becomes the current one when it is
+    made, and the rasterizer's next draw then lands in the wrong context.
     """
 
     def __init__(self, spec: BoardSpec, pixels_per_square: int = 96, margin_squares: float = 0.5,
                  context=None):
+        """
+        Args:
+            spec: the board.
+            pixels_per_square: resolution of the board texture (mipmapped).
+            margin_squares: white paper around the board, in squares.
+            context: a moderngl.Context (default: the process-wide one of `mvtex.raster`).
+        """
         import moderngl
 
         self.spec = spec
-        self.ctx = context if context is not None else moderngl.create_standalone_context(backend="egl")
+        self.ctx = context if context is not None else _process_gl_context()
         margin_px = int(round(margin_squares * pixels_per_square))
         image = board_image(spec, pixels_per_square, margin_px)
         # Quad corners in the board frame: the image's outer edges (pixel edges, see board_image).
@@ -289,7 +307,6 @@ class BoardRenderer:
         quad = np.array([[x0, y0, 0, 0, 0], [x1, y0, 0, 1, 0], [x1, y1, 0, 1, 1],
                          [x0, y0, 0, 0, 0], [x1, y1, 0, 1, 1], [x0, y1, 0, 0, 1]], dtype="f4")
         self._quad_corners = quad[[0, 1, 2, 5], :3].astype(np.float64)
-        self._owns_context = context is None
         self._texture = self.ctx.texture((image.shape[1], image.shape[0]), 1, np.ascontiguousarray(image).tobytes())
         self._texture.build_mipmaps()
         self._texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
@@ -381,14 +398,12 @@ class BoardRenderer:
         return np.frombuffer(fbo.read(components=1), dtype=np.uint8).reshape(camera.height, camera.width).copy()
 
     def release(self) -> None:
-        """Free the GL objects (the context too if this renderer made it)."""
+        """Free this renderer's GL objects (not the context)."""
         for fbo in self._targets.values():
             fbo.release()
         for obj in (self._vao, self._vbo, self._program, self._texture):
             obj.release()
         self._targets.clear()
-        if self._owns_context:
-            self.ctx.release()
 
 
 def random_board_poses(rig, spec: BoardSpec, count: int, *, target=(0.0, 0.0, 0.0), seed: int = 0,

@@ -113,6 +113,7 @@ class Calibration:
         residuals: camera -> (k_c, 2) float64 reprojection residuals (projected - detected,
             pixels) of its corners, in the order of its detections concatenated.
         rms_px: root mean square reprojection error over every corner of every camera.
+        options: the options that made it.
     """
 
     rig: Rig
@@ -123,7 +124,7 @@ class Calibration:
     observations: dict[str, Observations]
     residuals: dict[str, np.ndarray]
     rms_px: float
-    options: CalibrateOptions = field(repr=False, default=None)
+    options: CalibrateOptions | None = field(repr=False, default=None)
 
     def camera_rms_px(self, name: str) -> float:
         r = self.residuals[name]
@@ -326,8 +327,9 @@ def initial_extrinsics(names: Sequence[str], reference: str, frames: dict[str, l
     if len(names) > 1:
         for name in names:
             if not any(shared[name].values()):
+                listed = ", ".join(frames[name][:5]) + (", ..." if len(frames[name]) > 5 else "")
                 raise InputError(None, f"camera {name} shares no frame with the other cameras (the board is found "
-                                 f"in its frames {', '.join(frames[name])}, but in none of those of another camera)")
+                                 f"in its frames {listed}, but in none of those of another camera)")
     cam_from_ref = {reference: np.eye(4)}
     queue = [reference]
     while queue:
