@@ -16,9 +16,10 @@ Steps:
    pose stays the identity: the rig's world frame is the reference camera's frame) and
    every frame's board pose.
 
-OpenCV 5's `cv2.calibrateMultiview` wants every camera's points of a frame to be the same
-full set of board points; ChArUco detections are partial (corners hidden or out of the
-image), so the joint step is the bundle adjustment above. Distortion follows OpenCV's
+OpenCV 5's `cv2.calibrateMultiview` takes one set of board points per frame, shared by all
+cameras, and a detection mask per camera and frame (none per point); ChArUco detections
+are partial and differ between cameras (corners hidden or out of the image), so the joint
+step is the bundle adjustment above. Distortion follows OpenCV's
 5-coefficient model (k1, k2, p1, p2, k3), as `cv2.projectPoints` computes it.
 """
 
