@@ -139,8 +139,10 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
         raise InputError(None, f"--alpha must be in [0, 1], got {alpha}")
     if out.exists():
         record = out / "undistort.json"
-        ours = out.is_dir() and record.is_file() and isinstance(read_json(record), dict) and \
-            read_json(record).get("format") == UNDISTORT_FORMAT
+        try:
+            ours = read_json(record).get("format") == UNDISTORT_FORMAT
+        except (InputError, AttributeError):  # missing, malformed, or not a JSON object
+            ours = False
         if not ours:
             raise InputError(out, "exists and was not written by mvtex undistort; not replacing it")
     plan = _camera_images(images, rig)

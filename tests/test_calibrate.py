@@ -196,6 +196,9 @@ def test_foreign_outputs_are_not_replaced(tmp_path, capsys):
     foreign.write_text("my notes\n")
     _fails(["calibrate", str(tmp_path), "--board", SPEC, "--out", str(foreign)], capsys, "not an mvtex rig")
     _fails(["board", SPEC, "--out", str(foreign)], capsys, "not written by mvtex board")
+    _fails(["rig", "stereo", "--undistort", "--out", str(foreign)], capsys, "not an mvtex rig")
+    _fails(["undistort", str(tmp_path), "--rig", "stereo", "--out", str(tmp_path)], capsys,
+           "not written by mvtex undistort")
     assert foreign.read_text() == "my notes\n"
 
 
