@@ -264,6 +264,18 @@ void main() {
 """
 
 
+_GRAY_TARGETS: dict[tuple[int, int, int], object] = {}
+
+
+def _gray_target(ctx, width: int, height: int):
+    """A one-channel framebuffer per (context, size), kept for the process: releasing a
+    bound framebuffer leaves the next draw of the context without a valid target."""
+    key = (id(ctx), width, height)
+    if key not in _GRAY_TARGETS:
+        _GRAY_TARGETS[key] = ctx.framebuffer(color_attachments=[ctx.texture((width, height), 1)])
+    return _GRAY_TARGETS[key]
+
+
 def _process_gl_context():
     """The process-wide moderngl context of `mvtex.raster`."""
     from .raster import gl_context
@@ -315,7 +327,6 @@ class BoardRenderer:
         self._program = self.ctx.program(vertex_shader=_QUAD_VERTEX, fragment_shader=_QUAD_FRAGMENT)
         self._vbo = self.ctx.buffer(quad.tobytes())
         self._vao = self.ctx.vertex_array(self._program, [(self._vbo, "3f 2f", "in_board", "in_texcoord")])
-        self._targets: dict[tuple[int, int], object] = {}
         self._maps: dict[tuple, tuple] = {}
 
     def render(self, camera: Camera, cam_from_board: np.ndarray, *, background: int = 90,
@@ -386,10 +397,7 @@ class BoardRenderer:
         self._program["clip_from_cam"].write(clip_from_camera(camera, near, far).T.astype("f4").tobytes())
         self._program["cam_from_board"].write(pose.T.astype("f4").tobytes())
         self._program["board"].value = 0
-        key = (camera.width, camera.height)
-        if key not in self._targets:
-            self._targets[key] = self.ctx.framebuffer(color_attachments=[self.ctx.texture(key, 1)])
-        fbo = self._targets[key]
+        fbo = _gray_target(self.ctx, camera.width, camera.height)
         fbo.use()
         fbo.clear(background / 255.0, background / 255.0, background / 255.0, 1.0)
         self.ctx.disable(moderngl.CULL_FACE | moderngl.DEPTH_TEST)
@@ -398,12 +406,9 @@ class BoardRenderer:
         return np.frombuffer(fbo.read(components=1), dtype=np.uint8).reshape(camera.height, camera.width).copy()
 
     def release(self) -> None:
-        """Free this renderer's GL objects (not the context)."""
-        for fbo in self._targets.values():
-            fbo.release()
+        """Free this renderer's GL objects (not the context, nor the shared render targets)."""
         for obj in (self._vao, self._vbo, self._program, self._texture):
             obj.release()
-        self._targets.clear()
 
 
 def random_board_poses(rig, spec: BoardSpec, count: int, *, target=(0.0, 0.0, 0.0), seed: int = 0,

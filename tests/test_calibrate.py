@@ -33,7 +33,7 @@ NUM_POSES = 12
 
 
 @pytest.fixture(scope="session")
-def board_images(tmp_path_factory):
+def board_images(tmp_path_factory, gl):
     """The example's rig (4 cameras, 640x480, cam2 with barrel distortion) and its images
     of 12 board poses (noise sigma 2 gray levels), plus a frame of cam1 without the board."""
     rig = example.true_rig()
@@ -326,7 +326,7 @@ def test_rig_summary_and_plot(tmp_path):
 
 
 @pytest.mark.gl
-def test_example_runs_every_step(tmp_path):
+def test_example_runs_every_step(tmp_path, gl):
     result = example.main(tmp_path / "demo", num_poses=4)
     assert all(c["frames"] == 4 for c in result["calibrate"]["per_camera"].values())
     for path in ("board.png", "rig.yaml", "rig_pinhole.yaml", "rig_calibration/rig.png", "undistorted/rig.yaml",
