@@ -37,7 +37,8 @@ BARREL = (-0.12, 0.05, 0.0, 0.0, 0.0)
 
 
 def true_rig() -> Rig:
-    """Four 640x480 cameras 0.9-1.0 m from the origin, 0.2 m apart, each with its own K;
+    """Four 640x480 cameras 0.9-1.0 m from the origin (where the board is held), 0.2 m
+    apart, each with its own K;
     cam2 has a barrel-distorting lens (k1 -0.12, k2 0.05)."""
     cameras = []
     for name, centre, fx, fy, cx, cy in (("cam0", (-0.3, -0.08, -0.95), 600, 604, 318, 242),
