@@ -122,7 +122,9 @@ class Camera:
         rendering, sliding and COLMAP export need undistorted (pinhole) cameras."""
         if np.any(self.dist != 0):
             raise InputError(source, f"camera {self.name!r} has non-zero distortion {self.dist.tolist()}: "
-                             "mvtex needs undistorted (pinhole) cameras; undistort the images and set dist to 0")
+                             "mvtex renders pinhole cameras: use the pinhole rig of the same K "
+                             "(mvtex rig RIG --undistort --out RIG2) and compare with undistorted images "
+                             "(mvtex undistort IMAGES --rig RIG --out DIR)")
 
     def pixel_rays(self, pixels: np.ndarray) -> np.ndarray:
         """Unit ray directions (..., 3) float64 in world coordinates through pixels (..., 2)."""
@@ -317,3 +319,58 @@ def resolve_rig(spec: str | os.PathLike) -> Path:
         return path
     builtin = builtin_rig_path(str(spec))
     return builtin if builtin.is_file() else path
+
+
+# -- distortion ---------------------------------------------------------------------------
+
+def undistorted_camera(camera: Camera, alpha: float | None = None) -> Camera:
+    """The pinhole camera (zero `dist`) that sees the undistorted images of `camera`.
+
+    Args:
+        camera: a camera, possibly with distortion.
+        alpha: None keeps K (the undistorted image is the pinhole image of the same K, what
+            mvtex renders); a number in [0, 1] takes K from `cv2.getOptimalNewCameraMatrix`
+            (0: every output pixel sees the scene, the borders are cropped; 1: every input
+            pixel is kept, black corners appear).
+
+    Returns:
+        The same camera with the new K and zero distortion (same name, size and pose).
+    """
+    if alpha is None:
+        K = camera.K
+    else:
+        import cv2
+
+        if not 0.0 <= float(alpha) <= 1.0:
+            raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+        size = (camera.width, camera.height)
+        K, _ = cv2.getOptimalNewCameraMatrix(camera.K, camera.dist, size, float(alpha), size)
+    return replace(camera, K=np.asarray(K, dtype=np.float64), dist=np.zeros(5))
+
+
+def undistort_rig(rig: Rig, alpha: float | None = None) -> Rig:
+    """Every camera of a rig made pinhole (see `undistorted_camera`)."""
+    return Rig(tuple(undistorted_camera(cam, alpha) for cam in rig))
+
+
+def undistort_image(image: np.ndarray, camera: Camera, pinhole: Camera) -> np.ndarray:
+    """Resample an image of `camera` into the pinhole camera `pinhole` (same pose) with
+    `cv2.initUndistortRectifyMap` and `cv2.remap` (bilinear; black outside the input).
+
+    Args:
+        image: (H,W) or (H,W,C) image of `camera`, H, W its size.
+        camera: the camera that took it (with its distortion).
+        pinhole: the output camera, zero distortion (e.g. `undistorted_camera(camera)`).
+
+    Returns:
+        (pinhole.height, pinhole.width[, C]) image of the same dtype.
+    """
+    import cv2
+
+    image = np.asarray(image)
+    if image.shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"camera {camera.name!r}: image is {image.shape[1]}x{image.shape[0]}, "
+                         f"the camera {camera.width}x{camera.height}")
+    map_x, map_y = cv2.initUndistortRectifyMap(camera.K, camera.dist, None, pinhole.K,
+                                               (pinhole.width, pinhole.height), cv2.CV_32FC1)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)

@@ -135,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--epochs", type=int, help="TSNN epochs (default: the training default)")
     _add_json(p)
     _add_progress(p)
+    _add_calibration_parsers(sub)
     return parser
 
 
@@ -291,6 +292,132 @@ def cmd_demo(args) -> dict:
 COMMANDS = {"synth": cmd_synth, "import": cmd_import, "render": cmd_render, "slide": cmd_slide, "eval": cmd_eval,
             "triangulate": cmd_triangulate, "train": cmd_train, "predict": cmd_predict, "bench": cmd_bench,
             "demo": cmd_demo}
+
+# -- calibration: calibrate, board, rig, undistort ------------------------------------------
+
+def _add_calibration_parsers(sub) -> None:
+    p = sub.add_parser("calibrate", help="calibrate a camera array from ChArUco board images -> rig YAML")
+    p.add_argument("images", type=Path, help="IMAGES/<camera>/<frame>.png|jpg; one frame name = one instant")
+    p.add_argument("--board", required=True, help="charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT, "
+                   "e.g. charuco:9x6:0.05:0.0375:DICT_5X5_100")
+    p.add_argument("--out", type=Path, required=True, help="rig YAML to write; pictures go to <stem>_calibration/")
+    p.add_argument("--reference", help="camera whose frame is the rig's world frame (default: first by name)")
+    p.add_argument("--distortion", default="k1k2p1p2", choices=("k1k2p1p2k3", "k1k2p1p2", "k1k2", "none"),
+                   help="distortion coefficients to fit (default k1k2p1p2; none: pinhole)")
+    p.add_argument("--min-corners", type=int, default=6, help="skip frames where a camera sees fewer corners (default 6)")
+    _add_json(p)
+    _add_progress(p)
+
+    p = sub.add_parser("board", help="write the printable ChArUco board image of a SPEC")
+    p.add_argument("spec", help="charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT")
+    p.add_argument("--out", type=Path, required=True, help="PNG to write (records its dpi for printing at 100 %%)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--dpi", type=float, help="print resolution in pixels per inch (default 300)")
+    g.add_argument("--pixels-per-square", type=int, help="side of a square in pixels (sets the dpi)")
+    _add_json(p)
+
+    p = sub.add_parser("rig", help="show, plot, undistort a rig, or convert it to and from COLMAP")
+    p.add_argument("rig", nargs="?", help="rig YAML or built-in rig name (not with --from-colmap)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--from-colmap", type=Path, metavar="MODEL", help="read the cameras of a COLMAP model (needs --out)")
+    g.add_argument("--to-colmap", type=Path, metavar="DIR", help="write the rig as a COLMAP model (PINHOLE cameras)")
+    g.add_argument("--undistort", action="store_true", help="write the pinhole rig of the undistorted images (needs --out)")
+    g.add_argument("--plot", type=Path, metavar="PNG", help="draw the rig's camera frusta")
+    p.add_argument("--out", type=Path, help="rig YAML to write (--from-colmap, --undistort)")
+    p.add_argument("--alpha", type=float, help="--undistort: new K from cv2.getOptimalNewCameraMatrix with this "
+                   "alpha in [0,1] (0 crops to valid pixels, 1 keeps every pixel); default: keep K")
+    p.add_argument("--text", action="store_true", help="--to-colmap: text model instead of binary")
+    _add_json(p)
+
+    p = sub.add_parser("undistort", help="undistort images with a rig's distortion (OpenCV remap) -> pinhole images")
+    p.add_argument("images", type=Path, help="IMAGES/<camera>/<name>.png|jpg or IMAGES/<camera>.png|jpg")
+    p.add_argument("--rig", required=True, help="the rig the images were taken with (with distortion)")
+    p.add_argument("--out", type=Path, required=True, help="folder for the undistorted PNGs and their pinhole rig.yaml")
+    p.add_argument("--alpha", type=float, help="new K from cv2.getOptimalNewCameraMatrix (default: keep K)")
+    _add_json(p)
+    _add_progress(p)
+
+
+def cmd_calibrate(args) -> dict:
+    from .board import parse_board_spec
+    from .calibrate import CalibrateOptions, calibrate_folder, pictures_folder
+
+    options = CalibrateOptions(board=parse_board_spec(args.board), reference=args.reference,
+                               min_corners=args.min_corners, distortion=args.distortion)
+    calibration = calibrate_folder(args.images, args.out, options, progress=not args.quiet)
+    result = calibration.summary()
+    lines = [f"{name}: {c['frames']} frames ({c['skipped']} skipped), RMS {c['rms_px']:.3f} px"
+             for name, c in result["per_camera"].items()]
+    lines.append(f"{result['num_cameras']} cameras, {result['num_frames']} frames, RMS {result['rms_reprojection_px']:.3f}"
+                 f" px; wrote {args.out} (world frame: camera {calibration.reference}), "
+                 f"pictures in {pictures_folder(args.out)}")
+    _emit(args, result, "\n".join(lines))
+    return result
+
+
+def cmd_board(args) -> dict:
+    from .board import parse_board_spec, write_board_png
+
+    result = write_board_png(parse_board_spec(args.spec), args.out, dpi=args.dpi,
+                             pixels_per_square=args.pixels_per_square)
+    _emit(args, result, f"wrote {args.out}: {result['width_px']}x{result['height_px']} px, print at "
+          f"{result['dpi']:.0f} dpi (100 %) for {result['width_mm']:.0f} x {result['height_mm']:.0f} mm")
+    return result
+
+
+def cmd_rig(args) -> dict:
+    from . import rigs
+
+    needs_out = args.from_colmap is not None or args.undistort
+    if needs_out and args.out is None:
+        raise InputError(None, "--from-colmap and --undistort need --out RIG")
+    if not needs_out and args.out is not None:
+        raise InputError(None, "--out goes with --from-colmap or --undistort")
+    if args.alpha is not None and not args.undistort:
+        raise InputError(None, "--alpha goes with --undistort")
+    if args.from_colmap is not None:
+        if args.rig is not None:
+            raise InputError(None, "give either a RIG or --from-colmap MODEL, not both")
+        rig = rigs.import_colmap(args.from_colmap, args.out)
+        result = {"rig": str(args.out), **rigs.rig_summary(rig)}
+        _emit(args, result, f"wrote {args.out}: {len(rig)} cameras from {args.from_colmap}")
+        return result
+    if args.rig is None:
+        raise InputError(None, "give a RIG (a YAML or a built-in rig name)")
+    rig, rig_path = _load_rig(args.rig)
+    if args.undistort:
+        pinhole = rigs.write_pinhole_rig(rig, args.out, alpha=args.alpha)
+        result = {"rig": str(args.out), **rigs.rig_summary(pinhole)}
+        text = f"wrote {args.out}: pinhole rig of {len(pinhole)} cameras (" + (
+            "same K" if args.alpha is None else f"K from getOptimalNewCameraMatrix, alpha {args.alpha:g}") + ")"
+    elif args.to_colmap is not None:
+        out = rigs.export_colmap(rig, args.to_colmap, text=args.text, source=rig_path)
+        result = {"colmap": str(out), **rigs.rig_summary(rig)}
+        text = f"wrote COLMAP model {out}: {len(rig)} cameras"
+    elif args.plot is not None:
+        rigs.plot_rig_file(rig, args.plot, title=Path(rig_path).name)
+        result = {"plot": str(args.plot), **rigs.rig_summary(rig)}
+        text = f"wrote {args.plot}"
+    else:
+        result = rigs.rig_summary(rig)
+        text = "\n".join(f"{name}: {c['width']}x{c['height']}, f=({c['fx']:.1f}, {c['fy']:.1f}), c=({c['cx']:.1f}, "
+                         f"{c['cy']:.1f}), centre ({', '.join(f'{v:.3f}' for v in c['center_m'])}) m"
+                         + (", distorted" if name in result["distorted"] else "")
+                         for name, c in result["cameras"].items())
+    _emit(args, result, text)
+    return result
+
+
+def cmd_undistort(args) -> dict:
+    from .rigs import undistort_folder
+
+    rig, _ = _load_rig(args.rig)
+    result = undistort_folder(args.images, rig, args.out, alpha=args.alpha, progress=not args.quiet)
+    _emit(args, result, f"wrote {result['num_images']} undistorted images and their pinhole rig to {args.out}")
+    return result
+
+
+COMMANDS.update({"calibrate": cmd_calibrate, "board": cmd_board, "rig": cmd_rig, "undistort": cmd_undistort})
 
 
 def main(argv: Sequence[str] | None = None) -> int:
