@@ -89,3 +89,16 @@ def test_prebuilt_system_order_gives_the_same_solution_as_a_fresh_solve():
     u, k = np.flatnonzero(~assigned), np.flatnonzero(assigned)
     expected = np.linalg.solve(L[np.ix_(u, u)], -L[np.ix_(u, k)] @ values[k])
     assert np.abs(out[u] - expected).max() < 1e-10
+
+
+def test_one_dimensional_values_use_the_given_system():
+    """A 1-D fill with `system=` solves with that system's Laplacian, not one from `positions`."""
+    faces, positions, _, rng = flat_patch(200)
+    stretched = positions * [3.0, 0.5, 1.0]  # another metric: other cotangent weights
+    values = rng.normal(size=len(positions))
+    assigned = rng.uniform(size=len(positions)) < 0.3
+    expected = fill(faces, stretched, values, assigned, "harmonic")  # Laplacian of the stretched patch
+    out = fill(faces, positions, values, assigned, "harmonic", system=FillSystem(faces, stretched))
+    assert out.shape == values.shape
+    assert np.abs(out - expected).max() < 1e-12
+    assert np.abs(out - fill(faces, positions, values, assigned, "harmonic")).max() > 1e-4
