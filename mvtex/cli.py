@@ -203,8 +203,11 @@ def cmd_eval(args) -> dict:
     poses = dataset.select(args.poses) if args.poses else None
     result = evaluate(dataset, rig.select(tc.cameras, rig_path), tc, poses=poses, heatmaps=args.heatmaps,
                       progress=not args.quiet)
-    s, c = result["sqrt_mse"], result["sqrt_mse_same_chart"]
-    _emit(args, result, f"{result['num_images']} images: SqrtMSE inferred {s['inferred']['mean']*1e3:.3f} ± "
+    s, c, m = result["sqrt_mse"], result["sqrt_mse_same_chart"], result["material_rmse_m"]
+    material = (f"material error inferred {m['inferred']['mean']*1e3:.2f} ± {m['inferred']['std']*1e3:.2f} mm, "
+                f"texcoords {m['texcoords']['mean']*1e3:.2f} ± {m['texcoords']['std']*1e3:.2f} mm, "
+                f"ratio {result['ratio_material']:.2f}; " if m is not None else "")
+    _emit(args, result, f"{result['num_images']} images: {material}SqrtMSE inferred {s['inferred']['mean']*1e3:.3f} ± "
           f"{s['inferred']['std']*1e3:.3f} e-3, texcoords {s['texcoords']['mean']*1e3:.3f} ± "
           f"{s['texcoords']['std']*1e3:.3f} e-3, ratio {result['ratio']:.2f}; same-chart pixels: "
           f"{c['inferred']['mean']*1e3:.3f} -> {c['texcoords']['mean']*1e3:.3f} e-3, ratio {result['ratio_same_chart']:.2f}")
