@@ -29,10 +29,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"mvtex {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    p = sub.add_parser("synth", help="write the built-in garment dataset")
+    p = sub.add_parser("synth", help="write a built-in garment dataset")
     p.add_argument("out", type=Path)
     p.add_argument("--poses", type=int, default=300, help="number of poses (default 300)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seeds the poses and the split (default 0)")
+    p.add_argument("--garment", default="shirt", choices=("shirt", "skirt"),
+                   help="shirt: torso tube with bend/twist folds; skirt: flared skirt with hem flutes (default shirt)")
     _add_json(p)
 
     p = sub.add_parser("import", help="OBJ/PLY sequences (same connectivity) -> dataset")
@@ -150,7 +152,7 @@ def cmd_synth(args) -> dict:
 
     if args.poses < 10:
         raise InputError(None, f"--poses must be at least 10 (got {args.poses})")
-    stats = write_synth(args.out, SynthOptions(num_poses=args.poses, seed=args.seed))
+    stats = write_synth(args.out, SynthOptions(num_poses=args.poses, seed=args.seed, garment=args.garment))
     _emit(args, stats, f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                            for k, v in stats.items()))
     return stats
