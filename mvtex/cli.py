@@ -63,6 +63,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--subdiv", type=int, default=1, choices=(0, 1, 2))
     p.add_argument("--fill", default="harmonic", choices=("harmonic", "fmm"))
     p.add_argument("--max-displacement", type=float, help="unassign vertices with |d| above this (uv units)")
+    p.add_argument("--break-ratio", metavar="R|off",
+                   help="break edges whose |dT_N| exceeds R x their |dT_G| (R > 1); off = the paper's plain "
+                        "method (default: SlideOptions.break_ratio)")
+    p.add_argument("--radius", type=int, help="candidate window half-size in pixels, 1 = 3x3 (default 1)")
+    p.add_argument("--depth-tolerance", type=float,
+                   help="relative tolerance of the vertex depth test (default: SlideOptions.depth_tolerance)")
+    p.add_argument("--cross-chart", choices=("on", "off"),
+                   help="keep hits on another UV chart than the vertex's own (default: SlideOptions.cross_chart)")
     p.add_argument("--cameras", help="comma-separated camera names (default: all)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None,
@@ -179,6 +187,26 @@ def cmd_render(args) -> None:
     print(f"wrote {len(summary['files'])} files to {args.out}")
 
 
+def slide_option_flags(args) -> dict:
+    """SlideOptions fields set by `slide`'s optional flags (unset flags keep the defaults)."""
+    changes = {}
+    if args.break_ratio is not None:
+        if args.break_ratio.strip().lower() == "off":
+            changes["break_ratio"] = None
+        else:
+            try:
+                changes["break_ratio"] = float(args.break_ratio)
+            except ValueError:
+                raise InputError(None, f"--break-ratio must be a number > 1 or 'off' (got {args.break_ratio!r})") from None
+    if args.radius is not None:
+        changes["radius"] = args.radius
+    if args.depth_tolerance is not None:
+        changes["depth_tolerance"] = args.depth_tolerance
+    if args.cross_chart is not None:
+        changes["cross_chart"] = args.cross_chart == "on"
+    return changes
+
+
 def cmd_slide(args) -> None:
     from .dataset import load_dataset
     from .sliding import SlideOptions, slide_dataset
@@ -186,7 +214,11 @@ def cmd_slide(args) -> None:
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
     rig = rig.select(_cameras(args.cameras), rig_path)
-    options = SlideOptions(subdiv=args.subdiv, fill=args.fill, max_displacement=args.max_displacement)
+    try:
+        options = SlideOptions(subdiv=args.subdiv, fill=args.fill, max_displacement=args.max_displacement,
+                               **slide_option_flags(args))
+    except ValueError as err:
+        raise InputError(None, str(err)) from None
     if args.workers is not None and args.workers < 1:
         raise InputError(None, f"--workers must be at least 1 (got {args.workers})")
     out = slide_dataset(dataset, rig, args.out, poses=dataset.select(args.poses), options=options,

@@ -150,3 +150,29 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
     assert code == 0
     again = json.loads(out2)
     assert again["texture_sliding"] == summary["texture_sliding"] and again["tsnn"] == summary["tsnn"]
+
+
+@pytest.mark.gl
+def test_slide_flags_reach_the_options(tmp_path, tiny_dataset, rig_file, gl, capsys):
+    """Every SlideOptions default is a flag; off = no edge breaking, which only ever keeps
+    more vertices assigned than breaking does."""
+    base = ["slide", tiny_dataset, "--rig", rig_file, "--poses", "1,4", "--subdiv", 0, "--workers", 1, "--quiet"]
+    code, _, err = run(capsys, *base, "--out", tmp_path / "on", "--break-ratio", "1.5")
+    assert code == 0, err
+    code, _, err = run(capsys, *base, "--out", tmp_path / "off", "--break-ratio", "off", "--radius", 2,
+                       "--depth-tolerance", "0.01", "--cross-chart", "on")
+    assert code == 0, err
+    options = json.loads((tmp_path / "off" / "texcoords.json").read_text())["options"]
+    assert options["break_ratio"] is None and options["radius"] == 2
+    assert options["depth_tolerance"] == 0.01 and options["cross_chart"] is True
+    assert json.loads((tmp_path / "on" / "texcoords.json").read_text())["options"]["break_ratio"] == 1.5
+    code, _, err = run(capsys, *base, "--out", tmp_path / "off2", "--break-ratio", "off")
+    assert code == 0, err
+    for cam in ("a", "b"):
+        on = np.load(tmp_path / "on" / cam / "assigned.npy")
+        off = np.load(tmp_path / "off2" / cam / "assigned.npy")
+        assert np.all(off | ~on) and off.sum() >= on.sum()
+    for bad in (["--break-ratio", "0.5"], ["--break-ratio", "x"], ["--radius", "9"], ["--depth-tolerance", "2"]):
+        code, _, err = run(capsys, *base, "--out", tmp_path / "bad", *bad)
+        _assert_one_line_error(code, err, "")
+        assert not (tmp_path / "bad").exists()
