@@ -98,8 +98,8 @@ class MaterialMap:
     """Texture coordinates -> the material point they name on the rest garment.
 
     The uv layout (faces, uv) is rasterized once in UV space into a triangle-id buffer;
-    a query point's candidates are the ids of the 3x3 texels around it, exact float64
-    barycentrics decide, and the point is the same barycentric combination of the rest
+    a query point's candidates are the id of its texel, else the ids of the 3x3 texels
+    around it; exact float64 barycentrics decide, and the point is the same barycentric combination of the rest
     positions. Points the candidates do not contain are retried with the triangles sharing
     a vertex with them (slivers thinner than a texel); points outside every triangle (off
     the charts) map to the nearest point of the layout's boundary edges. The layout is
@@ -179,14 +179,24 @@ class MaterialMap:
         k, R = len(points), self.resolution
         col = np.clip(np.floor(points[:, 0] * R).astype(np.int64), 0, R - 1)
         row = np.clip(np.floor(points[:, 1] * R).astype(np.int64), 0, R - 1)
-        offsets = np.arange(-1, 2)
-        rows = np.clip(row[:, None, None] + offsets[None, :, None], 0, R - 1)
-        cols = np.clip(col[:, None, None] + offsets[None, None, :], 0, R - 1)
-        cand = self.ids[rows, cols].reshape(k, -1)
-        pi, slot = np.nonzero(cand >= 0)
-        tri, bary, inside = self._best(points, pi, cand[pi, slot].astype(np.int64), k)
+        # Most points lie in the triangle of their own texel: try that one first.
+        tri = self.ids[row, col].astype(np.int64)
+        bary = np.zeros((k, 3))
+        has = np.flatnonzero(tri >= 0)
+        bary[has] = self._barycentric(points[has], tri[has])
+        inside = np.zeros(k, bool)
+        inside[has] = bary[has].min(axis=1) >= -1e-9
+        retry = np.flatnonzero(~inside)
+        if retry.size:  # near an edge of the layout's raster: the 3x3 texels around
+            offsets = np.arange(-1, 2)
+            rows = np.clip(row[retry, None, None] + offsets[None, :, None], 0, R - 1)
+            cols = np.clip(col[retry, None, None] + offsets[None, None, :], 0, R - 1)
+            cand = self.ids[rows, cols].reshape(len(retry), -1)
+            pi, slot = np.nonzero(cand >= 0)
+            t2, b2, in2 = self._best(points[retry], pi, cand[pi, slot].astype(np.int64), len(retry))
+            tri[retry], bary[retry], inside[retry] = t2, b2, in2
         retry = np.flatnonzero(~inside & (tri >= 0))
-        if retry.size:
+        if retry.size:  # slivers thinner than a texel: the triangles around the candidate
             ring = self.face_ring[tri[retry]].tocoo()
             t2, b2, in2 = self._best(points[retry], ring.row.astype(np.int64), ring.col.astype(np.int64), len(retry))
             better = in2 | (b2.min(axis=1) > bary[retry].min(axis=1))
