@@ -59,7 +59,7 @@ class SlideOptions:
     fill: str = "harmonic"
     max_displacement: float | None = None
     depth_tolerance: float = 1e-3
-    break_ratio: float | None = 4.0
+    break_ratio: float | None = None
     radius: int = 1
     cross_chart: bool = False
 
