@@ -182,11 +182,11 @@ def _cumtrapz(y: np.ndarray, dx: float) -> np.ndarray:
 
 
 def deform_with_info(pose: np.ndarray) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
-    """Ground-truth positions of the distinct (ring, column) points and flute statistics.
+    """Ground-truth positions of one pose and its flute statistics.
 
     Returns:
-        (N_RINGS * N_AROUND, 3) float64 positions, ring-major; per flute (depth at the hem
-        in m, wavelength at the hem in m, peak fold angle in rad).
+        (n, 3) float64 positions in `make_garment`'s vertex order (seam copies identical);
+        per flute (depth at the hem in m, wavelength at the hem in m, peak fold angle in rad).
     """
     pose = np.asarray(pose, dtype=np.float64)
     s = _ring_slant()
@@ -232,7 +232,7 @@ def deform_with_info(pose: np.ndarray) -> tuple[np.ndarray, list[tuple[float, fl
     rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
     rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
     points = (points.reshape(-1, 3) - waist) @ (rz @ rx).T + waist
-    return points, info
+    return points[_garment()[3]], info
 
 
 def deform(pose: np.ndarray) -> np.ndarray:
@@ -243,4 +243,4 @@ def deform(pose: np.ndarray) -> np.ndarray:
     2 twist, 3 and 4 hip tilt about x and z, 5..11 modulate the flutes' positions, depths,
     wavelengths and starts and (9) how far the cloth rotates around the body.
     """
-    return deform_with_info(pose)[0][_garment()[3]].astype(np.float32)
+    return deform_with_info(pose)[0].astype(np.float32)

@@ -542,11 +542,7 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
         from . import skirt
 
         faces, uv, rest = skirt.make_garment()
-        inverse = skirt._garment()[3]
-
-        def shape(pose):
-            positions, info = skirt.deform_with_info(pose)
-            return positions[inverse], info
+        shape = skirt.deform_with_info
     gt = np.empty((options.num_poses, len(rest), 3), dtype=np.float32)
     for k, pose in enumerate(poses):
         gt[k], info = shape(pose)

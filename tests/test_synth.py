@@ -381,3 +381,13 @@ def test_cli_synth_records_the_garment(tmp_path):
     meta = json.loads((tmp_path / "s" / "dataset.json").read_text())
     assert meta["garment"] == "skirt" and meta["name"] == "skirt"
     assert main(["synth", str(tmp_path / "t"), "--poses", "10", "--garment", "scarf"]) == 2
+
+
+def test_skirt_public_functions_agree_with_synthesize(skirt):
+    from mvtex import skirt as skirt_module
+
+    faces, uv, rest = skirt_module.make_garment()
+    for mine, theirs in ((faces, "faces"), (uv, "uv"), (rest, "rest")):
+        np.testing.assert_array_equal(mine, skirt[theirs])
+    for k in (0, 7):
+        np.testing.assert_array_equal(skirt_module.deform(skirt["poses"][k]), skirt["gt"][k])
