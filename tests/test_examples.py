@@ -45,3 +45,18 @@ def test_make_rigs_matches_shipped_rigs(tmp_path):
         assert shipped.names == rig.names
         for a, b in zip(shipped, rig):
             assert np.allclose(a.R, b.R) and np.allclose(a.t, b.t) and np.allclose(a.K, b.K)
+
+
+def test_defaults_study_small(tmp_path, gl):
+    module = load("defaults_study")
+    rows = module.study(tmp_path, 10, ["shirt", "skirt"], ["stereo"], only=["defaults", "break ratio 4"])
+    assert [(r["garment"], r["candidate"]) for r in rows] == [("shirt", "defaults"), ("shirt", "break ratio 4"),
+                                                             ("skirt", "defaults"), ("skirt", "break ratio 4")]
+    for row in rows:
+        for subdiv in ("subdiv0", "subdiv1"):
+            r = row[subdiv]["stereo"]
+            assert r["num_images"] == 2
+            # Sliding moves the shown material towards gt on both garments.
+            assert r["material_mm"]["texcoords"] < r["material_mm"]["inferred"]
+    table = module.markdown(rows, ["stereo"])
+    assert table.count("| skirt |") == 2 and "TS+1 material mm" in table
