@@ -122,7 +122,8 @@ def markdown(rows: list[dict], rig_names: list[str]) -> str:
         for garment in sorted({row["garment"] for row in rows}):
             base = next(r for r in rows if r["garment"] == garment)["subdiv0"][rig]
             lines.append(f"\n{garment}, {rig}: inferred mesh (baseline) material error "
-                         f"{base['material_mm']['inferred']:.2f} mm, SqrtMSE {1e3 * base['sqrt_mse']['inferred']:.2f}e-3, "
+                         f"{base['material_mm']['inferred']:.2f} mm, "
+                         f"SqrtMSE {1e3 * base['sqrt_mse']['inferred']:.2f}e-3, "
                          f"{base['num_images']} images")
     return "\n".join(lines)
 

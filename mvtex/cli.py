@@ -197,7 +197,8 @@ def slide_option_flags(args) -> dict:
             try:
                 changes["break_ratio"] = float(args.break_ratio)
             except ValueError:
-                raise InputError(None, f"--break-ratio must be a number > 1 or 'off' (got {args.break_ratio!r})") from None
+                raise InputError(None, f"--break-ratio must be a number > 1 or 'off' "
+                                       f"(got {args.break_ratio!r})") from None
     if args.radius is not None:
         changes["radius"] = args.radius
     if args.depth_tolerance is not None:

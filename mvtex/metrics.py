@@ -99,11 +99,12 @@ class MaterialMap:
 
     The uv layout (faces, uv) is rasterized once in UV space into a triangle-id buffer;
     a query point's candidates are the id of its texel, else the ids of the 3x3 texels
-    around it; exact float64 barycentrics decide, and the point is the same barycentric combination of the rest
-    positions. Points the candidates do not contain are retried with the triangles sharing
-    a vertex with them (slivers thinner than a texel); points outside every triangle (off
-    the charts) map to the nearest point of the layout's boundary edges. The layout is
-    assumed not to overlap itself (one material point per uv), as a texture atlas is.
+    around it; exact float64 barycentrics decide, and the material point is the same
+    barycentric combination of the rest positions. Points the candidates do not contain
+    are retried with the triangles sharing a vertex with them (slivers thinner than a
+    texel); points outside every triangle (off the charts) map to the nearest point of the
+    layout's boundary edges. The layout is assumed not to overlap itself (one material
+    point per uv), as a texture atlas is.
 
     Args:
         faces: (m,3) int triangles of the base mesh.
