@@ -35,6 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", type=Path, help="dataset directory to write")
     p.add_argument("--poses", type=int, default=300, help="number of poses (default 300)")
     p.add_argument("--seed", type=int, default=0, help="random seed of poses and folds (default 0)")
+    p.add_argument("--garment", default="shirt", choices=("shirt", "skirt"),
+                   help="shirt: torso tube with bend/twist folds; skirt: flared skirt with hem flutes (default shirt)")
     _add_json(p)
 
     p = sub.add_parser("import", help="OBJ/PLY sequences (same connectivity) -> dataset")
@@ -66,6 +68,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fill", default="harmonic", choices=("harmonic", "fmm"),
                    help="fill of unassigned vertices: harmonic (cotangent Laplace) or fmm (default harmonic)")
     p.add_argument("--max-displacement", type=float, help="unassign vertices with |d| above this (uv units)")
+    p.add_argument("--break-ratio", metavar="R|off",
+                   help="break edges whose |dT_N| exceeds R x their |dT_G| (R > 1); off = the paper's plain "
+                        "method (default: SlideOptions.break_ratio)")
+    p.add_argument("--radius", type=int, help="candidate window half-size in pixels, 1 = 3x3 (default 1)")
+    p.add_argument("--depth-tolerance", type=float,
+                   help="relative tolerance of the vertex depth test (default: SlideOptions.depth_tolerance)")
+    p.add_argument("--cross-chart", choices=("on", "off"),
+                   help="keep hits on another UV chart than the vertex's own (default: SlideOptions.cross_chart)")
     p.add_argument("--cameras", help="comma-separated camera names (default: all)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None,
@@ -162,7 +172,7 @@ def cmd_synth(args) -> dict:
 
     if args.poses < 10:
         raise InputError(None, f"--poses must be at least 10 (got {args.poses})")
-    stats = write_synth(args.out, SynthOptions(num_poses=args.poses, seed=args.seed))
+    stats = write_synth(args.out, SynthOptions(num_poses=args.poses, seed=args.seed, garment=args.garment))
     _emit(args, stats, f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                            for k, v in stats.items()))
     return stats
@@ -189,6 +199,27 @@ def cmd_render(args) -> None:
     print(f"wrote {len(summary['files'])} files to {args.out}")
 
 
+def slide_option_flags(args) -> dict:
+    """SlideOptions fields set by `slide`'s optional flags (unset flags keep the defaults)."""
+    changes = {}
+    if args.break_ratio is not None:
+        if args.break_ratio.strip().lower() == "off":
+            changes["break_ratio"] = None
+        else:
+            try:
+                changes["break_ratio"] = float(args.break_ratio)
+            except ValueError:
+                raise InputError(None, f"--break-ratio must be a number > 1 or 'off' "
+                                       f"(got {args.break_ratio!r})") from None
+    if args.radius is not None:
+        changes["radius"] = args.radius
+    if args.depth_tolerance is not None:
+        changes["depth_tolerance"] = args.depth_tolerance
+    if args.cross_chart is not None:
+        changes["cross_chart"] = args.cross_chart == "on"
+    return changes
+
+
 def cmd_slide(args) -> None:
     from .dataset import load_dataset
     from .slide_jobs import slide_dataset
@@ -197,7 +228,11 @@ def cmd_slide(args) -> None:
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
     rig = rig.select(_cameras(args.cameras), rig_path)
-    options = SlideOptions(subdiv=args.subdiv, fill=args.fill, max_displacement=args.max_displacement)
+    try:
+        options = SlideOptions(subdiv=args.subdiv, fill=args.fill, max_displacement=args.max_displacement,
+                               **slide_option_flags(args))
+    except ValueError as err:
+        raise InputError(None, str(err)) from None
     if args.workers is not None and args.workers < 1:
         raise InputError(None, f"--workers must be at least 1 (got {args.workers})")
     out = slide_dataset(dataset, rig, args.out, poses=dataset.select(args.poses), options=options,
@@ -216,8 +251,11 @@ def cmd_eval(args) -> dict:
     poses = dataset.select(args.poses) if args.poses else None
     result = evaluate(dataset, rig.select(tc.cameras, rig_path), tc, poses=poses, heatmaps=args.heatmaps,
                       progress=not args.quiet)
-    s, c = result["sqrt_mse"], result["sqrt_mse_same_chart"]
-    _emit(args, result, f"{result['num_images']} images: SqrtMSE inferred {s['inferred']['mean']*1e3:.3f} ± "
+    s, c, m = result["sqrt_mse"], result["sqrt_mse_same_chart"], result["material_rmse_m"]
+    material = (f"material error inferred {m['inferred']['mean']*1e3:.2f} ± {m['inferred']['std']*1e3:.2f} mm, "
+                f"texcoords {m['texcoords']['mean']*1e3:.2f} ± {m['texcoords']['std']*1e3:.2f} mm, "
+                f"ratio {result['ratio_material']:.2f}; " if m is not None else "")
+    _emit(args, result, f"{result['num_images']} images: {material}SqrtMSE inferred {s['inferred']['mean']*1e3:.3f} ± "
           f"{s['inferred']['std']*1e3:.3f} e-3, texcoords {s['texcoords']['mean']*1e3:.3f} ± "
           f"{s['texcoords']['std']*1e3:.3f} e-3, ratio {result['ratio']:.2f}; same-chart pixels: "
           f"{c['inferred']['mean']*1e3:.3f} -> {c['texcoords']['mean']*1e3:.3f} e-3, ratio {result['ratio_same_chart']:.2f}")

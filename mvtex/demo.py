@@ -124,7 +124,12 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
 def _short(result: dict) -> dict:
     s = result["sqrt_mse"]
     c = result["sqrt_mse_same_chart"]
-    return {"num_images": result["num_images"], "inferred_e3": round(s["inferred"]["mean"] * 1e3, 3),
+    m = result["material_rmse_m"]
+    return {"num_images": result["num_images"],
+            "material_inferred_mm": round(m["inferred"]["mean"] * 1e3, 3),
+            "material_texcoords_mm": round(m["texcoords"]["mean"] * 1e3, 3),
+            "ratio_material": round(result["ratio_material"], 2),
+            "inferred_e3": round(s["inferred"]["mean"] * 1e3, 3),
             "texcoords_e3": round(s["texcoords"]["mean"] * 1e3, 3), "ratio": round(result["ratio"], 2),
             "same_chart_inferred_e3": round(c["inferred"]["mean"] * 1e3, 3),
             "same_chart_texcoords_e3": round(c["texcoords"]["mean"] * 1e3, 3),
@@ -132,8 +137,10 @@ def _short(result: dict) -> dict:
 
 
 def _pair(r: dict) -> str:
-    return (f"SqrtMSE inferred {r['inferred_e3']} e-3 -> {r['texcoords_e3']} e-3 (ratio {r['ratio']}); "
-            f"same-chart pixels {r['same_chart_inferred_e3']} -> {r['same_chart_texcoords_e3']} e-3 "
+    return (f"material error inferred {r['material_inferred_mm']} mm -> {r['material_texcoords_mm']} mm "
+            f"(ratio {r['ratio_material']}); SqrtMSE inferred {r['inferred_e3']} e-3 -> {r['texcoords_e3']} e-3 "
+            f"(ratio {r['ratio']}); "
+            f"diagnostic, same-chart pixels {r['same_chart_inferred_e3']} -> {r['same_chart_texcoords_e3']} e-3 "
             f"(ratio {r['ratio_same_chart']})")
 
 

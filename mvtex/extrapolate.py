@@ -190,7 +190,7 @@ def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned:
     values = np.asarray(values)
     if values.ndim == 1:
         return fill(faces, positions, values[:, None], assigned, method, groups,
-                    smoothing_passes=smoothing_passes)[:, 0]
+                    smoothing_passes=smoothing_passes, system=system)[:, 0]
     assigned = np.asarray(assigned, dtype=bool)
     n = len(positions)
     if values.shape[0] != n or assigned.shape != (n,):

@@ -11,6 +11,13 @@ material points: a handful of such pixels (e ≈ 0.5–1) can outweigh everythin
 texcoords can remove them, since the charts' boundaries are fixed by each mesh's geometry.
 `evaluate` therefore also reports `sqrt_mse_same_chart`: the same statistic over the pixels
 where both meshes show the same chart (the contract keys are unchanged).
+
+The *material error* needs no such exclusion: at a pixel, each mesh shows a point of the
+garment's material — for gt the barycentric combination of the rest positions (mesh.npz
+`rest`) of the triangle it shows, for the inferred mesh the point its texcoords name in the
+uv layout, mapped back to the rest shape (`MaterialMap`). Their distance on the rest
+garment, in meters, is small across a seam (both sides of it are neighbours on the
+cloth). `evaluate` reports its RMSE per image as `material_rmse_m` (null without `rest`).
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ if TYPE_CHECKING:
     from .raster import GLContext, Raster
 
 HEATMAP_MAX = 0.04
+MATERIAL_HEATMAP_MAX_MM = 20.0  # material error drawn fully red, millimetres
 CHART_BOUNDARY_COLOR = (255, 0, 255)  # pixels where the two meshes show different UV charts
 
 
@@ -94,6 +102,173 @@ def uv_error_image(ctx: GLContext, gt_positions: np.ndarray, faces_gt: np.ndarra
     return masked_uv_error(uv_i, raster_i.mask, uv_g, raster_g.mask)
 
 
+class MaterialMap:
+    """Texture coordinates -> the material point they name on the rest garment.
+
+    The uv layout (faces, uv) is rasterized once in UV space into a triangle-id buffer;
+    a query point's candidates are the id of its texel, else the ids of the 3x3 texels
+    around it; exact float64 barycentrics decide, and the material point is the same
+    barycentric combination of the rest positions. Points the candidates do not contain
+    are retried with the triangles sharing a vertex with them (slivers thinner than a
+    texel); points outside every triangle (off the charts) map to the nearest point of the
+    layout's boundary edges. The layout is assumed not to overlap itself (one material
+    point per uv), as a texture atlas is.
+
+    Args:
+        faces: (m,3) int triangles of the base mesh.
+        uv: (n,2) float texture coordinates T_G (the layout).
+        rest: (n,3) float rest positions in meters.
+        resolution: texels per side of the id buffer.
+        ctx: the GL context for the one UV rasterization (a new one when None).
+    """
+
+    def __init__(self, faces: np.ndarray, uv: np.ndarray, rest: np.ndarray, resolution: int = 2048, *,
+                 ctx: GLContext | None = None):
+        import scipy.sparse as sp
+
+        from .raster import context_or_new, rasterize_uv
+
+        self.faces = np.asarray(faces, dtype=np.int64)
+        self.uv = np.asarray(uv, dtype=np.float64)
+        self.rest = np.asarray(rest, dtype=np.float64)
+        if self.rest.shape != (len(self.uv), 3):
+            raise ValueError(f"rest must be ({len(self.uv)}, 3), got {self.rest.shape}")
+        self.resolution = int(resolution)
+        with context_or_new(ctx) as gl:
+            self.ids = rasterize_uv(gl, self.uv, self.faces, self.resolution, self.resolution, attributes=False).tri_id
+        m, n = len(self.faces), len(self.uv)
+        incidence = sp.csr_matrix((np.ones(3 * m), (np.repeat(np.arange(m), 3), self.faces.ravel())), shape=(m, n))
+        self.face_ring = (incidence @ incidence.T).tocsr()
+        e = np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        edges, count = np.unique(e, axis=0, return_counts=True)
+        self.boundary = edges[count == 1]
+
+    def _barycentric(self, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+        """(k,3) barycentrics of points (k,2) in uv triangles tri (k,)."""
+        a, b, c = (self.uv[self.faces[tri, i]] for i in range(3))
+        v0, v1, v2 = b - a, c - a, points - a
+        det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
+            w2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
+        bary = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+        bary[~np.isfinite(bary).all(axis=1)] = -np.inf  # degenerate triangle: never contains
+        return bary
+
+    def _best(self, points: np.ndarray, point_index: np.ndarray, tri: np.ndarray, k: int):
+        """Per point, the candidate triangle it is most inside of: (tri (k,), bary (k,3), inside (k,))."""
+        bary = self._barycentric(points[point_index], tri)
+        score = bary.min(axis=1)
+        order = np.lexsort((-score, point_index))
+        first = np.ones(len(order), bool)
+        first[1:] = point_index[order][1:] != point_index[order][:-1]
+        best = order[first]
+        out_tri = np.full(k, -1, np.int64)
+        out_bary = np.zeros((k, 3))
+        inside = np.zeros(k, bool)
+        p = point_index[best]
+        out_tri[p], out_bary[p], inside[p] = tri[best], bary[best], score[best] >= -1e-9
+        return out_tri, out_bary, inside
+
+    def _nearest_on_boundary(self, points: np.ndarray) -> np.ndarray:
+        """Rest positions of the nearest points on the layout's boundary edges, (k,3)."""
+        a, b = self.uv[self.boundary[:, 0]], self.uv[self.boundary[:, 1]]
+        ab = b - a
+        length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+        out = np.empty((len(points), 3))
+        for start in range(0, len(points), 256):
+            q = points[start:start + 256, None, :]
+            t = np.clip(np.einsum("kej,ej->ke", q - a, ab) / length2, 0.0, 1.0)
+            dist2 = np.sum((a + t[..., None] * ab - q) ** 2, axis=-1)
+            e = np.argmin(dist2, axis=1)
+            te = t[np.arange(len(e)), e][:, None]
+            out[start:start + 256] = (1.0 - te) * self.rest[self.boundary[e, 0]] + te * self.rest[self.boundary[e, 1]]
+        return out
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Rest positions (k,3) float64 of the material points named by uv points (k,2)."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        k, R = len(points), self.resolution
+        col = np.clip(np.floor(points[:, 0] * R).astype(np.int64), 0, R - 1)
+        row = np.clip(np.floor(points[:, 1] * R).astype(np.int64), 0, R - 1)
+        # Most points lie in the triangle of their own texel: try that one first.
+        tri = self.ids[row, col].astype(np.int64)
+        bary = np.zeros((k, 3))
+        has = np.flatnonzero(tri >= 0)
+        bary[has] = self._barycentric(points[has], tri[has])
+        inside = np.zeros(k, bool)
+        inside[has] = bary[has].min(axis=1) >= -1e-9
+        retry = np.flatnonzero(~inside)
+        if retry.size:  # near an edge of the layout's raster: the 3x3 texels around
+            offsets = np.arange(-1, 2)
+            rows = np.clip(row[retry, None, None] + offsets[None, :, None], 0, R - 1)
+            cols = np.clip(col[retry, None, None] + offsets[None, None, :], 0, R - 1)
+            cand = self.ids[rows, cols].reshape(len(retry), -1)
+            pi, slot = np.nonzero(cand >= 0)
+            t2, b2, in2 = self._best(points[retry], pi, cand[pi, slot].astype(np.int64), len(retry))
+            tri[retry], bary[retry], inside[retry] = t2, b2, in2
+        retry = np.flatnonzero(~inside & (tri >= 0))
+        if retry.size:  # slivers thinner than a texel: the triangles around the candidate
+            ring = self.face_ring[tri[retry]].tocoo()
+            t2, b2, in2 = self._best(points[retry], ring.row.astype(np.int64), ring.col.astype(np.int64), len(retry))
+            better = in2 | (b2.min(axis=1) > bary[retry].min(axis=1))
+            tri[retry[better]], bary[retry[better]], inside[retry[better]] = t2[better], b2[better], in2[better]
+        out = np.empty((k, 3))
+        ok = np.flatnonzero(inside)
+        out[ok] = np.einsum("kj,kjc->kc", bary[ok], self.rest[self.faces[tri[ok]]])
+        off = np.flatnonzero(~inside)
+        if off.size:
+            out[off] = self._nearest_on_boundary(points[off])
+        return out
+
+
+def _material_points(raster, faces: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """Rest positions (k,3) float64 of the material each covered pixel shows (row-major order)."""
+    mask = raster.mask
+    corners = np.asarray(rest, np.float64)[np.asarray(faces)[raster.tri_id[mask]]]
+    return np.einsum("kj,kjc->kc", raster.bary[mask].astype(np.float64), corners)
+
+
+def _material_error(points_a: np.ndarray, mask_a: np.ndarray, points_b: np.ndarray,
+                    mask_b: np.ndarray) -> tuple[np.ndarray, float]:
+    """Per-pixel distance of two material-point images given on their masks' pixels."""
+    full_a = np.zeros(mask_a.shape + (3,))
+    full_b = np.zeros(mask_b.shape + (3,))
+    full_a[mask_a], full_b[mask_b] = points_a, points_b
+    both = mask_a & mask_b
+    err = np.full(mask_a.shape, np.nan, np.float32)
+    e = np.linalg.norm(full_a[both] - full_b[both], axis=1)
+    err[both] = e
+    return err, float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
+
+
+def material_error_image(ctx: GLContext, gt_positions: np.ndarray, faces_gt: np.ndarray, rest: np.ndarray,
+                         inf_positions: np.ndarray, faces_inf: np.ndarray, texcoords_inf: np.ndarray, camera: Camera,
+                         material_map: MaterialMap) -> tuple[np.ndarray, float]:
+    """Per-pixel material error of an inferred mesh with given texcoords against the gt mesh.
+
+    Args:
+        ctx: the GL context.
+        gt_positions: (n,3) gt positions; faces_gt (m,3); rest (n,3) rest positions (m).
+        inf_positions: (n',3) inferred positions (subdivided when the texcoords are);
+            faces_inf (m',3); texcoords_inf (n',2) (T_G for the baseline, T_N otherwise).
+        camera: zero-distortion camera.
+        material_map: `MaterialMap` of the dataset's uv layout (faces_gt, T_G, rest).
+
+    Returns:
+        error: (H,W) float32 distance on the rest garment between the material points the
+            two meshes show, in meters; NaN where not covered by both meshes.
+        rmse: sqrt(mean error²) over the covered pixels, meters (NaN if none).
+    """
+    from .raster import interpolate, rasterize
+
+    r_g = rasterize(ctx, np.asarray(gt_positions, np.float64), np.asarray(faces_gt), camera)
+    r_i = rasterize(ctx, np.asarray(inf_positions, np.float64), np.asarray(faces_inf), camera)
+    uv_i = interpolate(np.asarray(texcoords_inf, np.float64), r_i, faces_inf)
+    # float32 pixel uv, as `texcoord_image` gives it: the same texcoords the uv error measures.
+    return _material_error(material_map(uv_i[r_i.mask]), r_i.mask, _material_points(r_g, faces_gt, rest), r_g.mask)
+
+
 def _stats(values: Sequence[float]) -> dict:
     v = np.asarray([x for x in values if np.isfinite(x)], dtype=np.float64)
     if v.size == 0:
@@ -101,11 +276,16 @@ def _stats(values: Sequence[float]) -> dict:
     return {"mean": float(v.mean()), "std": float(v.std())}
 
 
-def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same: list[float]) -> dict:
+def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same: list[float],
+             base_material: list[float] | None = None, tc_material: list[float] | None = None) -> dict:
     ok = [i for i in range(len(base)) if np.isfinite(base[i]) and np.isfinite(tc[i])]
     out = {"num_images": len(ok)}
     for key, ratio_key, (b, t) in (("sqrt_mse", "ratio", (base, tc)), ("sqrt_mse_same_chart", "ratio_same_chart",
-                                                                         (base_same, tc_same))):
+                                                                         (base_same, tc_same)),
+                                   ("material_rmse_m", "ratio_material", (base_material, tc_material))):
+        if b is None:
+            out[key] = out[ratio_key] = None
+            continue
         sb, st = _stats([b[i] for i in ok]), _stats([t[i] for i in ok])
         out[key] = {"inferred": sb, "texcoords": st}
         out[ratio_key] = sb["mean"] / st["mean"] if ok and st["mean"] > 0 else float("nan")
@@ -129,14 +309,17 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         poses: dataset pose indices (default: the set's poses).
         heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
             baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
-            the two meshes show different UV charts).
+            the two meshes show different UV charts) and, when the dataset has `rest`, a
+            second row with the material error in millimetres (red >= 20 mm).
         progress: progress bar on stderr.
         ctx: the GL context (one is created, and released, for this call if None).
 
     Returns:
         {"num_images", "sqrt_mse": {"inferred": {"mean", "std"}, "texcoords": {...}},
          "ratio": inferred mean / texcoords mean, "sqrt_mse_same_chart": {...},
-         "ratio_same_chart", "per_camera": {name: same keys}}.
+         "ratio_same_chart", "material_rmse_m": {"inferred": {"mean", "std"}, "texcoords": {...}}
+         (meters; None when the dataset has no `rest`), "ratio_material" (None likewise),
+         "per_camera": {name: same keys}}.
     """
     from .camera import as_rig
     from .dataset import as_dataset
@@ -170,7 +353,8 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
 
     charts = uv_charts(ds.faces, ds.num_vertices)
     charts_tc = charts_through_parent(charts, tc.faces, len(tc.uv))
-    per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], []) for c in rig}
+    material_map = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=ctx) if ds.rest is not None else None
+    per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], [], [], []) for c in rig}
     jobs = [(k, cam) for k in poses for cam in rig]
     for k, cam in tqdm(jobs, desc="eval", unit="image", disable=not progress, file=sys.stderr):
         gt = np.asarray(ds.gt[k], np.float64)
@@ -184,7 +368,14 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         err_t, s_t = masked_uv_error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
         same_b = masked_uv_error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
         same_t = masked_uv_error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]
-        for values, value in zip(per_cam[cam.name], (s_b, s_t, same_b, same_t)):
+        mat_err_b = mat_err_t = None
+        m_b = m_t = float("nan")
+        if material_map is not None:
+            m_g = _material_points(raster_g, ds.faces, ds.rest)
+            mat_err_b, m_b = _material_error(_material_points(raster_b, ds.faces, ds.rest), raster_b.mask, m_g,
+                                             raster_g.mask)
+            mat_err_t, m_t = _material_error(material_map(uv_t[raster_t.mask]), raster_t.mask, m_g, raster_g.mask)
+        for values, value in zip(per_cam[cam.name], (s_b, s_t, same_b, same_t, m_b, m_t)):
             values.append(value)
         if out_dir is not None:
             panels = []
@@ -192,9 +383,18 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
                 image = heatmap(err, HEATMAP_MAX)
                 image[(chart >= 0) & (chart_g >= 0) & (chart != chart_g)] = CHART_BOUNDARY_COLOR
                 panels.append((image, f"{total * 1e3:.2f}e-3, same chart {same * 1e3:.2f}e-3"))
-            picture = side_by_side([panels[0][0], panels[1][0], colorbar(cam.height, HEATMAP_MAX)],
-                                   [f"inferred {panels[0][1]}", f"{tc.source} {panels[1][1]}", "e"])
+            picture = side_by_side([panels[0][0], panels[1][0], colorbar(cam.height, HEATMAP_MAX, unit="uv")],
+                                   [f"inferred {panels[0][1]}", f"{tc.source} {panels[1][1]}", ""])
+            if material_map is not None:
+                row = side_by_side([heatmap(mat_err_b * 1e3, MATERIAL_HEATMAP_MAX_MM),
+                                    heatmap(mat_err_t * 1e3, MATERIAL_HEATMAP_MAX_MM),
+                                    colorbar(cam.height, MATERIAL_HEATMAP_MAX_MM, unit="mm")],
+                                   [f"inferred material {m_b * 1e3:.2f} mm", f"{tc.source} material {m_t * 1e3:.2f} mm",
+                                    ""])
+                picture = np.concatenate([picture, np.full((4, picture.shape[1], 3), 255, np.uint8), row])
             save_png(out_dir / f"pose_{k:05d}_{cam.name}.png", picture)
-    result = _summary(*([v for c in per_cam.values() for v in c[i]] for i in range(4)))
-    result["per_camera"] = {name: _summary(*lists) for name, lists in per_cam.items()}
+    has_rest = material_map is not None
+    result = _summary(*([v for c in per_cam.values() for v in c[i]] if i < 4 or has_rest else None for i in range(6)))
+    result["per_camera"] = {name: _summary(*lists[:4], *(lists[4:] if has_rest else (None, None)))
+                            for name, lists in per_cam.items()}
     return result

@@ -41,7 +41,8 @@ class SlideOptions:
         depth_tolerance: relative tolerance of the vertex depth test: the vertex is hidden
             when some inferred surface hits its ray before (1 - tol) times its distance.
         break_ratio: an edge whose two assigned ends have ‖ΔT_N‖ > break_ratio ‖ΔT_G‖ joins
-            geodesically far regions; its end with larger ‖d‖ is unassigned.
+            geodesically far regions; its end with larger ‖d‖ is unassigned. None: no edge
+            breaking (the paper's plain method).
         radius: candidate window half-size in pixels around a vertex's projection (1 = 3x3).
         cross_chart: keep hits on another UV chart than the vertex's own (near a seam the
             vertex then shows the right material, but in the other chart's coordinates, so
@@ -54,7 +55,7 @@ class SlideOptions:
     fill: str = "harmonic"
     max_displacement: float | None = None
     depth_tolerance: float = 1e-3
-    break_ratio: float = 4.0
+    break_ratio: float | None = None
     radius: int = 1
     cross_chart: bool = False
 
@@ -67,7 +68,7 @@ class SlideOptions:
             raise ValueError(f"max_displacement must be positive or None, got {self.max_displacement!r}")
         if not 0 <= self.depth_tolerance < 1:
             raise ValueError(f"depth_tolerance must be in [0, 1), got {self.depth_tolerance!r}")
-        if not self.break_ratio > 1:
+        if self.break_ratio is not None and not self.break_ratio > 1:
             raise ValueError(f"break_ratio must be > 1, got {self.break_ratio!r}")
         if int(self.radius) != self.radius or not 0 <= self.radius <= 4:
             raise ValueError(f"radius must be an integer in [0, 4], got {self.radius!r}")
@@ -427,7 +428,7 @@ def displacement_from_hits(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: 
     m_n[found] = np.einsum("kj,kjc->kc", hits.bary[found], topo.reference[f])
     dmn = np.linalg.norm(m_n[ee[:, 0]] - m_n[ee[:, 1]], axis=1)
     dmg = np.linalg.norm(topo.reference_sub[ee[:, 0]] - topo.reference_sub[ee[:, 1]], axis=1)
-    broken = ee[dmn > options.break_ratio * dmg]
+    broken = ee[dmn > options.break_ratio * dmg] if options.break_ratio is not None else ee[:0]
     if len(broken):
         norm = np.linalg.norm(d, axis=1)
         worse = np.where(norm[broken[:, 0]] >= norm[broken[:, 1]], broken[:, 0], broken[:, 1])

@@ -1,4 +1,5 @@
-"""The built-in dataset: a shirt-like garment with pose-driven folds (DESIGN §8).
+"""The built-in datasets: a shirt-like garment with pose-driven folds (DESIGN §8), and a
+flared skirt whose hem falls into flutes (`mvtex.skirt`), chosen by `SynthOptions.garment`.
 
 The garment is a closed torso tube, open at collar and waist, in meters with y up and
 its front facing +z. Its material is described by *material coordinates* (a, h): a is
@@ -37,6 +38,7 @@ from .dataset import default_split
 from .mesh import edge_strain, edges, rms_distance
 
 __all__ = [
+    "GARMENTS",
     "POSE_DIM",
     "PosePredictor",
     "SynthOptions",
@@ -56,6 +58,7 @@ N_RINGS = 47  # rings from waist to collar: ~1.4 cm spacing both ways (square qu
 POSE_DIM = 12
 _U0_FRONT, _U0_BACK, _CHART_WIDTH = 0.02, 0.52, 0.46  # chart placement in u
 _TABLE_S, _TABLE_AMP = 241, 17  # fold profile tables: samples along s, amplitude levels
+GARMENTS = ("shirt", "skirt")
 
 
 @dataclass(frozen=True)
@@ -67,12 +70,15 @@ class SynthOptions:
         seed: seeds the poses and the 80/10/10 split.
         pca_components: PCA components of the predictor (its capacity).
         ridge: ridge penalty of the pose -> PCA-coefficient regression (bias unpenalized).
+        garment: "shirt" (a torso tube with bend, twist and side folds) or "skirt" (a
+            flared cone whose hem swings and falls into flutes, `mvtex.skirt`).
     """
 
     num_poses: int = 300
     seed: int = 0
     pca_components: int = 6
     ridge: float = 1e-2
+    garment: str = "shirt"
 
 
 # ----------------------------------------------------------------------------- garment
@@ -491,7 +497,7 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
     """Generate the built-in dataset in memory (nothing is written).
 
     Returns:
-        dict with name "shirt", faces (m, 3) int32, uv (n, 2) float32, rest (n, 3) float32,
+        dict with name (the garment: "shirt" or "skirt"), faces (m, 3) int32, uv (n, 2) float32, rest (n, 3) float32,
         gt and inferred (K, n, 3) float32, poses (K, POSE_DIM) float32, split
         {"train", "val", "test": sorted lists of pose indices} (80/10/10, seeded), and
         stats, a dict of floats: num_vertices, num_faces, pose_dim; fold_depth_m (median
@@ -502,20 +508,31 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
         and edges); rmse_inferred_train_m / _test_m (per-vertex RMSE vs gt on that split).
 
     Raises:
-        ValueError: num_poses < 3, pca_components < 1 or ridge < 0.
+        ValueError: num_poses < 3, pca_components < 1, ridge < 0 or an unknown garment.
     """
     if options.num_poses < 3:
         raise ValueError(f"num_poses must be at least 3 (one pose per split), got {options.num_poses}")
     if options.pca_components < 1 or options.ridge < 0:
         raise ValueError(f"need pca_components >= 1 and ridge >= 0, got {options.pca_components} and {options.ridge}")
-    faces, uv, rest = make_garment()
+    if options.garment not in GARMENTS:
+        raise ValueError(f"garment must be one of {', '.join(GARMENTS)}, got {options.garment!r}")
     poses = sample_poses(options.num_poses, options.seed)
-    a, h, inverse = _material_coords(rest, uv)
-    gt = np.empty((options.num_poses, len(rest), 3), dtype=np.float32)
     depths, wavelengths, peaks = [], [], []
+    if options.garment == "shirt":
+        faces, uv, rest = make_garment()
+        a, h, inverse = _material_coords(rest, uv)
+
+        def shape(pose):
+            positions, info = _deform_material(a, h, pose)
+            return positions[inverse], info
+    else:
+        from . import skirt
+
+        faces, uv, rest = skirt.make_garment()
+        shape = skirt.deform_with_info
+    gt = np.empty((options.num_poses, len(rest), 3), dtype=np.float32)
     for k, pose in enumerate(poses):
-        positions, info = _deform_material(a, h, pose)
-        gt[k] = positions[inverse]
+        gt[k], info = shape(pose)
         depths.append(max(d for d, _, _ in info))
         wavelengths += [w for d, w, _ in info if d >= 5e-3]
         peaks.append(max(p for _, _, p in info))
@@ -535,14 +552,15 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
         "rmse_inferred_train_m": rms_distance(inferred[split["train"]], gt[split["train"]]),
         "rmse_inferred_test_m": rms_distance(inferred[split["test"]], gt[split["test"]]),
     }
-    return dict(name="shirt", faces=faces, uv=uv, rest=rest, gt=gt, inferred=inferred, poses=poses,
+    return dict(name=options.garment, faces=faces, uv=uv, rest=rest, gt=gt, inferred=inferred, poses=poses,
                 split=split, stats=stats)
 
 
 def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> dict:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4).
 
-    The statistics are also stored under "stats" in dataset.json.
+    The statistics are also stored under "stats" in dataset.json, the garment under
+    "garment".
 
     Returns:
         The `stats` dict of `synthesize`.
@@ -550,5 +568,5 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
     from .dataset import save_dataset  # the dataset module owns the on-disk format
 
     data = synthesize(options)
-    save_dataset(path, **data)
+    save_dataset(path, garment=options.garment, **data)
     return data["stats"]

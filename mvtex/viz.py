@@ -60,7 +60,7 @@ def side_by_side(images: Sequence[np.ndarray], labels: Sequence[str] | None = No
     """Place RGB uint8 images of equal height left to right, optionally labelled."""
     images = [np.asarray(im, dtype=np.uint8) for im in images]
     if labels is not None:
-        images = [label(im, t) for im, t in zip(images, labels)]
+        images = [label(im, t) if t else im for im, t in zip(images, labels)]
     h = max(im.shape[0] for im in images)
     parts = []
     for i, im in enumerate(images):
@@ -73,8 +73,9 @@ def side_by_side(images: Sequence[np.ndarray], labels: Sequence[str] | None = No
     return np.ascontiguousarray(np.concatenate(parts, axis=1))
 
 
-def colorbar(height: int, vmax: float = 0.04, width: int = 60) -> np.ndarray:
-    """A vertical (height, width, 3) colour bar for `heatmap`, 0 at the bottom, labelled."""
+def colorbar(height: int, vmax: float = 0.04, width: int = 60, unit: str = "") -> np.ndarray:
+    """A vertical (height, width, 3) colour bar for `heatmap`, 0 at the bottom, labelled
+    (with `unit` under the top value when given)."""
     import cv2
 
     ramp = np.linspace(vmax, 0.0, height)[:, None] * np.ones((1, width // 3))
@@ -84,6 +85,8 @@ def colorbar(height: int, vmax: float = 0.04, width: int = 60) -> np.ndarray:
     for value, y in ((vmax, 12), (0.0, height - 4)):
         text = f"{value:g}" + ("+" if value == vmax else "")
         cv2.putText(canvas, text, (bar.shape[1] + 2, y), cv2.FONT_HERSHEY_SIMPLEX, 0.3, (255, 255, 255), 1, cv2.LINE_AA)
+    if unit:
+        cv2.putText(canvas, unit, (bar.shape[1] + 2, 26), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
     return canvas
 
 

@@ -57,3 +57,18 @@ def test_fill_laplacian_compares_both_operators(tmp_path, gl, tiny_dataset, fron
     for r in result.values():
         assert r["images"] == 4 and r["held_out_vertices"] > 0
         assert 0 <= r["held_out_rmse_uv"] < 0.01 and r["ratio_same_chart"] > 1
+
+
+def test_defaults_study_small(tmp_path, gl):
+    module = load("defaults_study")
+    rows = module.study(tmp_path, 10, ["shirt", "skirt"], ["stereo"], only=["defaults", "break ratio 4"])
+    assert [(r["garment"], r["candidate"]) for r in rows] == [("shirt", "defaults"), ("shirt", "break ratio 4"),
+                                                             ("skirt", "defaults"), ("skirt", "break ratio 4")]
+    for row in rows:
+        for subdiv in ("subdiv0", "subdiv1"):
+            r = row[subdiv]["stereo"]
+            assert r["num_images"] == 2
+            # Sliding moves the shown material towards gt on both garments.
+            assert r["material_mm"]["texcoords"] < r["material_mm"]["inferred"]
+    table = module.markdown(rows, ["stereo"])
+    assert table.count("| skirt |") == 2 and "TS+1 material mm" in table

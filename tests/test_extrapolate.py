@@ -131,3 +131,16 @@ def test_intrinsic_laplacian_has_nonnegative_weights_and_degenerate_faces_fall_b
     flat[faces[0, 2]] = (flat[faces[0, 0]] + flat[faces[0, 1]]) / 2  # a zero-area triangle
     L = laplacian_matrix(flat, faces, "cotan")
     assert np.all(np.isfinite(L.data))
+
+
+def test_one_dimensional_values_use_the_given_system():
+    """A 1-D fill with `system=` solves with that system's Laplacian, not one from `positions`."""
+    faces, positions, _, rng = flat_patch(200)
+    stretched = positions * [3.0, 0.5, 1.0]  # another metric: other cotangent weights
+    values = rng.normal(size=len(positions))
+    assigned = rng.uniform(size=len(positions)) < 0.3
+    expected = fill(faces, stretched, values, assigned, "harmonic")  # Laplacian of the stretched patch
+    out = fill(faces, positions, values, assigned, "harmonic", system=FillSystem(faces, stretched))
+    assert out.shape == values.shape
+    assert np.abs(out - expected).max() < 1e-12
+    assert np.abs(out - fill(faces, positions, values, assigned, "harmonic")).max() > 1e-4

@@ -139,3 +139,170 @@ def test_same_chart_statistic_excludes_chart_boundaries(gl, front_rig, tmp_path)
         assert per["sqrt_mse"]["inferred"]["mean"] == pytest.approx(s_all, rel=1e-5)
         assert per["sqrt_mse_same_chart"]["inferred"]["mean"] == pytest.approx(s_same, rel=1e-5)
         assert s_same < 0.5 * s_all
+
+
+# -- material error ---------------------------------------------------------------------------
+
+SHEET_SIZE = 0.6  # conftest.grid_mesh: uv = (xy + size/2) / size, rest in the z = 0 plane
+
+
+def test_material_error_is_scale_times_uv_error_on_flat_sheet(gl, tiny_dataset, front_rig, tmp_path):
+    """Rest = flat sheet, uv = its positions / 0.6 m: every uv difference is a material
+    difference of exactly 0.6 m per uv unit, so material error = 0.6 x uv error per pixel."""
+    from mvtex.metrics import MaterialMap, material_error_image
+
+    ds = load_dataset(tiny_dataset)
+    assert np.allclose(ds.uv * SHEET_SIZE - SHEET_SIZE / 2, ds.rest[:, :2], atol=1e-6)
+    material_map = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=gl)
+    poses = [0, 2, 5]
+    # Contract every camera's texcoords towards the centre: T_N stays on the sheet.
+    disp = {c.name: np.stack([(-(0.06 + 0.03 * i) * (ds.uv - 0.5)).astype(np.float32) for i in range(len(poses))])
+            for c in front_rig}
+    for cam in front_rig:
+        for row, k in enumerate(poses):
+            gt, inf = np.asarray(ds.gt[k], np.float64), np.asarray(ds.inferred[k], np.float64)
+            for tex in (ds.uv, ds.uv + disp[cam.name][row]):
+                err_uv, s_uv = uv_error_image(gl, gt, ds.faces, ds.uv, inf, ds.faces, tex, cam)
+                err_m, s_m = material_error_image(gl, gt, ds.faces, ds.rest, inf, ds.faces, tex, cam, material_map)
+                both = np.isfinite(err_uv)
+                assert np.array_equal(np.isfinite(err_m), both) and both.sum() > 1000
+                assert np.allclose(err_m[both], SHEET_SIZE * err_uv[both], rtol=1e-4, atol=5e-6)  # float32 barycentrics
+                assert s_m == pytest.approx(SHEET_SIZE * s_uv, rel=1e-4) and s_uv > 1e-3
+    tc_path = save_texcoords(tmp_path / "tc", faces=ds.faces, uv=ds.uv, parent=np.stack([np.arange(480)] * 2, 1),
+                             source="test", subdiv=0, poses=poses, displacement=disp,
+                             assigned={c: np.ones(d.shape[:2], bool) for c, d in disp.items()})
+    heat = tmp_path / "heat"
+    result = evaluate(tiny_dataset, front_rig, tc_path, heatmaps=heat, progress=False)
+    for part in (result, *result["per_camera"].values()):
+        for key in ("inferred", "texcoords"):
+            expected = SHEET_SIZE * part["sqrt_mse"][key]["mean"]
+            assert part["material_rmse_m"][key]["mean"] == pytest.approx(expected, rel=1e-4)
+            assert part["material_rmse_m"][key]["std"] == pytest.approx(SHEET_SIZE * part["sqrt_mse"][key]["std"],
+                                                                        rel=1e-3, abs=1e-8)
+        assert part["ratio_material"] == pytest.approx(part["ratio"], rel=1e-4)
+    # The heatmaps gain a second row (material error in mm) under the uv row.
+    from imageio.v3 import imread
+
+    picture = imread(heat / "pose_00000_a.png")
+    assert picture.shape[0] == 2 * list(front_rig)[0].height + 4
+
+
+def test_material_error_matches_ray_cast_and_brute_force_uv_lookup(gl, front_rig):
+    """A bent two-chart sheet whose charts have different uv scales and orientations:
+    per-pixel material error against exact ray casts (trimesh) and a brute-force search of
+    the containing uv triangle."""
+    import trimesh
+
+    from conftest import grid_mesh, wave
+    from mvtex.metrics import MaterialMap, material_error_image
+
+    faces, uv, flat = grid_mesh(18, 14, 0.6)
+    # Split the sheet at its middle column into two charts: the right half's vertices on
+    # that column are duplicated (same positions, other uv).
+    nx, ny = 18, 14
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    mid = nx // 2
+    copies = idx[:, mid]
+    copy_of = {int(v): nx * ny + i for i, v in enumerate(copies)}
+    right = flat[faces].mean(axis=1)[:, 0] > flat[copies[0], 0]
+    faces = faces.copy()
+    for f in np.flatnonzero(right):
+        faces[f] = [copy_of.get(int(v), int(v)) for v in faces[f]]
+    rest_flat = np.vstack([flat, flat[copies]])
+    # Rest shape: the sheet bent around a vertical cylinder of radius 0.5 m (arc length x).
+    R = 0.5
+    rest = np.c_[R * np.sin(rest_flat[:, 0] / R), rest_flat[:, 1], R * (np.cos(rest_flat[:, 0] / R) - 1.0)]
+    n = len(rest)
+    is_right = np.zeros(n, bool)
+    is_right[np.unique(faces[right])] = True
+    uv = np.empty((n, 2))
+    left_chart = ~is_right
+    uv[left_chart] = 0.05 + 0.9 * (rest_flat[left_chart, :2] + [0.3, 0.3])  # 0.9 uv per m
+    xr, yr = rest_flat[is_right, 0], rest_flat[is_right, 1]
+    uv[is_right] = np.c_[0.62 + 0.55 * (yr + 0.3), 0.05 + 0.55 * xr]  # rotated, 0.55 uv per m
+    assert uv.min() > 0 and uv.max() < 1
+    gt = wave(rest, 0.012, 0.4)
+    inferred = wave(rest, 0.004, 1.1) + [0.004, -0.003, 0.0]
+    rng = np.random.default_rng(5)
+    texcoords = uv + 0.004 * np.sin(7 * uv[:, ::-1] + rng.uniform(0, 3, 2))
+    cam = list(front_rig)[1]
+    err, rmse = material_error_image(gl, gt, faces, rest, inferred, faces, texcoords, cam, MaterialMap(faces, uv, rest, ctx=gl))
+
+    # Independent: rays through pixel centres, exact hits, uv lookup by brute force.
+    both = np.isfinite(err)
+    from scipy.ndimage import binary_erosion
+
+    interior = np.argwhere(binary_erosion(both, iterations=3))
+    pick = interior[rng.choice(len(interior), 300, replace=False)]
+    pixels = pick[:, ::-1].astype(np.float64)  # (u, v) = (column, row)
+    dirs = (np.linalg.inv(cam.K) @ np.c_[pixels, np.ones(len(pixels))].T).T @ cam.R  # R^T d
+    origin = -cam.R.T @ cam.t
+
+    def hit(positions):
+        """Nearest hit of every ray, brute force over all triangles (Moller-Trumbore, float64)."""
+        a, b, c = (positions[faces[:, i]] for i in range(3))
+        e1, e2 = b - a, c - a
+        p = np.cross(dirs[:, None, :], e2[None])
+        det = np.einsum("fj,rfj->rf", e1, p)
+        s = origin - a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w1 = np.einsum("fj,rfj->rf", s, p) / det
+            q = np.cross(s, e1)
+            w2 = np.einsum("rj,fj->rf", dirs, q) / det
+            t = np.einsum("fj,fj->f", e2, q)[None] / det
+        ok = (w1 >= 0) & (w2 >= 0) & (w1 + w2 <= 1) & (t > 0)
+        t = np.where(ok, t, np.inf)
+        tri = np.argmin(t, axis=1)
+        rows = np.arange(len(dirs))
+        assert np.isfinite(t[rows, tri]).all()
+        return tri, np.c_[1 - w1[rows, tri] - w2[rows, tri], w1[rows, tri], w2[rows, tri]]
+
+    tri_g, bary_g = hit(gt)
+    material_gt = np.einsum("kj,kjc->kc", bary_g, rest[faces[tri_g]])
+    tri_i, bary_i = hit(inferred)
+    shown_uv = np.einsum("kj,kjc->kc", bary_i, texcoords[faces[tri_i]])
+    material_inf = np.full((len(pixels), 3), np.nan)
+    for q, p in enumerate(shown_uv):
+        b = trimesh.triangles.points_to_barycentric(np.c_[uv, np.zeros(n)][faces], np.tile([*p, 0.0], (len(faces), 1)))
+        inside = np.flatnonzero(b.min(axis=1) >= -1e-12)
+        if inside.size:
+            material_inf[q] = b[inside[0]] @ rest[faces[inside[0]]]
+    on_layout = np.isfinite(material_inf[:, 0])
+    assert on_layout.sum() > 250
+    expected = np.linalg.norm(material_inf - material_gt, axis=1)
+    got = err[pick[:, 0], pick[:, 1]]
+    assert np.abs(got[on_layout] - expected[on_layout]).max() < 2e-5
+    assert expected[on_layout].mean() > 2e-3  # the case measures something
+
+
+def test_material_map_clamps_off_layout_points_to_the_nearest_boundary_point(gl):
+    from mvtex.metrics import MaterialMap
+
+    uv = np.array([[0.2, 0.2], [0.6, 0.2], [0.6, 0.6], [0.2, 0.6]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    rest = np.c_[(uv - 0.2) * 2.0, [0.0, 0.0, 1.0, 1.0]]  # 2 m per uv unit in x, y; z = v's ramp
+    points = np.array([[0.3, 0.5], [0.9, 0.4], [0.1, 0.1], [0.59, 0.21]])
+    got = MaterialMap(faces, uv, rest, resolution=256, ctx=gl)(points)
+    nearest = np.clip(points, 0.2, 0.6)
+    expected_xy = (nearest - 0.2) * 2.0
+    assert np.allclose(got[:, :2], expected_xy, atol=1e-12)
+    # z is linear inside each triangle: 0 at v = 0.2 on the lower right, 1 at the top.
+    assert got[1, 2] == pytest.approx(0.5, abs=1e-12) and got[2, 2] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_dataset_without_rest_reports_null_material_error(gl, sheet, front_rig, tmp_path):
+    from conftest import wave
+    from mvtex.dataset import save_dataset
+
+    faces, uv, rest = sheet
+    gt = np.stack([wave(rest, 0.015, p) for p in (0.0, 1.0, 2.0)])
+    path = save_dataset(tmp_path / "norest", faces=faces, uv=uv, gt=gt, inferred=gt * [1, 1, 0.3],
+                        poses=np.eye(3), name="norest", split={"train": [0], "val": [1], "test": [2]})
+    disp = {c.name: np.zeros((1, len(uv), 2), np.float32) for c in front_rig}
+    tc = save_texcoords(tmp_path / "tc", faces=faces, uv=uv, parent=np.stack([np.arange(len(uv))] * 2, 1),
+                        source="test", subdiv=0, poses=[2], displacement=disp,
+                        assigned={c: np.ones(d.shape[:2], bool) for c, d in disp.items()})
+    result = evaluate(path, front_rig, tc, progress=False)
+    assert result["material_rmse_m"] is None and result["ratio_material"] is None
+    assert result["per_camera"]["a"]["material_rmse_m"] is None
+    assert result["ratio"] == pytest.approx(1.0)

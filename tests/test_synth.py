@@ -254,3 +254,141 @@ def test_write_synth_saves_what_synthesize_returns(tmp_path):
     np.testing.assert_array_equal(np.load(tmp_path / "shirt" / "inferred.npy"), data["inferred"])
     split = json.loads((tmp_path / "shirt" / "split.json").read_text())
     assert split == data["split"]
+
+
+# -- the second garment: a flared skirt with hem flutes ------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def skirt() -> dict:
+    return synthesize(SynthOptions(num_poses=NUM_POSES, seed=0, garment="skirt"))
+
+
+def test_skirt_mesh_uv_and_frame(skirt):
+    faces, uv, rest = skirt["faces"], skirt["uv"].astype(np.float64), skirt["rest"].astype(np.float64)
+    n = len(rest)
+    assert skirt["name"] == "skirt" and 2000 <= n <= 4000
+    assert faces.dtype == np.int32 and faces.min() == 0 and faces.max() == n - 1
+    assert skirt["gt"].shape == skirt["inferred"].shape == (NUM_POSES, n, 3)
+    assert skirt["poses"].shape == (NUM_POSES, POSE_DIM)
+    lo, hi = rest.min(axis=0), rest.max(axis=0)
+    assert np.all(np.abs((lo + hi) / 2) < 0.03)
+    # A cone: waist radius 0.15 m on top, hem radius 0.30 m at the bottom, about 0.54 m tall.
+    radius = np.hypot(rest[:, 0], rest[:, 2])
+    top, bottom = rest[:, 1] > hi[1] - 1e-6, rest[:, 1] < lo[1] + 1e-6
+    assert np.allclose(radius[top], 0.15, atol=1e-5) and np.allclose(radius[bottom], 0.30, atol=1e-5)
+    assert 0.5 <= hi[1] - lo[1] <= 0.6
+    # Faces point away from the axis; no face straddles the two charts (v < 0.5, v > 0.5).
+    normals = _face_normals(rest, faces)
+    radial = rest[faces].mean(axis=1) * np.array([1.0, 0.0, 1.0])
+    assert np.all(np.einsum("ij,ij->i", normals, radial) > 0)
+    chart = uv[faces, 1] >= 0.5
+    assert np.all(chart.all(axis=1) | (~chart).all(axis=1))
+    assert uv.min() >= 0.0 and uv.max() <= 1.0
+    d1, d2 = uv[faces[:, 1]] - uv[faces[:, 0]], uv[faces[:, 2]] - uv[faces[:, 0]]
+    assert np.all(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0] > 0)  # not mirrored
+    # A cone unrolls without distortion: every edge has one uv-per-meter ratio.
+    edges = _edges(faces)
+    ratio = np.linalg.norm(uv[edges[:, 1]] - uv[edges[:, 0]], axis=1) / np.linalg.norm(
+        rest[edges[:, 1]] - rest[edges[:, 0]], axis=1)
+    assert np.ptp(ratio) / np.median(ratio) < 0.01
+    # Borders: waist and hem rings, and the two side seams (x = -+r, z = 0).
+    pairs = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    e, count = np.unique(pairs, axis=0, return_counts=True)
+    boundary = e[count == 1]
+    on_ring = np.all(top[boundary], axis=1) | np.all(bottom[boundary], axis=1)
+    on_seam = np.all(np.abs(rest[boundary, 2]) < 1e-6, axis=1)
+    assert np.all(on_ring | on_seam) and on_seam.any()
+
+
+def test_skirt_seam_copies_share_positions(skirt):
+    pairs = _seam_pairs(skirt["rest"])
+    assert len(pairs) == 2 * len(np.unique(skirt["rest"][:, 1]))
+    for key in ("gt", "inferred"):
+        assert np.array_equal(skirt[key][:, pairs[:, 0]], skirt[key][:, pairs[:, 1]]), key
+
+
+def test_skirt_keeps_lengths_and_folds_by_centimetres_with_overhangs(skirt):
+    rest, gt, inferred, faces = (skirt[k].astype(np.float64) if k != "faces" else skirt[k]
+                                 for k in ("rest", "gt", "inferred", "faces"))
+    edges = _edges(faces)
+    rest_len = np.linalg.norm(rest[edges[:, 1]] - rest[edges[:, 0]], axis=1)
+    strain = np.linalg.norm(gt[:, edges[:, 1]] - gt[:, edges[:, 0]], axis=-1) / rest_len - 1.0
+    assert 0.005 < np.abs(strain).mean() < 0.05 and np.abs(strain).max() < 0.5
+    # Around each ring the flutes keep the ring's material length: compare the polyline
+    # length of each gt ring with the rest ring's.
+    for y in np.unique(rest[:, 1])[[0, 5, -1]]:
+        ring = np.flatnonzero((np.abs(rest[:, 1] - y) < 1e-7) & (skirt["uv"][:, 1] >= 0.5))  # front chart
+        order = ring[np.argsort(skirt["uv"][ring, 0])]
+        rest_length = np.linalg.norm(np.diff(rest[order], axis=0), axis=1).sum()
+        gt_length = np.linalg.norm(np.diff(gt[:, order], axis=1), axis=2).sum(axis=1)
+        assert np.abs(gt_length / rest_length - 1.0).max() < 0.03
+    stats = skirt["stats"]
+    assert 0.01 <= stats["fold_depth_m"] <= 0.035 and 0.04 <= stats["fold_wavelength_m"] <= 0.12
+    assert stats["max_fold_angle_deg"] > 90 and 0.0 < stats["overhanging_pose_fraction"] < 1.0
+    # Independently: flutes put gt centimetres off the smooth fit near the hem, and
+    # overhanging ones turn faces against it.
+    assert np.median(np.linalg.norm(gt - inferred, axis=-1).max(axis=1)) > 0.01
+    agree = np.einsum("kij,kij->ki", _face_normals(gt, faces), _face_normals(inferred, faces))
+    assert (agree < 0).any() and (agree > 0).mean() > 0.97
+
+
+def test_skirt_inferred_is_fitted_not_blurred(skirt):
+    train, test = skirt["split"]["train"], skirt["split"]["test"]
+    predictor = fit_predictor(skirt["gt"][train], skirt["poses"][train], n_components=6, ridge=1e-2)
+    np.testing.assert_array_equal(predictor.predict(skirt["poses"]), skirt["inferred"])
+    rmse = np.sqrt(np.mean(np.sum((skirt["inferred"][test].astype(np.float64) - skirt["gt"][test]) ** 2, axis=-1)))
+    assert 0.002 < rmse < 0.03 and skirt["stats"]["rmse_inferred_train_m"] > 0.002
+    # Smoother than gt around the rings: second differences along each ring.
+    rest = skirt["rest"]
+    front = skirt["uv"][:, 1] >= 0.5
+    rings = [np.flatnonzero((rest[:, 1] == y) & front) for y in np.unique(rest[:, 1])]
+    rings = [r[np.argsort(skirt["uv"][r, 0])] for r in rings]
+
+    def roughness(positions):
+        return float(np.mean([np.linalg.norm(np.diff(positions[:, r], 2, axis=1), axis=-1).mean() for r in rings]))
+
+    assert roughness(skirt["inferred"].astype(np.float64)) < 0.75 * roughness(skirt["gt"].astype(np.float64))
+
+
+def test_builtin_rigs_frame_both_garments(shirt_and_skirt_extremes):
+    """Every vertex of every pose projects inside every camera of the shipped rigs."""
+    from mvtex.camera import load_rig, resolve_rig
+
+    for rig_name in ("stereo", "square4", "trapezoid12"):
+        for cam in load_rig(resolve_rig(rig_name)):
+            for positions in shirt_and_skirt_extremes:
+                pixels = cam.project(positions.reshape(-1, 3).astype(np.float64))[0]
+                assert pixels.min() > 10
+                assert pixels[:, 0].max() < cam.width - 10 and pixels[:, 1].max() < cam.height - 10
+
+
+@pytest.fixture(scope="module")
+def shirt_and_skirt_extremes(data, skirt):
+    return [data["gt"], data["inferred"], skirt["gt"], skirt["inferred"]]
+
+
+def test_unknown_garment_is_refused():
+    with pytest.raises(ValueError, match="garment"):
+        synthesize(SynthOptions(num_poses=5, garment="scarf"))
+
+
+def test_cli_synth_records_the_garment(tmp_path):
+    import json
+
+    from mvtex.cli import main
+
+    assert main(["synth", str(tmp_path / "s"), "--poses", "10", "--garment", "skirt", "--json"]) == 0
+    meta = json.loads((tmp_path / "s" / "dataset.json").read_text())
+    assert meta["garment"] == "skirt" and meta["name"] == "skirt"
+    assert main(["synth", str(tmp_path / "t"), "--poses", "10", "--garment", "scarf"]) == 2
+
+
+def test_skirt_public_functions_agree_with_synthesize(skirt):
+    from mvtex import skirt as skirt_module
+
+    faces, uv, rest = skirt_module.make_garment()
+    for mine, theirs in ((faces, "faces"), (uv, "uv"), (rest, "rest")):
+        np.testing.assert_array_equal(mine, skirt[theirs])
+    for k in (0, 7):
+        np.testing.assert_array_equal(skirt_module.deform(skirt["poses"][k]), skirt["gt"][k])
