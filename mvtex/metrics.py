@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -93,8 +94,70 @@ def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same
     return out
 
 
+@dataclass(frozen=True)
+class _EvalSpec:
+    """What a worker needs to evaluate images: picklable; opened inputs cached per process."""
+
+    dataset: str
+    texcoords: str
+    rig: Rig
+    heatmaps: str | None
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.dataset, self.texcoords
+
+
+_EVAL_STATE: dict = {}
+
+
+def _eval_state(spec: _EvalSpec):
+    if spec.key not in _EVAL_STATE:
+        from .dataset import load_dataset
+        from .mesh import charts_through_parent, uv_charts
+        from .texcoords import open_texcoords
+
+        ds = load_dataset(spec.dataset, validate=False)
+        tc = open_texcoords(spec.texcoords, ds.num_vertices)
+        charts = uv_charts(ds.faces, ds.num_vertices)
+        _EVAL_STATE.clear()
+        _EVAL_STATE[spec.key] = (ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)))
+    return _EVAL_STATE[spec.key]
+
+
+def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:
+    """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b, same_t) each."""
+    from .io import save_png
+    from .viz import colorbar, heatmap, side_by_side
+
+    ds, tc, charts, charts_tc = _eval_state(spec)
+    out = []
+    for index, k, name in jobs:
+        cam = spec.rig[name]
+        gt = np.asarray(ds.gt[k], np.float64)
+        inferred = np.asarray(ds.inferred[k], np.float64)
+        uv_g, chart_g = uv_image(gt, ds.faces, ds.uv, cam, charts)
+        uv_b, chart_b = uv_image(inferred, ds.faces, ds.uv, cam, charts)
+        err_b, s_b = _error(uv_b, chart_b >= 0, uv_g, chart_g >= 0)
+        uv_t, chart_t = uv_image(tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam, charts_tc)
+        err_t, s_t = _error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
+        same_b = _error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
+        same_t = _error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]
+        out.append((index, s_b, s_t, same_b, same_t))
+        if spec.heatmaps is not None:
+            panels = []
+            for err, chart, total, same in ((err_b, chart_b, s_b, same_b), (err_t, chart_t, s_t, same_t)):
+                image = heatmap(err, HEATMAP_MAX)
+                image[(chart >= 0) & (chart_g >= 0) & (chart != chart_g)] = CHART_BOUNDARY_COLOR
+                panels.append((image, f"{total * 1e3:.2f}e-3, same chart {same * 1e3:.2f}e-3"))
+            picture = side_by_side([panels[0][0], panels[1][0], colorbar(cam.height, HEATMAP_MAX)],
+                                   [f"inferred {panels[0][1]}", f"{tc.source} {panels[1][1]}", "e"])
+            save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", picture)
+    return out
+
+
 def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, heatmaps: str | os.PathLike | None = None,
-             progress: bool = True) -> dict:
+             progress: bool = True, workers: int = 1, scheduler: str | None = None) -> dict:
     """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
 
     "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
@@ -111,6 +174,11 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
             baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
             the two meshes show different UV charts).
         progress: progress bar on stderr.
+        workers: local processes (1: this process), see `mvtex.parallel.map_unordered`.
+        scheduler: Dask scheduler address (overrides `workers`); its workers must read the
+            same dataset and texcoord paths.
+        The result does not depend on `workers` or `scheduler`: images are gathered back
+        into (pose, camera) order before any statistic is taken.
 
     Returns:
         {"num_images", "sqrt_mse": {"inferred": {"mean", "std"}, "texcoords": {...}},
@@ -121,9 +189,8 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
 
     from .camera import load_rig, resolve_rig
     from .dataset import Dataset, load_dataset
-    from .io import save_png
+    from .parallel import map_unordered
     from .texcoords import TexcoordSet, open_texcoords
-    from .viz import colorbar, heatmap, side_by_side
 
     ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
     tc = texcoords if isinstance(texcoords, TexcoordSet) else open_texcoords(texcoords, ds.num_vertices)
@@ -140,36 +207,32 @@ def evaluate(dataset, rig, texcoords, *, poses: Sequence[int] | None = None, hea
     poses = tc.poses if poses is None else [int(p) for p in poses]
     for p in poses:
         tc.row(p)  # InputError for a pose the set does not have
+    for name in rig.names:
+        tc.displacement(name, poses[0])  # validates the camera's arrays once, here
     out_dir = Path(heatmaps) if heatmaps is not None else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
+    spec = _EvalSpec(dataset=str(Path(ds.path).resolve()), texcoords=str(Path(tc.path).resolve()), rig=rig,
+                     heatmaps=None if out_dir is None else str(out_dir.resolve()))
     from .mesh import charts_through_parent, uv_charts
 
-    charts = uv_charts(ds.faces, ds.num_vertices)
-    charts_tc = charts_through_parent(charts, tc.faces, len(tc.uv))
+    if workers <= 1 and not scheduler:  # this process: reuse what is open
+        charts = uv_charts(ds.faces, ds.num_vertices)
+        _EVAL_STATE.clear()
+        _EVAL_STATE[spec.key] = (ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)))
+    jobs = [(i, k, name) for i, (k, name) in enumerate((k, c.name) for k in poses for c in rig)]
+    chunk = max(1, min(8, len(jobs) // (4 * max(1, workers))))
+    tasks = [(spec, jobs[i:i + chunk]) for i in range(0, len(jobs), chunk)]
+    values: list = [None] * len(jobs)
+    with tqdm(total=len(jobs), desc="eval", unit="image", disable=not progress, file=sys.stderr) as bar:
+        for results in map_unordered(_eval_images, tasks, workers=workers, scheduler=scheduler):
+            for index, *image in results:
+                values[index] = image
+            bar.update(len(results))
     per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], []) for c in rig}
-    jobs = [(k, cam) for k in poses for cam in rig]
-    for k, cam in tqdm(jobs, desc="eval", unit="image", disable=not progress, file=sys.stderr):
-        gt = np.asarray(ds.gt[k], np.float64)
-        inferred = np.asarray(ds.inferred[k], np.float64)
-        uv_g, chart_g = uv_image(gt, ds.faces, ds.uv, cam, charts)
-        uv_b, chart_b = uv_image(inferred, ds.faces, ds.uv, cam, charts)
-        err_b, s_b = _error(uv_b, chart_b >= 0, uv_g, chart_g >= 0)
-        uv_t, chart_t = uv_image(tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam, charts_tc)
-        err_t, s_t = _error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
-        same_b = _error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
-        same_t = _error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]
-        for values, value in zip(per_cam[cam.name], (s_b, s_t, same_b, same_t)):
-            values.append(value)
-        if out_dir is not None:
-            panels = []
-            for err, chart, total, same in ((err_b, chart_b, s_b, same_b), (err_t, chart_t, s_t, same_t)):
-                image = heatmap(err, HEATMAP_MAX)
-                image[(chart >= 0) & (chart_g >= 0) & (chart != chart_g)] = CHART_BOUNDARY_COLOR
-                panels.append((image, f"{total * 1e3:.2f}e-3, same chart {same * 1e3:.2f}e-3"))
-            picture = side_by_side([panels[0][0], panels[1][0], colorbar(cam.height, HEATMAP_MAX)],
-                                   [f"inferred {panels[0][1]}", f"{tc.source} {panels[1][1]}", "e"])
-            save_png(out_dir / f"pose_{k:05d}_{cam.name}.png", picture)
+    for (_, _, name), image in zip(jobs, values):
+        for column, value in zip(per_cam[name], image):
+            column.append(value)
     result = _summary(*([v for c in per_cam.values() for v in c[i]] for i in range(4)))
     result["per_camera"] = {name: _summary(*lists) for name, lists in per_cam.items()}
     return result

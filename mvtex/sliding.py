@@ -21,7 +21,6 @@ import json
 import os
 import shutil
 import sys
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -697,7 +696,6 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
 
 # -- a whole dataset ----------------------------------------------------------------------------
 
-_FLUSH_SECONDS = 5.0
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
 _AUTO_WORKERS = 8  # workers=None: one process per core, up to this many
 _AUTO_MIN_JOBS = 256  # workers=None: fewer jobs left than this run in this process (start-up ≈ 1-2 s a worker)
@@ -775,11 +773,12 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     """Texture-slide every (pose, camera) of a dataset into a texcoord set (DESIGN §4).
 
     Results stream into memory-mapped .npy files in ``<out>.partial/``; a per-camera done
-    mask (``done.npy``) is saved after the data is flushed, every few seconds and on any
-    exception, so an interrupted run continues where it stopped when called again with the
-    same arguments. Called with different options, poses, cameras, rig or dataset, it
+    mask (``done.npy``) is saved after the data of every chunk is flushed, so an
+    interrupted run continues where it stopped when called again with the same arguments.
+    Called with different options, poses, cameras, rig or dataset (path or content), it
     discards the partial result (saying so on stderr) and starts over. When every job is
-    done the directory is renamed to `out` (replacing an older `out`).
+    done the directory is renamed to `out` (an older `out` is renamed aside first and
+    deleted after).
 
     Args:
         dataset: a `Dataset` or a dataset directory.
@@ -802,7 +801,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     from .camera import load_rig, resolve_rig
     from .dataset import Dataset, load_dataset
-    from .io import load_npy, read_json, save_npy
+    from .io import fingerprint as content_fingerprint
+    from .io import load_npy, read_json, replace_path, save_npy
     from .texcoords import write_header
 
     ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
@@ -821,7 +821,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     record = {
         "options": options.to_json(),
         "dataset": {"path": str(Path(ds.path).resolve()), "name": ds.name, "num_poses": ds.num_poses,
-                    "num_vertices": ds.num_vertices, "mesh": _fingerprint(ds.faces, ds.uv)},
+                    "num_vertices": ds.num_vertices, "mesh": _fingerprint(ds.faces, ds.uv),
+                    # Content, not only the path: arrays replaced in place must not be mixed.
+                    "content": content_fingerprint(ds.gt, ds.inferred, ds.poses)},
         "rig": _rig_record(rig),
     }
     if partial.is_dir():
@@ -829,6 +831,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             old = read_json(partial / "texcoords.json")
         except InputError:
             old = None
+        if not (isinstance(old, dict) and old.get("format") == "mvtex-texcoords"):
+            raise InputError(partial, "exists and is not an unfinished mvtex slide; move it away and rerun")
         same = isinstance(old, dict) and all(old.get(k) == v for k, v in record.items()) and \
             old.get("poses") == poses and old.get("cameras") == rig.names and old.get("subdiv") == options.subdiv
         if not same:
@@ -849,7 +853,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     disp = {c: open_memmap(partial / c / "displacement.npy", mode="r+") for c in rig.names}
     asg = {c: open_memmap(partial / c / "assigned.npy", mode="r+") for c in rig.names}
-    done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool) for c in rig.names}
+    # A missing done mask (a run stopped while finishing) means: redo that camera.
+    done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool)
+            if (partial / c / "done.npy").is_file() else np.zeros(len(poses), bool) for c in rig.names}
     for c in rig.names:
         if disp[c].shape != (len(poses), n_sub, 2) or asg[c].shape != (len(poses), n_sub) or done[c].shape != (len(poses),):
             raise InputError(partial / c, "unfinished result has unexpected array shapes; delete it and rerun")
@@ -871,7 +877,6 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     _STATE[spec.key] = (ds, topo)  # this process's jobs reuse what was just built
     total = len(poses) * len(rig)
     dirty: set = set()
-    last = time.monotonic()
 
     def flush() -> None:
         for c in dirty:
@@ -892,16 +897,14 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             done[cam][rows] = True
             dirty.add(cam)
             bar.update(len(rows))
-            if time.monotonic() - last > _FLUSH_SECONDS:
-                flush()
-                last = time.monotonic()
+            flush()  # after every chunk: an interrupted run loses at most the chunks in flight
     finally:
         flush()
         bar.close()
     del disp, asg
+    # Rename the finished set in (an older `out` aside first), then drop the done masks:
+    # a stop in between leaves either a resumable partial or a complete set.
+    replace_path(partial, out)
     for c in rig.names:
-        (partial / c / "done.npy").unlink()
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(partial, out)
+        (out / c / "done.npy").unlink(missing_ok=True)
     return out
