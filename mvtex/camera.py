@@ -133,6 +133,14 @@ class Camera:
         pixels[..., 0] += self.K[0, 1] * uv[..., 1]
         return pixels, z
 
+    def sees(self, points: np.ndarray) -> bool:
+        """True if any world point (..., 3) lies in front of the camera and inside its image."""
+        pixels, z = self.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        with np.errstate(invalid="ignore"):
+            inside = (z > 0) & np.all(pixels >= -0.5, axis=1) & (pixels[:, 0] < self.width - 0.5) & \
+                (pixels[:, 1] < self.height - 0.5)
+        return bool(np.any(inside))
+
     def pixel_rays(self, pixels: np.ndarray) -> np.ndarray:
         """Unit ray directions (..., 3) float64 in world coordinates through pixels (..., 2)."""
         pixels = np.asarray(pixels, dtype=np.float64)

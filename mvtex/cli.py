@@ -173,11 +173,29 @@ def _check_workers(args) -> None:
         raise InputError(None, "--scheduler needs an address such as tcp://host:8786")
 
 
+def _check_pose(dataset, pose: int) -> None:
+    if not 0 <= pose < dataset.num_poses:
+        raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
+
+
+def _check_cameras_see(rig, rig_path, dataset, poses) -> None:
+    """Refuse a camera that sees no vertex of the inferred mesh at the first selected pose."""
+    positions = dataset.inferred[int(poses[0]) if poses else 0]
+    blind = [cam.name for cam in rig if not cam.sees(positions)]
+    if blind:
+        raise InputError(rig_path, f"camera {blind[0]!r} sees nothing of the mesh of {dataset.path} "
+                         f"(pose {int(poses[0]) if poses else 0}): check its R, t and K")
+
+
 def _load_rig(spec: str):
+    """The rig and its path; cameras with distortion are refused (every command renders)."""
     from .camera import load_rig, resolve_rig
+    from .render import check_renderable
 
     path = resolve_rig(spec)
-    return load_rig(path), str(path)
+    rig = load_rig(path)
+    check_renderable(rig, path)
+    return rig, str(path)
 
 
 def _emit(args, result: dict, text: str) -> None:
@@ -222,7 +240,7 @@ def cmd_render(args) -> None:
     rig, rig_path = _load_rig(args.rig)
     rig = rig.select(_cameras(args.cameras), rig_path)
     tc = open_texcoords(args.texcoords, dataset.num_vertices) if args.texcoords else None
-    dataset.check_poses([args.pose])
+    _check_pose(dataset, args.pose)
     with _output(args, "render", in_place=True):
         summary = render_pose(dataset, rig, args.pose, args.out, texcoords=tc, raster=args.raster,
                               rig_path=rig_path, progress=not args.quiet)
@@ -240,6 +258,7 @@ def cmd_slide(args) -> None:
     rig = rig.select(_cameras(args.cameras), rig_path)
     options = SlideOptions(subdiv=args.subdiv, fill=args.fill, max_displacement=args.max_displacement)
     poses = dataset.select(args.poses)
+    _check_cameras_see(rig, rig_path, dataset, poses)
     with _output(args, "slide"):
         out = slide_dataset(dataset, rig, args.out, poses=poses, options=options,
                             workers=args.workers, scheduler=args.scheduler, progress=not args.quiet)
@@ -256,7 +275,9 @@ def cmd_eval(args) -> dict:
     rig, rig_path = _load_rig(args.rig)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
-    result = evaluate(dataset, rig.select(tc.cameras, rig_path), tc, poses=poses, heatmaps=args.heatmaps,
+    rig = rig.select(tc.cameras, rig_path)
+    _check_cameras_see(rig, rig_path, dataset, poses or tc.poses)
+    result = evaluate(dataset, rig, tc, poses=poses, heatmaps=args.heatmaps,
                       progress=not args.quiet, workers=args.workers or 1, scheduler=args.scheduler)
     s, c = result["sqrt_mse"], result["sqrt_mse_same_chart"]
     _emit(args, result, f"{result['num_images']} images: SqrtMSE inferred {s['inferred']['mean']*1e3:.3f} ± "
@@ -276,9 +297,11 @@ def cmd_triangulate(args) -> dict:
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
-    dataset.check_poses([args.pose])
+    _check_pose(dataset, args.pose)
+    rig = rig.select(tc.cameras, rig_path)
+    _check_cameras_see(rig, rig_path, dataset, [args.pose])
     with _output(args, "triangulate"):
-        result = triangulate_pose(dataset, rig.select(tc.cameras, rig_path), tc, args.pose, args.out,
+        result = triangulate_pose(dataset, rig, tc, args.pose, args.out,
                                   ReconOptions(smooth=args.smooth, max_reprojection_px=args.max_reprojection_px,
                                                max_surface_distance_m=args.max_surface_distance),
                                   progress=not args.quiet)
@@ -330,10 +353,9 @@ def cmd_bench(args) -> dict:
     _at_least(args.workers, "--workers", 1)
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
-    from .render import check_renderable
-
-    check_renderable(rig, rig_path)
-    result = run_bench(dataset, rig, poses=dataset.select(args.poses), subdiv=args.subdiv, workers=args.workers,
+    poses = dataset.select(args.poses)
+    _check_cameras_see(rig, rig_path, dataset, poses)
+    result = run_bench(dataset, rig, poses=poses, subdiv=args.subdiv, workers=args.workers,
                        progress=not args.quiet)
     _emit(args, result, dumps_strict(result, indent=2))
     return result

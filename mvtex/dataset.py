@@ -123,6 +123,8 @@ def validate_mesh(faces: np.ndarray, uv: np.ndarray, source: str | os.PathLike |
         raise InputError(source, f"faces must be integers, got {faces.dtype}")
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise InputError(source, f"uv must have shape (n,2), got {uv.shape}")
+    if uv.dtype.kind != "f":
+        raise InputError(source, f"uv must be floating point, got {uv.dtype}")
     if faces.min() < 0 or faces.max() >= len(uv):
         raise InputError(source, f"face index out of range [0, {len(uv)}): min {faces.min()}, max {faces.max()}")
     if not np.all(np.isfinite(uv)):
@@ -130,6 +132,8 @@ def validate_mesh(faces: np.ndarray, uv: np.ndarray, source: str | os.PathLike |
 
 
 def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = None) -> None:
+    if array.dtype.kind != "f":
+        raise InputError(source, f"positions must be float32, got {array.dtype}")
     if array.ndim != 3 or array.shape[2] != 3:
         raise InputError(source, f"expected shape (K,{n},3), got {array.shape}")
     if array.shape[1] != n:
@@ -167,14 +171,16 @@ def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
     if validate:
         _check_positions(gt, n, path / "gt.npy")
         _check_positions(inferred, n, path / "inferred.npy", gt.shape[0])
-        if rest is not None and (rest.shape != (n, 3) or not np.all(np.isfinite(rest))):
+        if rest is not None and (rest.shape != (n, 3) or rest.dtype.kind != "f" or not np.all(np.isfinite(rest))):
             raise InputError(path / "mesh.npz", f"rest must be finite with shape ({n},3), got {rest.shape}")
+        if poses.dtype.kind != "f":
+            raise InputError(path / "poses.npy", f"pose vectors must be float32, got {poses.dtype}")
         if poses.ndim != 2 or poses.shape[0] != gt.shape[0]:
             raise InputError(path / "poses.npy", f"expected shape ({gt.shape[0]},P), got {poses.shape}")
         if not np.all(np.isfinite(poses)):
             raise InputError(path / "poses.npy", "NaN or infinite values")
         for key, expected in (("num_poses", gt.shape[0]), ("num_vertices", n), ("pose_dim", poses.shape[1])):
-            if key in meta and meta[key] != expected:
+            if key in meta and (type(meta[key]) is not int or meta[key] != expected):
                 raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
     split = _load_split(path, gt.shape[0])
     return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
@@ -191,10 +197,9 @@ def _load_split(path: Path, num_poses: int) -> dict[str, list[int]]:
         raise InputError(file, "needs lists 'train', 'val' and 'test'")
     out = {}
     for key in ("train", "val", "test"):
-        try:
-            values = [int(i) for i in split[key]]
-        except (TypeError, ValueError):
-            raise InputError(file, f"'{key}' must be a list of pose indices") from None
+        values = split[key]
+        if not isinstance(values, list) or not all(type(i) is int for i in values):
+            raise InputError(file, f"'{key}' must be a list of integer pose indices")
         if any(not 0 <= i < num_poses for i in values):
             raise InputError(file, f"'{key}' has a pose index outside [0, {num_poses})")
         out[key] = values

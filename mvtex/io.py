@@ -164,8 +164,10 @@ def claim_output(path: str | os.PathLike, command: str, *, overwrite: bool = Fal
         raise InputError(path, f"{path.parent} is not writable")
     with _locked(path, command):
         path = check_output(path, command, overwrite=overwrite)  # may have changed while waiting
+        created = False
         if in_place:
             try:
+                created = not path.is_dir()
                 path.mkdir(exist_ok=True)
             except OSError as err:
                 raise InputError(path, f"cannot create ({err.strerror or err})") from None
@@ -175,6 +177,11 @@ def claim_output(path: str | os.PathLike, command: str, *, overwrite: bool = Fal
         token = _CLAIMED.set(claims)
         try:
             yield path
+        except BaseException:
+            if created and [p.name for p in path.iterdir()] == [MARKER]:  # nothing written: leave no trace
+                (path / MARKER).unlink()
+                path.rmdir()
+            raise
         finally:
             _CLAIMED.reset(token)
 
