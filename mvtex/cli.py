@@ -241,6 +241,7 @@ def cmd_render(args) -> None:
     rig = rig.select(_cameras(args.cameras), rig_path)
     tc = open_texcoords(args.texcoords, dataset.num_vertices) if args.texcoords else None
     _check_pose(dataset, args.pose)
+    _check_cameras_see(rig, rig_path, dataset, [args.pose])
     with _output(args, "render", in_place=True):
         summary = render_pose(dataset, rig, args.pose, args.out, texcoords=tc, raster=args.raster,
                               rig_path=rig_path, progress=not args.quiet)

@@ -284,6 +284,8 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     if uv is None or len(uv) != n:
         raise InputError(gt_files[0], "no per-vertex texture coordinates (need OBJ 'vt' or PLY texcoords)")
     uv = np.asarray(uv, dtype=np.float32)
+    if not np.all(np.isfinite(uv)):
+        raise InputError(gt_files[0], "NaN or infinite texture coordinates")
     gt = np.empty((len(gt_files), n, 3), dtype=np.float32)
     inferred = np.empty_like(gt)
     from tqdm import tqdm
@@ -291,6 +293,8 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     for k, (g, i) in enumerate(tqdm(list(zip(gt_files, inf_files)), desc="import", unit="pose", disable=not progress)):
         for file, target in ((g, gt), (i, inferred)):
             mesh = first if file == gt_files[0] else _read_mesh(file)
+            if np.asarray(mesh.vertices).ndim != 2 or np.asarray(mesh.vertices).shape[1] != 3:
+                raise InputError(file, f"vertex positions of shape {np.asarray(mesh.vertices).shape}, expected (n,3)")
             if len(mesh.vertices) != n:
                 raise InputError(file, f"{len(mesh.vertices)} vertices, expected {n} (from {gt_files[0]})")
             if not np.array_equal(np.asarray(mesh.faces), faces):
