@@ -113,17 +113,21 @@ def _dask(fn, tasks: list, address: str, max_in_flight: int | None) -> Iterator[
     with Client(address) as client:
         limit = max_in_flight or 4 * max(1, sum(client.nthreads().values()))
         it = iter(tasks)
-        first = [client.submit(fn, *task, pure=False) for task, _ in zip(it, range(limit))]
-        queue = as_completed(first)
+        # range first: zip would take (and drop) one task more from `it` when range runs out
+        pending = {client.submit(fn, *task, pure=False) for _, task in zip(range(limit), it)}
+        queue = as_completed(list(pending))
         try:
             for fut in queue:
                 result = fut.result()
+                pending.discard(fut)
                 fut.release()
                 for task in _take(it, 1):
-                    queue.add(client.submit(fn, *task, pure=False))
+                    new = client.submit(fn, *task, pure=False)
+                    pending.add(new)
+                    queue.add(new)
                 yield result
         finally:
-            for fut in first:
+            for fut in pending:
                 fut.cancel()
 
 

@@ -902,6 +902,10 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         flush()
         bar.close()
     del disp, asg
+    missing = [c for c in rig.names if not done[c].all()]
+    if missing:  # a backend that lost tasks: never rename an incomplete set into place
+        raise RuntimeError(f"{partial}: {int((~done[missing[0]]).sum())} poses of camera {missing[0]!r} were not "
+                           "computed; rerun to finish them")
     # Rename the finished set in (an older `out` aside first), then drop the done masks:
     # a stop in between leaves either a resumable partial or a complete set.
     replace_path(partial, out)
