@@ -6,6 +6,7 @@ stderr naming the file and the problem), 1 unexpected failure.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import re
 import sys
@@ -27,7 +28,8 @@ def _add_progress(p: argparse.ArgumentParser) -> None:
 
 def _add_overwrite(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing output directory that this command did not write")
+                   help="replace (or, with --heatmaps, write into) an existing output directory that this "
+                   "command did not write")
 
 
 def _add_workers(p: argparse.ArgumentParser, default_help: str) -> None:
@@ -89,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--poses", help="pose SPEC (default: the texcoord set's poses)")
     p.add_argument("--heatmaps", type=Path, help="write error heatmaps here")
     _add_workers(p, "default 1")
+    _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
 
@@ -278,8 +281,9 @@ def cmd_eval(args) -> dict:
     poses = dataset.select(args.poses) if args.poses else None
     rig = rig.select(tc.cameras, rig_path)
     _check_cameras_see(rig, rig_path, dataset, poses or tc.poses)
-    result = evaluate(dataset, rig, tc, poses=poses, heatmaps=args.heatmaps,
-                      progress=not args.quiet, workers=args.workers or 1, scheduler=args.scheduler)
+    with _output(args, "eval", args.heatmaps, in_place=True) if args.heatmaps else contextlib.nullcontext():
+        result = evaluate(dataset, rig, tc, poses=poses, heatmaps=args.heatmaps,
+                          progress=not args.quiet, workers=args.workers or 1, scheduler=args.scheduler)
     s, c = result["sqrt_mse"], result["sqrt_mse_same_chart"]
     _emit(args, result, f"{result['num_images']} images: SqrtMSE inferred {s['inferred']['mean']*1e3:.3f} ± "
           f"{s['inferred']['std']*1e3:.3f} e-3, texcoords {s['texcoords']['mean']*1e3:.3f} ± "

@@ -313,10 +313,15 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
 def _read_poses(path: Path, k: int) -> np.ndarray:
     if not path.is_file():
         raise InputError(path, "poses file not found")
-    try:
-        poses = np.load(path, allow_pickle=False) if path.suffix == ".npy" else np.loadtxt(path, delimiter="," if path.suffix == ".csv" else None, ndmin=2)
-    except (ValueError, OSError) as err:
-        raise InputError(path, f"cannot read poses ({err})") from None
+    if path.suffix == ".npy":
+        poses = load_npy(path, mmap=False)
+    else:
+        try:
+            poses = np.loadtxt(path, delimiter="," if path.suffix == ".csv" else None, ndmin=2)
+        except (ValueError, OSError, UnicodeDecodeError) as err:
+            raise InputError(path, f"cannot read poses ({err})") from None
+    if poses.dtype.kind not in "fiu" or poses.ndim == 0:
+        raise InputError(path, f"pose vectors must be numbers, got {poses.dtype} of shape {poses.shape}")
     poses = np.asarray(poses, dtype=np.float32).reshape(len(poses), -1)
     if len(poses) != k:
         raise InputError(path, f"{len(poses)} pose rows for {k} meshes")

@@ -623,3 +623,45 @@ def test_slide_refuses_to_finish_when_a_backend_loses_tasks(tmp_path, tiny_datas
     with pytest.raises(RuntimeError, match="were not computed"):
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     assert not (tmp_path / "tc").exists() and (tmp_path / "tc.partial").is_dir()
+
+
+def test_camera_names_from_a_colmap_model_are_checked(tmp_path):
+    pytest.importorskip("pycolmap")
+    from mvtex.camera import look_at
+    from mvtex.colmap import read_rig, rig_reconstruction
+    from mvtex.errors import InputError
+
+    rec, ids = rig_reconstruction(Rig((look_at("a", (0, 0, 1), (0, 0, 0), width=64, height=48, focal=50.0),)))
+    rec.images[ids["a"]].name = "bad name.png"
+    rec.write_binary(str(tmp_path))
+    with pytest.raises(InputError, match="camera name 'bad name' is not allowed"):
+        read_rig(tmp_path)
+
+
+def test_eval_heatmaps_do_not_go_into_a_foreign_folder(tmp_path, slid, tiny_dataset, rig_file, capsys):
+    heat = foreign(tmp_path)
+    argv = ["eval", tiny_dataset, "--rig", rig_file, "--texcoords", slid, "--poses", "0", "--heatmaps", heat, "--quiet"]
+    code, _, err = run(capsys, *argv)
+    one_line_error(code, err, heat, "--overwrite")
+    assert tree(heat) == {"keep.txt": b"x"}
+    code, _, err = run(capsys, *argv[:-3], "--heatmaps", tmp_path / "h", "--quiet")
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "h").iterdir()) == [MARKER, "pose_00000_a.png", "pose_00000_b.png"]
+
+
+@pytest.mark.parametrize("content,needle", [(b"\x93NUMPY garbage", "not a readable .npy"),
+                                            (b"1 2\n3 nan\n", "NaN or infinite"), (b"1 2\n3\n", "cannot read poses")])
+def test_import_pose_files(content, needle, tmp_path, capsys):
+    from test_dataset import _write_obj
+
+    from conftest import grid_mesh
+
+    faces, uv, rest = grid_mesh(4, 4)
+    for k in range(2):
+        _write_obj(tmp_path / f"g{k}.obj", rest, uv, faces)
+    poses = tmp_path / ("poses.npy" if content.startswith(b"\x93") else "poses.txt")
+    poses.write_bytes(content)
+    code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred",
+                       tmp_path / "g*.obj", "--poses", poses, "--quiet")
+    one_line_error(code, err, poses, needle)
+    assert not (tmp_path / "ds").exists()
