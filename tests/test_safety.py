@@ -665,3 +665,64 @@ def test_import_pose_files(content, needle, tmp_path, capsys):
                        tmp_path / "g*.obj", "--poses", poses, "--quiet")
     one_line_error(code, err, poses, needle)
     assert not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize("command", ["import", "render", "triangulate", "predict"])
+def test_every_writer_marks_its_output_and_may_replace_it(command, tmp_path, tiny_dataset, rig_file, slid, capsys):
+    out = tmp_path / "out"
+    if command == "import":
+        from test_dataset import _write_obj
+
+        from conftest import grid_mesh
+
+        faces, uv, rest = grid_mesh(4, 4)
+        _write_obj(tmp_path / "g.obj", rest, uv, faces)
+        argv = ["import", out, "--gt", tmp_path / "*.obj", "--inferred", tmp_path / "*.obj"]
+    elif command == "render":
+        argv = ["render", tiny_dataset, "--rig", rig_file, "--pose", 0, "--out", out]
+    elif command == "triangulate":
+        argv = ["triangulate", tiny_dataset, "--rig", rig_file, "--texcoords", slid, "--pose", 0, "--out", out]
+    else:
+        pytest.importorskip("torch")
+        argv = ["predict", tiny_dataset, "--model", _fake_model(tmp_path / "m", tiny_dataset), "--out", out,
+                "--poses", "0:2"]
+    for _ in range(2):
+        code, _, err = run(capsys, *argv, "--quiet")
+        assert code == 0, err
+        assert json.loads((out / MARKER).read_text())["command"] == command
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def _lying_npy(array: np.ndarray, shape: tuple) -> bytes:
+    """The bytes of `array` saved as .npy, with a header that declares `shape`."""
+    import io as bytes_io
+
+    from numpy.lib import format as npformat
+
+    buf = bytes_io.BytesIO()
+    npformat.write_array_header_1_0(buf, {"descr": npformat.dtype_to_descr(array.dtype), "fortran_order": False,
+                                          "shape": shape})
+    return buf.getvalue() + np.ascontiguousarray(array).tobytes()
+
+
+def test_huge_declared_sizes_are_refused_before_allocation(tmp_path, tiny_dataset, rig_file, capsys):
+    import zipfile
+
+    ds = tmp_path / "ds"
+    shutil.copytree(tiny_dataset, ds)
+    gt = np.load(ds / "gt.npy")
+    (ds / "gt.npy").write_bytes(_lying_npy(gt, (10**9,) + gt.shape[1:]))
+    code, _, err = run(capsys, "slide", ds, "--rig", rig_file, "--out", tmp_path / "tc", "--quiet")
+    one_line_error(code, err, ds / "gt.npy", "not a readable .npy")
+
+    shutil.rmtree(ds)
+    shutil.copytree(tiny_dataset, ds)
+    with np.load(ds / "mesh.npz") as z:
+        mesh = {k: z[k] for k in z.files}
+    with zipfile.ZipFile(ds / "mesh.npz", "w") as archive:  # uv declares 10^12 rows, holds 480
+        for key, value in mesh.items():
+            archive.writestr(f"{key}.npy", _lying_npy(value, (10**12, 2)) if key == "uv" else _lying_npy(value, value.shape))
+    t0 = time.perf_counter()
+    code, _, err = run(capsys, "slide", ds, "--rig", rig_file, "--out", tmp_path / "tc", "--quiet")
+    one_line_error(code, err, ds / "mesh.npz", "declares shape (1000000000000, 2)")
+    assert time.perf_counter() - t0 < 10
