@@ -123,7 +123,9 @@ def check_output(path: str | os.PathLike, command: str, *, overwrite: bool = Fal
     `command` did not write.
     """
     path = Path(path)
-    if path.is_symlink() or (path.exists() and not path.is_dir()):
+    if path.is_symlink():  # replacing it would replace the link, not what it points to
+        raise InputError(path, "is a symbolic link; give the real output path")
+    if path.exists() and not path.is_dir():
         raise InputError(path, "exists and is not a directory; choose another output path")
     if path.is_dir() and not overwrite:
         owner = output_owner(path)

@@ -726,3 +726,25 @@ def test_huge_declared_sizes_are_refused_before_allocation(tmp_path, tiny_datase
     code, _, err = run(capsys, "slide", ds, "--rig", rig_file, "--out", tmp_path / "tc", "--quiet")
     one_line_error(code, err, ds / "mesh.npz", "declares shape (1000000000000, 2)")
     assert time.perf_counter() - t0 < 10
+
+
+@pytest.mark.slow
+def test_two_slides_on_one_output_the_second_is_refused(tmp_path, slow_dataset, reference_set, capsys):
+    out = tmp_path / "tc"
+    argv = MVTEX + ["slide", str(slow_dataset), "--rig", str(reference_set / "rig.yaml"), "--out", str(out),
+                    "--subdiv", "0", "--workers", "1", "--quiet"]
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE)
+    try:
+        _wait_for_progress(tmp_path / "tc.partial", proc)
+        code, _, err = run(capsys, *argv[3:])
+        one_line_error(code, err, out, f"in use by pid {proc.pid}")
+    finally:
+        assert proc.wait(timeout=300) == 0, proc.stderr.read()
+    assert tree(out) == tree(reference_set / "tc") | {MARKER: (out / MARKER).read_bytes()}
+
+
+def test_a_symlink_at_out_is_refused(tmp_path, capsys):
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    code, _, err = run(capsys, "synth", tmp_path / "link", "--poses", 10)
+    one_line_error(code, err, "symbolic link")
