@@ -449,6 +449,10 @@ class PairRaster:
         return out1, out2
 
     def release(self) -> None:
+        # moderngl rebinds its last used framebuffer when it creates the next one: binding a
+        # released one is GL_INVALID_OPERATION. Leave the default framebuffer bound instead.
+        if any(self.ctx.fbo is fbo for fbo, _, _ in self._targets.values()):
+            self.ctx.detect_framebuffer(0).use()
         for fbo, ids, depth in self._targets.values():
             fbo.release(), ids.release(), depth.release()
         self.vao.release(), self.vbo.release(), self.ibo.release()

@@ -748,3 +748,18 @@ def test_a_symlink_at_out_is_refused(tmp_path, capsys):
     (tmp_path / "link").symlink_to(tmp_path / "real")
     code, _, err = run(capsys, "synth", tmp_path / "link", "--poses", 10)
     one_line_error(code, err, "symbolic link")
+
+
+def test_evicting_cached_rasters_leaves_no_gl_error(gl, sheet):
+    """More meshes than the raster cache holds: releasing the oldest must not leave GL
+    pointing at a released framebuffer (the next one created would report an error)."""
+    from conftest import grid_mesh
+    from mvtex.camera import look_at
+    from mvtex.sliding import _pair_raster
+
+    camera = look_at("c", (0, 0, 1.2), (0, 0, 0), width=40, height=30, focal=60.0)
+    assert gl.error == "GL_NO_ERROR"
+    for k in range(8):
+        faces, uv, rest = grid_mesh(5 + k, 4)
+        _pair_raster(faces, len(uv))(rest, rest, camera)
+        assert gl.error == "GL_NO_ERROR", k
