@@ -758,8 +758,10 @@ def test_evicting_cached_rasters_leaves_no_gl_error(gl, sheet):
     from mvtex.sliding import _pair_raster
 
     camera = look_at("c", (0, 0, 1.2), (0, 0, 0), width=40, height=30, focal=60.0)
+    meshes = [grid_mesh(5 + k, 4) for k in range(8)]
     assert gl.error == "GL_NO_ERROR"
-    for k in range(8):
-        faces, uv, rest = grid_mesh(5 + k, 4)
-        _pair_raster(faces, len(uv))(rest, rest, camera)
-        assert gl.error == "GL_NO_ERROR", k
+    for k in range(1, 8):
+        # The oldest cached raster was used last: its framebuffer is bound when it is evicted.
+        for faces, uv, rest in (meshes[0], meshes[k]):
+            _pair_raster(faces, len(uv))(rest, rest, camera)
+            assert gl.error == "GL_NO_ERROR", k
