@@ -14,7 +14,9 @@ sequence `cameras` of maps with `name`, `width`, `height`, `K` 3x3, `dist` 1x5, 
 
 from __future__ import annotations
 
+import numbers
 import os
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -25,6 +27,30 @@ from .errors import InputError
 
 RIG_FORMAT = "mvtex-rig"
 RIG_VERSION = 1
+MAX_IMAGE_SIZE = 16384
+CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+# File and folder names of mvtex's output layouts: a camera's folder must not take one.
+RESERVED_NAMES = frozenset({
+    "mesh.npz", "texcoords.json", "rig.yaml", "render.json", "overview.png", "dataset.json", "split.json",
+    "gt.npy", "inferred.npy", "poses.npy", "config.json", "model.safetensors", "report.json", "summary.json",
+    "reconstruction.ply", "comparison.png", "colmap", "images", "heatmaps",
+})
+
+
+def check_camera_name(name) -> str:
+    """Return `name` if it is a safe camera name, else raise ValueError saying why.
+
+    Camera names become folder and file names, so they are restricted to
+    ``[A-Za-z0-9][A-Za-z0-9_.-]{0,63}`` (no path separators, no leading dot, so never "."
+    or ".."), must not end with a dot, and must not be one of the names of mvtex's output
+    layouts (`RESERVED_NAMES`, compared without case).
+    """
+    if not isinstance(name, str) or not CAMERA_NAME.fullmatch(name) or name.endswith("."):
+        raise ValueError(f"camera name {name!r} is not allowed: use 1-64 letters, digits, '_', '-' or '.', "
+                         "starting with a letter or digit (it becomes a folder name)")
+    if name.lower() in RESERVED_NAMES:
+        raise ValueError(f"camera name {name!r} is reserved (an mvtex output uses that file name)")
+    return name
 
 
 def image_contains(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -57,6 +83,12 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
 
     def __post_init__(self) -> None:
+        check_camera_name(self.name)
+        for key in ("width", "height"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (numbers.Integral, numbers.Real)) \
+                    or not float(value).is_integer() or not 1 <= value <= MAX_IMAGE_SIZE:
+                raise ValueError(f"camera {self.name!r}: {key} must be an integer in 1..{MAX_IMAGE_SIZE}, got {value!r}")
         for key, shape in (("K", (3, 3)), ("R", (3, 3)), ("t", (3,)), ("dist", (5,))):
             value = np.asarray(getattr(self, key), dtype=np.float64)
             if key in ("t", "dist"):
@@ -67,8 +99,10 @@ class Camera:
                 raise ValueError(f"camera {self.name!r}: {key} must be finite with shape {shape}, got {value.shape}")
             value.setflags(write=False)
             object.__setattr__(self, key, value)
-        if int(self.width) <= 0 or int(self.height) <= 0:
-            raise ValueError(f"camera {self.name!r}: image size must be positive, got {self.width}x{self.height}")
+        K = self.K
+        if not (K[0, 0] > 0 and K[1, 1] > 0) or K[1, 0] != 0 or np.any(K[2] != (0, 0, 1)):
+            raise ValueError(f"camera {self.name!r}: K must be [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, "
+                             f"got {K.tolist()}")
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
 
@@ -126,6 +160,12 @@ class Camera:
                              "(mvtex rig RIG --undistort --out RIG2) and compare with undistorted images "
                              "(mvtex undistort IMAGES --rig RIG --out DIR)")
 
+    def sees(self, points: np.ndarray) -> bool:
+        """True if any world point (..., 3) lies in front of the camera and inside its image."""
+        pixels, z = self.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        with np.errstate(invalid="ignore"):
+            return bool(np.any(self.in_image(pixels, z)))
+
     def pixel_rays(self, pixels: np.ndarray) -> np.ndarray:
         """Unit ray directions (..., 3) float64 in world coordinates through pixels (..., 2)."""
         pixels = np.asarray(pixels, dtype=np.float64)
@@ -164,8 +204,9 @@ class Rig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "cameras", tuple(self.cameras))
         names = [c.name for c in self.cameras]
-        if len(set(names)) != len(names):
-            raise ValueError(f"camera names must be unique, got {names}")
+        # Unique without case too: the names become folders on case-insensitive file systems.
+        if len({n.lower() for n in names}) != len(names):
+            raise ValueError(f"camera names must be unique (ignoring case), got {names}")
 
     def __iter__(self) -> Iterator[Camera]:
         return iter(self.cameras)
@@ -273,21 +314,35 @@ def _camera_from_node(node, path: Path, index: int) -> Camera:
         if m is None:
             raise InputError(path, f"camera {index}: '{key}' is not an OpenCV matrix")
         m = np.asarray(m, dtype=np.float64).reshape(-1)
+        if not np.all(np.isfinite(m)):
+            raise InputError(path, f"camera {index}: '{key}' has NaN or infinite values")
         if m.size != size:
             raise InputError(path, f"camera {index}: '{key}' has {m.size} values, expected {size}")
         return m
 
-    name = need("name").string()
+    def integer(key: str) -> int:
+        child = need(key)
+        if not (child.isInt() or child.isReal()):
+            raise InputError(path, f"camera {index}: '{key}' must be an integer, got {child.string()!r}")
+        value = child.real()
+        if not float(value).is_integer() or not 1 <= value <= MAX_IMAGE_SIZE:
+            raise InputError(path, f"camera {index}: '{key}' must be an integer in 1..{MAX_IMAGE_SIZE}, got {value}")
+        return int(value)
+
+    name_node = need("name")
+    if not name_node.isString():
+        raise InputError(path, f"camera {index}: 'name' must be a string")
+    name = name_node.string()
     R = matrix("R", 9).reshape(3, 3)
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+    if not np.all(np.isfinite(R)) or np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
         raise InputError(path, f"camera {index}: R is not a rotation matrix")
     if not name:
         raise InputError(path, f"camera {index}: empty name")
     try:
         return Camera(
             name=name,
-            width=int(need("width").real()),
-            height=int(need("height").real()),
+            width=integer("width"),
+            height=integer("height"),
             K=matrix("K", 9).reshape(3, 3),
             dist=matrix("dist", 5) if not node.getNode("dist").empty() else np.zeros(5),
             R=R,

@@ -6,13 +6,16 @@ stderr naming the file and the problem), 1 unexpected failure.
 from __future__ import annotations
 
 import argparse
-import json
+import contextlib
+import math
+import re
 import sys
 from pathlib import Path
 from typing import Sequence
 
 from . import __version__
 from .errors import InputError
+from .io import claim_output, dumps_strict
 
 
 def _add_json(p: argparse.ArgumentParser) -> None:
@@ -21,6 +24,18 @@ def _add_json(p: argparse.ArgumentParser) -> None:
 
 def _add_progress(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _add_overwrite(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace (or, with --heatmaps, write into) an existing output directory that this "
+                   "command did not write")
+
+
+def _add_workers(p: argparse.ArgumentParser, default_help: str) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None, help=f"local worker processes ({default_help})")
+    g.add_argument("--scheduler", help="Dask scheduler address (tcp://host:8786)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="random seed of poses and folds (default 0)")
     p.add_argument("--garment", default="shirt", choices=("shirt", "skirt"),
                    help="shirt: torso tube with bend/twist folds; skirt: flared skirt with hem flutes (default shirt)")
+    _add_overwrite(p)
     _add_json(p)
 
     p = sub.add_parser("import", help="OBJ/PLY sequences (same connectivity) -> dataset")
@@ -45,6 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--inferred", required=True, help="glob of inferred meshes, paired in sorted order")
     p.add_argument("--poses", type=Path, help="pose vectors: .npy (K,P) or text rows")
     p.add_argument("--name", help="dataset name (default: the folder name)")
+    _add_overwrite(p)
     _add_progress(p)
 
     p = sub.add_parser("render", help="textured PNGs of gt and inferred per camera")
@@ -55,6 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--texcoords", type=Path, help="texcoord set: draw the inferred mesh with its texcoords")
     p.add_argument("--raster", action="store_true", help="also write raster dumps (tri_id, bary, depth, uv)")
     p.add_argument("--cameras", help="comma-separated camera names (default: all)")
+    _add_overwrite(p)
     _add_progress(p)
 
     p = sub.add_parser("slide", help="texture sliding over a dataset and a rig -> texcoord set")
@@ -77,10 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cross-chart", choices=("on", "off"),
                    help="keep hits on another UV chart than the vertex's own (default: SlideOptions.cross_chart)")
     p.add_argument("--cameras", help="comma-separated camera names (default: all)")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, default=None,
-                   help="local worker processes (default: one per core for long runs, else 1)")
-    g.add_argument("--scheduler", help="Dask scheduler address (tcp://host:8786)")
+    _add_workers(p, "default: one per core for long runs, else 1")
+    _add_overwrite(p)
     _add_progress(p)
 
     p = sub.add_parser("eval", help="per-pixel texture-coordinate error: baseline vs a texcoord set")
@@ -90,6 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--texcoords", type=Path, required=True, help="texcoord set to evaluate")
     p.add_argument("--poses", help="pose SPEC (default: the texcoord set's poses)")
     p.add_argument("--heatmaps", type=Path, help="write error heatmaps here")
+    _add_workers(p, "default 1")
+    _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
 
@@ -106,34 +124,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--engine", choices=("mvtex", "pycolmap"), default="mvtex",
                    help="who triangulates the tracks: mvtex (vectorised DLT + Gauss-Newton, faster) or pycolmap "
                         "(COLMAP multi-view triangulation + points-only bundle adjustment); same points (default mvtex)")
+    _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
 
     p = sub.add_parser("train", help="train the texture sliding network of one camera")
-    p.add_argument("dataset", type=Path, help="dataset directory")
-    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set holding the training targets")
-    p.add_argument("--camera", required=True, help="camera whose network to train")
-    p.add_argument("--out", type=Path, required=True, help="model directory to write")
-    p.add_argument("--epochs", type=int, help="training epochs (default: the training default)")
-    p.add_argument("--resolution", type=int, help="atlas image size in texels (default: the training default)")
+    p.add_argument("dataset", type=Path, help="mvtex dataset directory")
+    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set directory")
+    p.add_argument("--camera", required=True, help="the camera of the texcoord set to learn")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--epochs", type=int, help="training epochs (at least 1; default: the training default)")
+    p.add_argument("--resolution", type=int, help=f"atlas image size, a power of two in 8..{MAX_RESOLUTION} (default: 512 on GPU, 64 on CPU)")
     p.add_argument("--device", default=None, help="cpu, cuda, cuda:0 ... (default: cuda if available)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of initialisation and batching (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the initial weights and batches (default 0)")
+    _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
 
     p = sub.add_parser("predict", help="camera networks -> texcoord set")
-    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("dataset", type=Path, help="mvtex dataset directory")
     p.add_argument("--model", type=Path, action="append", required=True, help="a trained model (repeat per camera)")
-    p.add_argument("--out", type=Path, required=True, help="texcoord set directory to write")
-    p.add_argument("--poses", default="all", help="all, train, val, test, a:b or 3,5,7 (default all)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--poses", default="all", help="pose SPEC (default all)")
+    _add_overwrite(p)
     _add_progress(p)
 
     p = sub.add_parser("bench", help="throughput: raster vs ray-cast sliding, and eval")
-    p.add_argument("dataset", type=Path, help="dataset directory")
-    p.add_argument("--rig", required=True, help="rig YAML or built-in rig name")
+    p.add_argument("dataset", type=Path, help="mvtex dataset directory")
+    p.add_argument("--rig", required=True, help="rig YAML, or a built-in rig name (stereo, square4, trapezoid12)")
     p.add_argument("--poses", default="0:20", help="poses to time (default 0:20)")
-    p.add_argument("--subdiv", type=int, default=1, choices=(0, 1, 2),
-                   help="midpoint subdivision levels of the sliding jobs (default 1)")
+    p.add_argument("--subdiv", type=int, default=1, choices=(0, 1, 2), help="midpoint subdivisions of the inferred mesh (default 1)")
     p.add_argument("--workers", type=int, default=2, help="worker processes for the parallel measurement (default 2)")
     _add_json(p)
     _add_progress(p)
@@ -143,28 +163,77 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output directory (default mvtex-demo; rerun to resume)")
     p.add_argument("--poses", type=int, default=120, help="poses to synthesize (default 120)")
     p.add_argument("--epochs", type=int, help="TSNN epochs (default: the training default)")
+    _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
     _add_calibration_parsers(sub)
     return parser
 
 
+MAX_RESOLUTION = 4096
+_DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d{1,3})?)$")
+
+
 def _cameras(value: str | None) -> list[str] | None:
     return [c.strip() for c in value.split(",") if c.strip()] if value else None
 
 
-def _load_rig(spec: str):
+def _positive(value: float | None, option: str, *, allow_none: bool = False) -> None:
+    """InputError unless value is a finite number > 0."""
+    if value is None and allow_none:
+        return
+    if value is None or not math.isfinite(value) or value <= 0:
+        raise InputError(None, f"{option} must be a finite number > 0 (got {value})")
+
+
+def _at_least(value: int | None, option: str, low: int) -> None:
+    if value is not None and value < low:
+        raise InputError(None, f"{option} must be at least {low} (got {value})")
+
+
+def _check_workers(args) -> None:
+    _at_least(args.workers, "--workers", 1)
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise InputError(None, "--scheduler needs an address such as tcp://host:8786")
+
+
+def _check_pose(dataset, pose: int) -> None:
+    if not 0 <= pose < dataset.num_poses:
+        raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
+
+
+def _check_cameras_see(rig, rig_path, dataset, poses) -> None:
+    """Refuse a camera that sees no vertex of the inferred mesh at the first selected pose."""
+    positions = dataset.inferred[int(poses[0]) if poses else 0]
+    blind = [cam.name for cam in rig if not cam.sees(positions)]
+    if blind:
+        raise InputError(rig_path, f"camera {blind[0]!r} sees nothing of the mesh of {dataset.path} "
+                         f"(pose {int(poses[0]) if poses else 0}): check its R, t and K")
+
+
+def _load_rig(spec: str, pinhole: bool = True):
+    """The rig and its path; with `pinhole` (commands that render) cameras with distortion
+    are refused."""
     from .camera import load_rig, resolve_rig
 
     path = resolve_rig(spec)
-    return load_rig(path), str(path)
+    rig = load_rig(path)
+    if pinhole:
+        for camera in rig:
+            camera.require_pinhole(path)
+    return rig, str(path)
 
 
 def _emit(args, result: dict, text: str) -> None:
     if getattr(args, "json", False):
-        print(json.dumps(result))
+        print(dumps_strict(result))
     else:
         print(text)
+
+
+def _output(args, command: str, path: Path | None = None, in_place: bool = False):
+    """Claim the command's output directory (see `mvtex.io.claim_output`)."""
+    return claim_output(path if path is not None else args.out, command, overwrite=args.overwrite, in_place=in_place)
 
 
 def cmd_synth(args) -> dict:
@@ -172,7 +241,8 @@ def cmd_synth(args) -> dict:
 
     if args.poses < 10:
         raise InputError(None, f"--poses must be at least 10 (got {args.poses})")
-    stats = write_synth(args.out, SynthOptions(num_poses=args.poses, seed=args.seed, garment=args.garment))
+    with _output(args, "synth"):
+        stats = write_synth(args.out, SynthOptions(num_poses=args.poses, seed=args.seed, garment=args.garment))
     _emit(args, stats, f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                            for k, v in stats.items()))
     return stats
@@ -181,7 +251,9 @@ def cmd_synth(args) -> dict:
 def cmd_import(args) -> None:
     from .dataset import import_sequences
 
-    path = import_sequences(args.out, args.gt, args.inferred, args.poses, name=args.name, progress=not args.quiet)
+    with _output(args, "import"):
+        path = import_sequences(args.out, args.gt, args.inferred, args.poses, name=args.name,
+                                progress=not args.quiet)
     print(f"wrote {path}")
 
 
@@ -194,8 +266,11 @@ def cmd_render(args) -> None:
     rig, rig_path = _load_rig(args.rig)
     rig = rig.select(_cameras(args.cameras), rig_path)
     tc = open_texcoords(args.texcoords, dataset.num_vertices) if args.texcoords else None
-    summary = render_pose(dataset, rig, args.pose, args.out, texcoord_set=tc, raster=args.raster, rig_path=rig_path,
-                          progress=not args.quiet)
+    _check_pose(dataset, args.pose)
+    _check_cameras_see(rig, rig_path, dataset, [args.pose])
+    with _output(args, "render", in_place=True):
+        summary = render_pose(dataset, rig, args.pose, args.out, texcoord_set=tc, raster=args.raster,
+                              rig_path=rig_path, progress=not args.quiet)
     print(f"wrote {len(summary['files'])} files to {args.out}")
 
 
@@ -225,6 +300,8 @@ def cmd_slide(args) -> None:
     from .slide_jobs import slide_dataset
     from .sliding import SlideOptions
 
+    _check_workers(args)
+    _positive(args.max_displacement, "--max-displacement", allow_none=True)
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
     rig = rig.select(_cameras(args.cameras), rig_path)
@@ -233,10 +310,11 @@ def cmd_slide(args) -> None:
                                **slide_option_flags(args))
     except ValueError as err:
         raise InputError(None, str(err)) from None
-    if args.workers is not None and args.workers < 1:
-        raise InputError(None, f"--workers must be at least 1 (got {args.workers})")
-    out = slide_dataset(dataset, rig, args.out, poses=dataset.select(args.poses), options=options,
-                        workers=args.workers, scheduler=args.scheduler, progress=not args.quiet)
+    poses = dataset.select(args.poses)
+    _check_cameras_see(rig, rig_path, dataset, poses)
+    with _output(args, "slide"):
+        out = slide_dataset(dataset, rig, args.out, poses=poses, options=options,
+                            workers=args.workers, scheduler=args.scheduler, progress=not args.quiet)
     print(f"wrote {out}")
 
 
@@ -245,12 +323,16 @@ def cmd_eval(args) -> dict:
     from .metrics import evaluate
     from .texcoords import open_texcoords
 
+    _check_workers(args)
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
-    tc = open_texcoords(args.texcoords, dataset.num_vertices)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
-    result = evaluate(dataset, rig.select(tc.cameras, rig_path), tc, poses=poses, heatmaps=args.heatmaps,
-                      progress=not args.quiet)
+    rig = rig.select(tc.cameras, rig_path)
+    _check_cameras_see(rig, rig_path, dataset, poses or tc.poses)
+    with _output(args, "eval", args.heatmaps, in_place=True) if args.heatmaps else contextlib.nullcontext():
+        result = evaluate(dataset, rig, tc, poses=poses, heatmaps=args.heatmaps,
+                          progress=not args.quiet, workers=args.workers or 1, scheduler=args.scheduler)
     s, c, m = result["sqrt_mse"], result["sqrt_mse_same_chart"], result["material_rmse_m"]
     material = (f"material error inferred {m['inferred']['mean']*1e3:.2f} ± {m['inferred']['std']*1e3:.2f} mm, "
                 f"texcoords {m['texcoords']['mean']*1e3:.2f} ± {m['texcoords']['std']*1e3:.2f} mm, "
@@ -267,13 +349,20 @@ def cmd_triangulate(args) -> dict:
     from .recon import ReconOptions, triangulate_pose
     from .texcoords import open_texcoords
 
+    _positive(args.max_reprojection_px, "--max-reprojection-px")
+    _positive(args.max_surface_distance, "--max-surface-distance")
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
-    tc = open_texcoords(args.texcoords, dataset.num_vertices)
-    result = triangulate_pose(dataset, rig.select(tc.cameras, rig_path), tc, args.pose, args.out,
-                              ReconOptions(smooth=args.smooth, max_reprojection_px=args.max_reprojection_px,
-                                           max_surface_distance_m=args.max_surface_distance, engine=args.engine),
-                              progress=not args.quiet)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
+    _check_pose(dataset, args.pose)
+    rig = rig.select(tc.cameras, rig_path)
+    _check_cameras_see(rig, rig_path, dataset, [args.pose])
+    with _output(args, "triangulate"):
+        result = triangulate_pose(dataset, rig, tc, args.pose, args.out,
+                                  ReconOptions(smooth=args.smooth, max_reprojection_px=args.max_reprojection_px,
+                                               max_surface_distance_m=args.max_surface_distance,
+                                               engine=args.engine),
+                                  progress=not args.quiet)
     _emit(args, result, f"pose {result['pose']}: {result['num_triangulated']}/{result['num_vertices']} vertices "
           f"triangulated; RMSE inferred {result['rmse_m']['inferred']*1e3:.2f} mm -> reconstructed "
           f"{result['rmse_m']['reconstructed']*1e3:.2f} mm; wrote {args.out}")
@@ -287,12 +376,19 @@ def cmd_train(args) -> dict:
     from .texcoords import open_texcoords
     from .tsnn.train import TrainOptions, train_camera
 
+    _at_least(args.epochs, "--epochs", 1)
+    if args.resolution is not None and (args.resolution < 8 or args.resolution > MAX_RESOLUTION
+                                        or args.resolution & (args.resolution - 1)):
+        raise InputError(None, f"--resolution must be a power of two in 8..{MAX_RESOLUTION} (got {args.resolution})")
+    if args.device is not None and not _DEVICE.match(args.device):
+        raise InputError(None, f"--device must be auto, cpu, mps, cuda or cuda:N (got {args.device!r})")
     dataset = load_dataset(args.dataset)
-    tc = open_texcoords(args.texcoords, dataset.num_vertices)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     options = TrainOptions(seed=args.seed)
     changes = {k: getattr(args, k) for k in ("epochs", "resolution", "device") if getattr(args, k) is not None}
     options = replace(options, **changes)
-    result = train_camera(dataset, tc, args.camera, args.out, options, progress=not args.quiet)
+    with _output(args, "train"):
+        result = train_camera(dataset, tc, args.camera, args.out, options, progress=not args.quiet)
     _emit(args, result, f"wrote {args.out}")
     return result
 
@@ -302,7 +398,9 @@ def cmd_predict(args) -> None:
     from .tsnn.predict import predict
 
     dataset = load_dataset(args.dataset)
-    out = predict(dataset, args.model, args.out, poses=dataset.select(args.poses), progress=not args.quiet)
+    poses = dataset.select(args.poses)
+    with _output(args, "predict"):
+        out = predict(dataset, args.model, args.out, poses=poses, progress=not args.quiet)
     print(f"wrote {out}")
 
 
@@ -310,20 +408,26 @@ def cmd_bench(args) -> dict:
     from .bench import run_bench
     from .dataset import load_dataset
 
+    _at_least(args.workers, "--workers", 1)
     dataset = load_dataset(args.dataset)
-    rig, _ = _load_rig(args.rig)
-    result = run_bench(dataset, rig, poses=dataset.select(args.poses), subdiv=args.subdiv, workers=args.workers,
+    rig, rig_path = _load_rig(args.rig)
+    poses = dataset.select(args.poses)
+    _check_cameras_see(rig, rig_path, dataset, poses)
+    result = run_bench(dataset, rig, poses=poses, subdiv=args.subdiv, workers=args.workers,
                        progress=not args.quiet)
-    _emit(args, result, json.dumps(result, indent=2))
+    _emit(args, result, dumps_strict(result, indent=2))
     return result
 
 
 def cmd_demo(args) -> dict:
     from .demo import DemoOptions, run_demo
 
+    _at_least(args.poses, "--poses", 10)
+    _at_least(args.epochs, "--epochs", 1)
     options = DemoOptions(num_poses=args.poses, epochs=args.epochs)
-    result = run_demo(args.out, options, progress=not args.quiet)
-    _emit(args, result, result.get("summary_text", json.dumps(result, indent=2)))
+    with _output(args, "demo", in_place=True):
+        result = run_demo(args.out, options, progress=not args.quiet)
+    _emit(args, result, result.get("summary_text", dumps_strict(result, indent=2)))
     return result
 
 
@@ -422,7 +526,7 @@ def cmd_rig(args) -> dict:
         return result
     if args.rig is None:
         raise InputError(None, "give a RIG (a YAML or a built-in rig name)")
-    rig, rig_path = _load_rig(args.rig)
+    rig, rig_path = _load_rig(args.rig, pinhole=False)
     if args.undistort:
         pinhole = rigs.write_pinhole_rig(rig, args.out, alpha=args.alpha)
         result = {"rig": str(args.out), **rigs.rig_summary(pinhole)}
@@ -449,7 +553,7 @@ def cmd_rig(args) -> dict:
 def cmd_undistort(args) -> dict:
     from .rigs import undistort_folder
 
-    rig, _ = _load_rig(args.rig)
+    rig, _ = _load_rig(args.rig, pinhole=False)
     result = undistort_folder(args.images, rig, args.out, alpha=args.alpha, progress=not args.quiet)
     _emit(args, result, f"wrote {result['num_images']} undistorted images and their pinhole rig to {args.out}")
     return result
@@ -459,6 +563,9 @@ COMMANDS.update({"calibrate": cmd_calibrate, "board": cmd_board, "rig": cmd_rig,
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command. Returns 0 on success, 2 on bad usage or bad input (one line on
+    stderr naming the file and the problem), 130 when interrupted; any other failure is a
+    bug and propagates with its traceback (exit 1 from the `mvtex` script)."""
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -467,12 +574,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         COMMANDS[args.command](args)
     except InputError as err:
-        print(f"mvtex {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        return _fail(args.command, str(err))
+    except OSError as err:
+        # The file system refused a user's path (permissions, a full disk, a file where a
+        # folder should be): a one-line error, not a bug. Other OSErrors carry no filename.
+        if err.filename is None:
+            raise
+        return _fail(args.command, InputError(err.filename, err.strerror or str(err)).args[0])
     except KeyboardInterrupt:
         print(f"mvtex {args.command}: interrupted (rerun the same command to resume where supported)", file=sys.stderr)
         return 130
     return 0
+
+
+def _fail(command: str, message: str) -> int:
+    print(f"mvtex {command}: error: {message}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

@@ -89,11 +89,17 @@ def read_rig(path: str | os.PathLike) -> Rig:
             raise InputError(path, f"camera {image.camera_id}: model {model} not supported (use PINHOLE on undistorted images)")
         pose = image.cam_from_world()
         K = np.array([[fx, 0, cx - COLMAP_PIXEL_OFFSET], [0, fy, cy - COLMAP_PIXEL_OFFSET], [0, 0, 1]])
-        cameras.append(Camera(name=Path(image.name).stem, width=cc.width, height=cc.height, K=K,
-                              R=np.asarray(pose.rotation.matrix()), t=np.asarray(pose.translation)))
+        try:  # names, sizes and intrinsics are checked by Camera like a rig YAML's
+            cameras.append(Camera(name=Path(image.name).stem, width=cc.width, height=cc.height, K=K,
+                                  R=np.asarray(pose.rotation.matrix()), t=np.asarray(pose.translation)))
+        except ValueError as err:
+            raise InputError(path, f"image {image.name!r}: {err}") from None
     if not cameras:
         raise InputError(path, "COLMAP model has no images")
-    return Rig(tuple(cameras))
+    try:
+        return Rig(tuple(cameras))
+    except ValueError as err:
+        raise InputError(path, str(err)) from None
 
 
 def point_reconstruction(rig: Rig, observations: dict[str, np.ndarray], points: np.ndarray,

@@ -149,6 +149,8 @@ def validate_mesh(faces: np.ndarray, uv: np.ndarray, source: str | os.PathLike |
         raise InputError(source, f"faces must be integers, got {faces.dtype}")
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise InputError(source, f"uv must have shape (n,2), got {uv.shape}")
+    if uv.dtype.kind != "f":
+        raise InputError(source, f"uv must be floating point, got {uv.dtype}")
     if faces.min() < 0 or faces.max() >= len(uv):
         raise InputError(source, f"face index out of range [0, {len(uv)}): min {faces.min()}, max {faces.max()}")
     if not np.all(np.isfinite(uv)):
@@ -156,6 +158,8 @@ def validate_mesh(faces: np.ndarray, uv: np.ndarray, source: str | os.PathLike |
 
 
 def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = None) -> None:
+    if array.dtype.kind != "f":
+        raise InputError(source, f"positions must be float32, got {array.dtype}")
     if array.ndim != 3 or array.shape[2] != 3:
         raise InputError(source, f"expected shape (K,{n},3), got {array.shape}")
     if array.shape[1] != n:
@@ -187,14 +191,16 @@ def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
     if validate:
         _check_positions(gt, n, path / "gt.npy")
         _check_positions(inferred, n, path / "inferred.npy", gt.shape[0])
-        if rest is not None and (rest.shape != (n, 3) or not np.all(np.isfinite(rest))):
+        if rest is not None and (rest.shape != (n, 3) or rest.dtype.kind != "f" or not np.all(np.isfinite(rest))):
             raise InputError(path / "mesh.npz", f"rest must be finite with shape ({n},3), got {rest.shape}")
+        if poses.dtype.kind != "f":
+            raise InputError(path / "poses.npy", f"pose vectors must be float32, got {poses.dtype}")
         if poses.ndim != 2 or poses.shape[0] != gt.shape[0]:
             raise InputError(path / "poses.npy", f"expected shape ({gt.shape[0]},P), got {poses.shape}")
         if not np.all(np.isfinite(poses)):
             raise InputError(path / "poses.npy", "NaN or infinite values")
         for key, expected in (("num_poses", gt.shape[0]), ("num_vertices", n), ("pose_dim", poses.shape[1])):
-            if key in meta and meta[key] != expected:
+            if key in meta and (type(meta[key]) is not int or meta[key] != expected):
                 raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
     split = _load_split(path, gt.shape[0])
     return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
@@ -211,10 +217,9 @@ def _load_split(path: Path, num_poses: int) -> dict[str, list[int]]:
         raise InputError(file, "needs lists 'train', 'val' and 'test'")
     out = {}
     for key in ("train", "val", "test"):
-        try:
-            values = [int(i) for i in split[key]]
-        except (TypeError, ValueError):
-            raise InputError(file, f"'{key}' must be a list of pose indices") from None
+        values = split[key]
+        if not isinstance(values, list) or not all(type(i) is int for i in values):
+            raise InputError(file, f"'{key}' must be a list of integer pose indices")
         if any(not 0 <= i < num_poses for i in values):
             raise InputError(file, f"'{key}' has a pose index outside [0, {num_poses})")
         out[key] = values
@@ -299,6 +304,8 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     if uv is None or len(uv) != n:
         raise InputError(gt_files[0], "no per-vertex texture coordinates (need OBJ 'vt' or PLY texcoords)")
     uv = np.asarray(uv, dtype=np.float32)
+    if not np.all(np.isfinite(uv)):
+        raise InputError(gt_files[0], "NaN or infinite texture coordinates")
     gt = np.empty((len(gt_files), n, 3), dtype=np.float32)
     inferred = np.empty_like(gt)
     from tqdm import tqdm
@@ -306,6 +313,8 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     for k, (g, i) in enumerate(tqdm(list(zip(gt_files, inf_files)), desc="import", unit="pose", disable=not progress)):
         for file, target in ((g, gt), (i, inferred)):
             mesh = first if file == gt_files[0] else _read_mesh(file)
+            if np.asarray(mesh.vertices).ndim != 2 or np.asarray(mesh.vertices).shape[1] != 3:
+                raise InputError(file, f"vertex positions of shape {np.asarray(mesh.vertices).shape}, expected (n,3)")
             if len(mesh.vertices) != n:
                 raise InputError(file, f"{len(mesh.vertices)} vertices, expected {n} (from {gt_files[0]})")
             if not np.array_equal(np.asarray(mesh.faces), faces):
@@ -324,10 +333,15 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
 def _read_poses(path: Path, k: int) -> np.ndarray:
     if not path.is_file():
         raise InputError(path, "poses file not found")
-    try:
-        poses = np.load(path, allow_pickle=False) if path.suffix == ".npy" else np.loadtxt(path, delimiter="," if path.suffix == ".csv" else None, ndmin=2)
-    except (ValueError, OSError) as err:
-        raise InputError(path, f"cannot read poses ({err})") from None
+    if path.suffix == ".npy":
+        poses = load_npy(path, mmap=False)
+    else:
+        try:
+            poses = np.loadtxt(path, delimiter="," if path.suffix == ".csv" else None, ndmin=2)
+        except (ValueError, OSError, UnicodeDecodeError) as err:
+            raise InputError(path, f"cannot read poses ({err})") from None
+    if poses.dtype.kind not in "fiu" or poses.ndim == 0:
+        raise InputError(path, f"pose vectors must be numbers, got {poses.dtype} of shape {poses.shape}")
     poses = np.asarray(poses, dtype=np.float32).reshape(len(poses), -1)
     if len(poses) != k:
         raise InputError(path, f"{len(poses)} pose rows for {k} meshes")

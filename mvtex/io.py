@@ -1,12 +1,27 @@
-"""Atomic file output: write to a temporary name beside the target, rename when complete."""
+"""Safe file input and output.
+
+Output: everything is written under a temporary name beside its target and renamed when
+complete (`atomic_path`); an older target is renamed aside before the new one is renamed
+in, and deleted only then (`replace_path`). A command's output directory is claimed with
+`claim_output`: a directory mvtex's same command did not write is refused unless
+overwriting is asked for, one run at a time holds it (an advisory lock), and what is
+written there carries a marker file (`MARKER`) naming the command.
+
+Input: `read_json`, `load_npy`, `load_npz` never unpickle, never accept NaN in JSON, and
+turn every malformed or truncated file into an `InputError` naming it.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import hashlib
 import json
 import os
 import shutil
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -15,30 +30,250 @@ import numpy as np
 from .errors import InputError
 
 
+MARKER = ".mvtex-output.json"
+"""File mvtex writes into every output directory it makes: {"command": ..., "mvtex": version}."""
+
+# Output directories claimed by `claim_output` in this thread: resolved path -> command.
+# `replace_path` puts the marker into a directory before renaming it onto a claimed path,
+# so an output never appears without it.
+_CLAIMED: contextvars.ContextVar[dict[str, str]] = contextvars.ContextVar("mvtex_claimed_outputs", default={})
+
+
+def replace_path(source: str | os.PathLike, target: str | os.PathLike) -> None:
+    """Move `source` (a file or directory) onto `target`, never deleting first.
+
+    An existing `target` is renamed aside (to a hidden name in its folder), `source` is
+    renamed in, and only then is the aside copy deleted; if the rename-in fails the aside
+    copy is put back. A kill between the two renames leaves both versions on disk under
+    hidden ``.<name>.*.aside`` names, never neither.
+    """
+    source, target = Path(source), Path(target)
+    command = _CLAIMED.get().get(_key(target))
+    if command is not None and source.is_dir() and not source.is_symlink():
+        _write_marker(source, command)
+    if not (target.exists() or target.is_symlink()):
+        os.replace(source, target)
+        return
+    if target.is_dir() and not target.is_symlink() and not source.is_dir():
+        raise InputError(target, "is a directory; a file cannot replace it")
+    aside_dir = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".aside", dir=target.parent))
+    aside = aside_dir / target.name
+    os.replace(target, aside)
+    try:
+        os.replace(source, target)
+    except BaseException:
+        os.replace(aside, target)
+        shutil.rmtree(aside_dir, ignore_errors=True)
+        raise
+    shutil.rmtree(aside_dir, ignore_errors=True)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path in the target's folder; rename it onto `path` on success.
+    """Yield a temporary path in the target's folder; move it onto `path` on success.
 
     Works for files and directories. On an exception the temporary is removed and `path`
-    is left as it was.
+    is left as it was; on success an older `path` is replaced by `replace_path` (renamed
+    aside, the new one renamed in, then the old one deleted).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    except OSError as err:
+        raise InputError(path, f"cannot write here ({err.strerror or err})") from None
     target = tmp / path.name
     try:
         yield target
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        os.replace(target, path)
+        replace_path(target, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+# -- claimed outputs: refuse what mvtex did not write, one writer at a time ----------------
+
+def _key(path: Path) -> str:
+    return os.path.normcase(os.path.abspath(path))
+
+
+def _write_marker(directory: Path, command: str) -> None:
+    from . import __version__
+
+    text = json.dumps({"command": command, "mvtex": __version__}) + "\n"
+    tmp = directory / (MARKER + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, directory / MARKER)
+
+
+def output_owner(path: str | os.PathLike) -> str | None:
+    """The mvtex command recorded in a directory's marker file, or None."""
+    try:
+        marker = json.loads((Path(path) / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return marker.get("command") if isinstance(marker, dict) and isinstance(marker.get("command"), str) else None
+
+
+def check_output(path: str | os.PathLike, command: str, *, overwrite: bool = False) -> Path:
+    """Refuse an output path whose current content `command` may not replace.
+
+    Allowed: a path that does not exist, an empty directory, a directory whose marker
+    says `command` wrote it, or any directory with `overwrite`. Refused (InputError): an
+    existing file or link, and without `overwrite` a non-empty directory mvtex's
+    `command` did not write.
+    """
+    path = Path(path)
+    if path.is_symlink():  # replacing it would replace the link, not what it points to
+        raise InputError(path, "is a symbolic link; give the real output path")
+    if path.exists() and not path.is_dir():
+        raise InputError(path, "exists and is not a directory; choose another output path")
+    if path.is_dir() and not overwrite:
+        owner = output_owner(path)
+        if owner != command and any(path.iterdir()):
+            what = f"the output of `mvtex {owner}`" if owner else "a directory mvtex did not write"
+            raise InputError(path, f"exists and is {what}; its content would be replaced: choose another "
+                             "output path or pass --overwrite")
+    return path
+
+
+@contextlib.contextmanager
+def claim_output(path: str | os.PathLike, command: str, *, overwrite: bool = False,
+                 in_place: bool = False) -> Iterator[Path]:
+    """Hold an output directory for one run of `command`.
+
+    Checks the path with `check_output`, then takes an advisory lock (`fcntl.flock` on a
+    hidden ``.<name>.lock`` file beside it: a second run on the same output fails at once
+    with "in use by pid N"), and marks what is written there as `command`'s output
+    (``.mvtex-output.json``) so a later run of the same command may replace or resume it.
+
+    Args:
+        path: the output directory.
+        command: the mvtex command writing it ("slide", "synth", ...).
+        overwrite: allow replacing a directory that is not `command`'s output.
+        in_place: the command writes files into the directory (render, demo) instead of
+            renaming a finished directory onto it: create it and mark it now.
+
+    Raises:
+        InputError: a file there, someone else's directory, an unwritable place, or
+            another run holding the lock.
+    """
+    path = check_output(path, command, overwrite=overwrite)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(path, f"cannot create the output folder ({err.strerror or err})") from None
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise InputError(path, f"{path.parent} is not writable")
+    with _locked(path, command):
+        path = check_output(path, command, overwrite=overwrite)  # may have changed while waiting
+        created = False
+        if in_place:
+            try:
+                created = not path.is_dir()
+                path.mkdir(exist_ok=True)
+            except OSError as err:
+                raise InputError(path, f"cannot create ({err.strerror or err})") from None
+            _write_marker(path, command)
+        claims = dict(_CLAIMED.get())
+        claims[_key(path)] = command
+        token = _CLAIMED.set(claims)
+        try:
+            yield path
+        except BaseException:
+            if created and [p.name for p in path.iterdir()] == [MARKER]:  # nothing written: leave no trace
+                (path / MARKER).unlink()
+                path.rmdir()
+            raise
+        finally:
+            _CLAIMED.reset(token)
+
+
+@contextlib.contextmanager
+def _locked(path: Path, command: str) -> Iterator[None]:
+    import fcntl
+
+    lock = path.with_name(f".{path.name}.lock")
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as err:
+            raise InputError(path, f"cannot create the lock file {lock.name} ({err.strerror or err})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                pid = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            finally:
+                os.close(fd)
+            raise InputError(path, f"in use by pid {pid} (another mvtex run writes it; wait for it to finish)") \
+                from None
+        # The holder before us may have deleted the lock file after we opened it: then our
+        # lock is on an orphaned inode and a third run could lock a new file. Retry.
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield
+    finally:
+        try:
+            os.unlink(lock)  # still holding the lock: nobody else can be between open and check
+        except OSError:
+            pass
+        os.close(fd)
+
+
+def fingerprint(*arrays: np.ndarray, block_bytes: int = 1 << 24) -> str:
+    """A content hash (BLAKE2b, 16 hex digits) of arrays' shapes, dtypes and bytes.
+
+    Reads memory-mapped arrays in blocks of `block_bytes`, so a large dataset is hashed
+    without being loaded whole.
+    """
+    h = hashlib.blake2b(digest_size=8)
+    for a in arrays:
+        a = np.asarray(a)
+        h.update(f"{a.shape}{a.dtype.str}".encode())
+        if a.ndim == 0 or a.size == 0:
+            h.update(a.tobytes())
+            continue
+        rows = max(1, block_bytes // max(1, a[0].nbytes))
+        for start in range(0, len(a), rows):
+            h.update(np.ascontiguousarray(a[start:start + rows]).data)
+    return h.hexdigest()
+
+
+def dumps_strict(obj: Any, **kwargs) -> str:
+    """JSON with NaN and infinities turned into null (strict JSON, RFC 8259)."""
+    return json.dumps(_finite(obj), allow_nan=False, **kwargs)
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if np.isfinite(obj) else None
+    if isinstance(obj, np.floating):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    return obj
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:
     """Write JSON atomically, indented, with a trailing newline."""
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+        tmp.write_text(dumps_strict(obj, indent=2) + "\n")
 
 
 def read_json(path: str | os.PathLike) -> Any:
@@ -46,10 +281,15 @@ def read_json(path: str | os.PathLike) -> Any:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file not found")
+    def reject(constant: str):
+        raise ValueError(f"{constant} is not a number JSON allows")
+
     try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        return json.loads(path.read_text(), parse_constant=reject)
+    except (ValueError, UnicodeDecodeError, RecursionError) as err:
         raise InputError(path, f"malformed JSON ({err})") from None
+    except OSError as err:
+        raise InputError(path, f"cannot read ({err.strerror or err})") from None
 
 
 def read_header(directory: str | os.PathLike, filename: str, fmt: str, version: int, what: str) -> dict:
@@ -90,21 +330,59 @@ def load_npy(path: str | os.PathLike, mmap: bool = True) -> np.ndarray:
     if not path.is_file():
         raise InputError(path, "file not found")
     try:
-        return np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as err:
+        array = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
+    except (ValueError, OSError, EOFError, MemoryError) as err:
         raise InputError(path, f"not a readable .npy array ({err})") from None
+    if not isinstance(array, np.ndarray):  # np.load opens a .npz archive too
+        array.close()
+        raise InputError(path, "not a .npy array (an .npz archive?)")
+    return array
 
 
-def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Load every array of a .npz into memory, never unpickling."""
+def load_npz(path: str | os.PathLike, max_bytes: int = 1 << 31) -> dict[str, np.ndarray]:
+    """Load every array of a .npz into memory, never unpickling.
+
+    Each member's declared shape is checked against its stored size before anything is
+    allocated, and the total is capped at `max_bytes`: a corrupt or hostile header raises
+    InputError instead of allocating what it declares.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file not found")
     try:
+        declared = _npz_sizes(path)
+        if sum(declared.values()) > max_bytes:
+            raise InputError(path, f"declares {sum(declared.values())} bytes of arrays (more than {max_bytes})")
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
-    except (ValueError, OSError, EOFError) as err:
-        raise InputError(path, f"not a readable .npz archive ({err})") from None
+    except InputError:
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, MemoryError) as err:
+        raise InputError(path, f"not a readable .npz archive ({type(err).__name__}: {err})") from None
+
+
+def _npz_sizes(path: Path) -> dict[str, int]:
+    """Member name -> declared array bytes, checked against the member's stored size."""
+    from numpy.lib import format as npformat
+
+    sizes = {}
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            with archive.open(info) as member:
+                version = npformat.read_magic(member)
+                if version == (1, 0):
+                    shape, _, dtype = npformat.read_array_header_1_0(member)
+                else:
+                    shape, _, dtype = npformat.read_array_header_2_0(member)
+                header = member.tell() if member.seekable() else None
+            if dtype.hasobject:
+                raise InputError(path, f"{info.filename}: object arrays are not allowed")
+            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if header is not None and nbytes != info.file_size - header:
+                raise InputError(path, f"{info.filename}: declares shape {shape} {dtype} ({nbytes} bytes) but holds "
+                                 f"{info.file_size - header} bytes")
+            sizes[info.filename] = nbytes
+    return sizes
 
 
 def save_png(path: str | os.PathLike, image: np.ndarray) -> None:

@@ -24,12 +24,13 @@ from __future__ import annotations
 
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, Rig
 
 if TYPE_CHECKING:
     from .raster import GLContext, Raster
@@ -292,71 +293,81 @@ def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same
     return out
 
 
-def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
-             heatmaps: str | os.PathLike | None = None, progress: bool = True,
-             ctx: GLContext | None = None) -> dict:
-    """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
+@dataclass(frozen=True)
+class _EvalSpec:
+    """What a worker needs to evaluate images: picklable; opened inputs cached per process."""
 
-    "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
-    (subdivided) inferred mesh with the set's T_N for that camera. Images where the two
-    meshes share no pixel are skipped.
+    dataset: str
+    texcoords: str
+    rig: Rig
+    heatmaps: str | None
 
-    Args:
-        dataset: `Dataset` or dataset directory.
-        rig: `Rig` or rig path / built-in name. A rig whose cameras are all in the set
-            selects those cameras; otherwise it must contain every camera of the set.
-        texcoord_set: `TexcoordSet` or its directory.
-        poses: dataset pose indices (default: the set's poses).
-        heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
-            baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
-            the two meshes show different UV charts) and, when the dataset has `rest`, a
-            second row with the material error in millimetres (red >= 20 mm).
-        progress: progress bar on stderr.
-        ctx: the GL context (one is created, and released, for this call if None).
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.dataset, self.texcoords
 
-    Returns:
-        {"num_images", "sqrt_mse": {"inferred": {"mean", "std"}, "texcoords": {...}},
-         "ratio": inferred mean / texcoords mean, "sqrt_mse_same_chart": {...},
-         "ratio_same_chart", "material_rmse_m": {"inferred": {"mean", "std"}, "texcoords": {...}}
-         (meters; None when the dataset has no `rest`), "ratio_material" (None likewise),
-         "per_camera": {name: same keys}}.
-    """
-    from .camera import as_rig
-    from .dataset import as_dataset
-    from .raster import GLContext
-    from .texcoords import TexcoordSet, open_texcoords
 
-    if ctx is None:
-        with GLContext() as own:
-            return evaluate(dataset, rig, texcoord_set, poses=poses, heatmaps=heatmaps, progress=progress, ctx=own)
-    from tqdm import tqdm
+@dataclass
+class _EvalState:
+    """A process's opened inputs and GL context for one `_EvalSpec`."""
 
-    from .io import save_png
-    from .viz import colorbar, heatmap, side_by_side
+    key: tuple[str, str]
+    dataset: Any
+    texcoord_set: Any
+    charts: np.ndarray
+    charts_tc: np.ndarray
+    ctx: Any
+    material_map: MaterialMap | None
+    owns_ctx: bool
 
-    ds = as_dataset(dataset)
-    tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
-    if tc.num_base_vertices != ds.num_vertices:
-        from .errors import InputError
+    def release(self) -> None:
+        if self.owns_ctx:
+            self.ctx.release()
 
-        raise InputError(tc.path / "mesh.npz", f"made for {tc.num_base_vertices} vertices, the dataset has {ds.num_vertices}")
-    rig, rig_source = as_rig(rig)
-    if not set(rig.names) <= set(tc.cameras):
-        rig = rig.select(tc.cameras, source=rig_source)
-    poses = tc.poses if poses is None else [int(p) for p in poses]
-    for p in poses:
-        tc.row(p)  # InputError for a pose the set does not have
-    out_dir = Path(heatmaps) if heatmaps is not None else None
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
+
+_EVAL_STATE: list = []  # this process's one _EvalState (workers evaluate one set at a time)
+
+
+def _set_eval_state(state: _EvalState | None) -> None:
+    while _EVAL_STATE:
+        _EVAL_STATE.pop().release()
+    if state is not None:
+        _EVAL_STATE.append(state)
+
+
+def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool, key: tuple[str, str]) -> _EvalState:
     from .mesh import charts_through_parent, uv_charts
 
     charts = uv_charts(ds.faces, ds.num_vertices)
-    charts_tc = charts_through_parent(charts, tc.faces, len(tc.uv))
     material_map = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=ctx) if ds.rest is not None else None
-    per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], [], [], []) for c in rig}
-    jobs = [(k, cam) for k in poses for cam in rig]
-    for k, cam in tqdm(jobs, desc="eval", unit="image", disable=not progress, file=sys.stderr):
+    return _EvalState(key, ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)), ctx, material_map,
+                      owns_ctx)
+
+
+def _eval_state(spec: _EvalSpec) -> _EvalState:
+    if not _EVAL_STATE or _EVAL_STATE[0].key != spec.key:
+        from .dataset import load_dataset
+        from .raster import GLContext
+        from .texcoords import open_texcoords
+
+        ds = load_dataset(spec.dataset, validate=False)
+        tc = open_texcoords(spec.texcoords, ds.num_vertices)
+        _set_eval_state(_open_eval_state(ds, tc, GLContext(), True, spec.key))
+    return _EVAL_STATE[0]
+
+
+def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:
+    """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b,
+    same_t, material_b, material_t) each (NaN material without a rest shape)."""
+    from .io import save_png
+    from .viz import colorbar, heatmap, side_by_side
+
+    state = _eval_state(spec)
+    ds, tc, ctx, material_map = state.dataset, state.texcoord_set, state.ctx, state.material_map
+    charts, charts_tc = state.charts, state.charts_tc
+    out = []
+    for index, k, name in jobs:
+        cam = spec.rig[name]
         gt = np.asarray(ds.gt[k], np.float64)
         inferred = np.asarray(ds.inferred[k], np.float64)
         uv_g, raster_g = texcoord_image(ctx, gt, ds.faces, ds.uv, cam)
@@ -375,9 +386,8 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
             mat_err_b, m_b = _material_error(_material_points(raster_b, ds.faces, ds.rest), raster_b.mask, m_g,
                                              raster_g.mask)
             mat_err_t, m_t = _material_error(material_map(uv_t[raster_t.mask]), raster_t.mask, m_g, raster_g.mask)
-        for values, value in zip(per_cam[cam.name], (s_b, s_t, same_b, same_t, m_b, m_t)):
-            values.append(value)
-        if out_dir is not None:
+        out.append((index, s_b, s_t, same_b, same_t, m_b, m_t))
+        if spec.heatmaps is not None:
             panels = []
             for err, chart, total, same in ((err_b, chart_b, s_b, same_b), (err_t, chart_t, s_t, same_t)):
                 image = heatmap(err, HEATMAP_MAX)
@@ -392,8 +402,94 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
                                    [f"inferred material {m_b * 1e3:.2f} mm", f"{tc.source} material {m_t * 1e3:.2f} mm",
                                     ""])
                 picture = np.concatenate([picture, np.full((4, picture.shape[1], 3), 255, np.uint8), row])
-            save_png(out_dir / f"pose_{k:05d}_{cam.name}.png", picture)
-    has_rest = material_map is not None
+            save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", picture)
+    return out
+
+
+def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
+             heatmaps: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
+             scheduler: str | None = None, ctx: GLContext | None = None) -> dict:
+    """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
+
+    "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
+    (subdivided) inferred mesh with the set's T_N for that camera. Images where the two
+    meshes share no pixel are skipped.
+
+    Args:
+        dataset: `Dataset` or dataset directory.
+        rig: `Rig` or rig path / built-in name. A rig whose cameras are all in the set
+            selects those cameras; otherwise it must contain every camera of the set.
+        texcoord_set: `TexcoordSet` or its directory.
+        poses: dataset pose indices (default: the set's poses).
+        heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
+            baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
+            the two meshes show different UV charts) and, when the dataset has `rest`, a
+            second row with the material error in millimetres (red >= 20 mm).
+        progress: progress bar on stderr.
+        workers: local processes (1: this process), see `mvtex.parallel.map_unordered`.
+        scheduler: Dask scheduler address (overrides `workers`); its workers must read the
+            same dataset and texcoord paths.
+        ctx: the GL context for work in this process (one is created, and released, for this
+            call if None); worker processes create their own.
+        The result does not depend on `workers` or `scheduler`: images are gathered back
+        into (pose, camera) order before any statistic is taken.
+
+    Returns:
+        {"num_images", "sqrt_mse": {"inferred": {"mean", "std"}, "texcoords": {...}},
+         "ratio": inferred mean / texcoords mean, "sqrt_mse_same_chart": {...},
+         "ratio_same_chart", "material_rmse_m": {"inferred": {"mean", "std"}, "texcoords": {...}}
+         (meters; None when the dataset has no `rest`), "ratio_material" (None likewise),
+         "per_camera": {name: same keys}}.
+    """
+    from tqdm import tqdm
+
+    from .camera import as_rig
+    from .dataset import as_dataset
+    from .parallel import map_unordered
+    from .raster import GLContext
+    from .texcoords import TexcoordSet, open_texcoords
+
+    ds = as_dataset(dataset)
+    tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
+    if tc.num_base_vertices != ds.num_vertices:
+        from .errors import InputError
+
+        raise InputError(tc.path / "mesh.npz", f"made for {tc.num_base_vertices} vertices, the dataset has {ds.num_vertices}")
+    rig, rig_source = as_rig(rig)
+    if not set(rig.names) <= set(tc.cameras):
+        rig = rig.select(tc.cameras, source=rig_source)
+    poses = tc.poses if poses is None else [int(p) for p in poses]
+    for p in poses:
+        tc.row(p)  # InputError for a pose the set does not have
+    for name in rig.names:
+        tc.displacement(name, poses[0])  # validates the camera's arrays once, here
+    out_dir = Path(heatmaps) if heatmaps is not None else None
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    spec = _EvalSpec(dataset=str(Path(ds.path).resolve()), texcoords=str(Path(tc.path).resolve()), rig=rig,
+                     heatmaps=None if out_dir is None else str(out_dir.resolve()))
+    local = workers <= 1 and not scheduler
+    if local:  # this process: reuse what is open
+        own = GLContext() if ctx is None else None
+        _set_eval_state(_open_eval_state(ds, tc, own or ctx, own is not None, spec.key))
+    jobs = [(i, k, name) for i, (k, name) in enumerate((k, c.name) for k in poses for c in rig)]
+    chunk = max(1, min(8, len(jobs) // (4 * max(1, workers))))
+    tasks = [(spec, jobs[i:i + chunk]) for i in range(0, len(jobs), chunk)]
+    values: list = [None] * len(jobs)
+    try:
+        with tqdm(total=len(jobs), desc="eval", unit="image", disable=not progress, file=sys.stderr) as bar:
+            for results in map_unordered(_eval_images, tasks, workers=workers, scheduler=scheduler):
+                for index, *image in results:
+                    values[index] = image
+                bar.update(len(results))
+    finally:
+        if local:
+            _set_eval_state(None)
+    has_rest = ds.rest is not None
+    per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], [], [], []) for c in rig}
+    for (_, _, name), image in zip(jobs, values):
+        for column, value in zip(per_cam[name], image):
+            column.append(value)
     result = _summary(*([v for c in per_cam.values() for v in c[i]] if i < 4 or has_rest else None for i in range(6)))
     result["per_camera"] = {name: _summary(*lists[:4], *(lists[4:] if has_rest else (None, None)))
                             for name, lists in per_cam.items()}

@@ -3,7 +3,8 @@
 Every backend calls the same module-level function with the same picklable arguments and
 yields results as they complete (unordered), with a bounded number of tasks in flight so
 results stream instead of piling up. Worker processes are started with "spawn": each
-one creates its own OpenGL context (a context never survives a fork).
+one creates its own OpenGL context (a context never survives a fork), and each dies with
+the process that started it (even when that one is killed with SIGKILL).
 
     for result in map_unordered(fn, tasks, workers=2):
         ...
@@ -44,7 +45,12 @@ def _processes(fn, tasks: list, workers: int, max_in_flight: int) -> Iterator[An
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+    import os
+    import threading
+
+    parent_death_signal = threading.current_thread() is threading.main_thread()
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_die_with_parent,
+                             initargs=(os.getpid(), parent_death_signal)) as pool:
         pending: set = set()
         it = iter(tasks)
         try:
@@ -63,6 +69,41 @@ def _processes(fn, tasks: list, workers: int, max_in_flight: int) -> Iterator[An
                 fut.cancel()
 
 
+def _die_with_parent(parent_pid: int, parent_death_signal: bool) -> None:
+    """Worker initializer: end this worker when the process that started it dies.
+
+    A killed parent (SIGKILL, OOM killer) runs no cleanup, and its pool's workers would
+    live on as orphans. On Linux the kernel sends SIGKILL on the parent's death
+    (`prctl(PR_SET_PDEATHSIG)`; only when the pool was started from the parent's main
+    thread, since the signal follows the *thread* that started the worker). Everywhere, a
+    daemon thread also checks twice a second that the parent is still this process's
+    parent and exits if not.
+    """
+    import os
+    import signal
+    import sys
+    import threading
+    import time
+
+    if parent_death_signal and sys.platform.startswith("linux"):
+        import ctypes
+
+        PR_SET_PDEATHSIG = 1
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # died before the signal was armed
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="mvtex-parent-watch", daemon=True).start()
+
+
 def _dask(fn, tasks: list, address: str, max_in_flight: int | None) -> Iterator[Any]:
     try:
         from dask.distributed import Client, as_completed
@@ -72,17 +113,21 @@ def _dask(fn, tasks: list, address: str, max_in_flight: int | None) -> Iterator[
     with Client(address) as client:
         limit = max_in_flight or 4 * max(1, sum(client.nthreads().values()))
         it = iter(tasks)
-        first = [client.submit(fn, *task, pure=False) for task, _ in zip(it, range(limit))]
-        queue = as_completed(first)
+        # range first: zip would take (and drop) one task more from `it` when range runs out
+        pending = {client.submit(fn, *task, pure=False) for _, task in zip(range(limit), it)}
+        queue = as_completed(list(pending))
         try:
             for fut in queue:
                 result = fut.result()
+                pending.discard(fut)
                 fut.release()
                 for task in _take(it, 1):
-                    queue.add(client.submit(fn, *task, pure=False))
+                    new = client.submit(fn, *task, pure=False)
+                    pending.add(new)
+                    queue.add(new)
                 yield result
         finally:
-            for fut in first:
+            for fut in pending:
                 fut.cancel()
 
 

@@ -121,7 +121,7 @@ class GLContext:
                                                  depth_attachment=ctx.depth_renderbuffer(size))
             if len(self._targets) > 8:
                 _, old = self._targets.popitem(last=False)
-                _release_framebuffer(old)
+                _release_framebuffer(ctx, old)
         self._targets.move_to_end(key)
         return self._targets[key]
 
@@ -141,7 +141,11 @@ def context_or_new(ctx: GLContext | None) -> Iterator[GLContext]:
         yield own
 
 
-def _release_framebuffer(fbo) -> None:
+def _release_framebuffer(mgl, fbo) -> None:
+    # moderngl rebinds its last used framebuffer when it creates the next one: binding a
+    # released one is GL_INVALID_OPERATION. Leave the default framebuffer bound instead.
+    if mgl.fbo is fbo:
+        mgl.detect_framebuffer(0).use()
     for attachment in list(fbo.color_attachments) + [fbo.depth_attachment]:
         if attachment is not None:
             attachment.release()

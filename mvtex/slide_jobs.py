@@ -14,7 +14,6 @@ import json
 import os
 import shutil
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -29,7 +28,6 @@ if TYPE_CHECKING:
     from .dataset import Dataset
     from .raster import GLContext
 
-_FLUSH_SECONDS = 5.0
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
 _AUTO_WORKERS = 8  # workers=None: one process per core, up to this many
 _AUTO_MIN_JOBS = 256  # workers=None: fewer jobs left than this run in this process (start-up ≈ 1-2 s a worker)
@@ -127,11 +125,12 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     """Texture-slide every (pose, camera) of a dataset into a texcoord set (DESIGN §4).
 
     Results stream into memory-mapped .npy files in ``<out>.partial/``; a per-camera done
-    mask (``done.npy``) is saved after the data is flushed, every few seconds and on any
-    exception, so an interrupted run continues where it stopped when called again with the
-    same arguments. Called with different options, poses, cameras, rig, dataset or
+    mask (``done.npy``) is saved after the data of every chunk is flushed, so an
+    interrupted run continues where it stopped when called again with the same arguments.
+    Called with different options, poses, cameras, rig, dataset (path or content) or
     reference shape, it discards the partial result (saying so on stderr) and starts over.
-    When every job is done the directory is renamed to `out` (replacing an older `out`).
+    When every job is done the directory is renamed to `out` (an older `out` is renamed
+    aside first and deleted after).
 
     texcoords.json records "reference": which shape (`dataset.reference_shape`) the
     topology, seam groups, fill Laplacian and edge breaking were measured on, and its
@@ -160,7 +159,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     from .camera import as_rig
     from .dataset import as_dataset, reference_shape, reference_shape_source
-    from .io import load_npy, read_json, save_npy
+    from .io import fingerprint as content_fingerprint
+    from .io import load_npy, read_json, replace_path, save_npy
     from .texcoords import write_header
 
     ds = as_dataset(dataset)
@@ -175,7 +175,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     record = {
         "options": options.to_json(),
         "dataset": {"path": str(Path(ds.path).resolve()), "name": ds.name, "num_poses": ds.num_poses,
-                    "num_vertices": ds.num_vertices, "mesh": _fingerprint(ds.faces, ds.uv)},
+                    "num_vertices": ds.num_vertices, "mesh": _fingerprint(ds.faces, ds.uv),
+                    # Content, not only the path: arrays replaced in place must not be mixed.
+                    "content": content_fingerprint(ds.gt, ds.inferred, ds.poses)},
         "reference": {"shape": reference_shape_source(ds), "fingerprint": _fingerprint(reference)},
         "rig": _rig_record(rig),
     }
@@ -184,6 +186,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             old = read_json(partial / "texcoords.json")
         except InputError:
             old = None
+        if not (isinstance(old, dict) and old.get("format") == "mvtex-texcoords"):
+            raise InputError(partial, "exists and is not an unfinished mvtex slide; move it away and rerun")
         same = isinstance(old, dict) and all(old.get(k) == v for k, v in record.items()) and \
             old.get("poses") == poses and old.get("cameras") == rig.names and old.get("subdiv") == options.subdiv
         if not same:
@@ -204,7 +208,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     disp = {c: open_memmap(partial / c / "displacement.npy", mode="r+") for c in rig.names}
     asg = {c: open_memmap(partial / c / "assigned.npy", mode="r+") for c in rig.names}
-    done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool) for c in rig.names}
+    # A missing done mask (a run stopped while finishing) means: redo that camera.
+    done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool)
+            if (partial / c / "done.npy").is_file() else np.zeros(len(poses), bool) for c in rig.names}
     for c in rig.names:
         if disp[c].shape != (len(poses), n_sub, 2) or asg[c].shape != (len(poses), n_sub) or done[c].shape != (len(poses),):
             raise InputError(partial / c, "unfinished result has unexpected array shapes; delete it and rerun")
@@ -232,7 +238,6 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         _set_state(_WorkerState(spec.key, ds, topo, ctx, owns_ctx=False))
     total = len(poses) * len(rig)
     dirty: set = set()
-    last = time.monotonic()
 
     def flush() -> None:
         for c in dirty:
@@ -253,9 +258,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             done[cam][rows] = True
             dirty.add(cam)
             bar.update(len(rows))
-            if time.monotonic() - last > _FLUSH_SECONDS:
-                flush()
-                last = time.monotonic()
+            flush()  # after every chunk: an interrupted run loses at most the chunks in flight
     finally:
         flush()
         bar.close()
@@ -263,9 +266,13 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         if own_ctx is not None:
             own_ctx.release()
     del disp, asg
+    missing = [c for c in rig.names if not done[c].all()]
+    if missing:  # a backend that lost tasks: never rename an incomplete set into place
+        raise RuntimeError(f"{partial}: {int((~done[missing[0]]).sum())} poses of camera {missing[0]!r} were not "
+                           "computed; rerun to finish them")
+    # Rename the finished set in (an older `out` aside first), then drop the done masks:
+    # a stop in between leaves either a resumable partial or a complete set.
+    replace_path(partial, out)
     for c in rig.names:
-        (partial / c / "done.npy").unlink()
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(partial, out)
+        (out / c / "done.npy").unlink(missing_ok=True)
     return out

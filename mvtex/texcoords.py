@@ -25,6 +25,9 @@ from .mesh import apply_extension, extension_matrix
 
 FORMAT = "mvtex-texcoords"
 VERSION = 1
+MAX_SUBDIV = 3
+MAX_DISPLACEMENT = 1.0
+"""Largest |d| accepted in a set (uv units: the whole atlas is 1 wide); larger is corrupt."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,9 @@ class TexcoordSet:
                 raise InputError(self.path / camera / "displacement.npy", f"shape {d.shape}, expected {shape + (2,)}")
             if a.shape != shape or a.dtype != np.bool_:
                 raise InputError(self.path / camera / "assigned.npy", f"shape {a.shape} {a.dtype}, expected {shape} bool")
+            if d.dtype.kind != "f":
+                raise InputError(self.path / camera / "displacement.npy", f"dtype {d.dtype}, expected float32")
+            _check_displacements(d, self.path / camera / "displacement.npy")
             self._cache[camera] = (d, a)
         return self._cache[camera]
 
@@ -104,21 +110,88 @@ class TexcoordSet:
         return apply_extension(self._cache[("extension",)], positions)
 
 
-def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None) -> TexcoordSet:
-    """Open a texcoord set directory; `num_vertices` checks it against a dataset's mesh."""
+def _check_displacements(d: np.ndarray, source: Path) -> None:
+    """Every value finite and |d| <= MAX_DISPLACEMENT, read in blocks (d may be memory-mapped)."""
+    rows = max(1, (1 << 24) // max(1, d[0].nbytes)) if len(d) else 1
+    for start in range(0, len(d), rows):
+        block = np.asarray(d[start:start + rows], dtype=np.float64)
+        finite = np.isfinite(block).all(axis=(1, 2))
+        if not finite.all():
+            raise InputError(source, f"NaN or infinite displacement (row {start + int(np.argmin(finite))})")
+        norm = np.sqrt((block ** 2).sum(axis=2)).max(axis=1)
+        if np.any(norm > MAX_DISPLACEMENT):
+            row = int(np.argmax(norm > MAX_DISPLACEMENT))
+            raise InputError(source, f"displacement of length {norm[row]:.4g} uv units at row {start + row} "
+                             f"(more than {MAX_DISPLACEMENT}: not a texcoord perturbation)")
+
+
+def _int_list(meta: dict, key: str, source: Path) -> list:
+    values = meta.get(key)
+    if not isinstance(values, list):
+        raise InputError(source, f"missing list '{key}'")
+    return values
+
+
+def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
+                   num_poses: int | None = None) -> TexcoordSet:
+    """Open a texcoord set directory and validate its header and mesh.
+
+    Args:
+        path: the directory.
+        num_vertices: the dataset's vertex count, checked against the set's base mesh.
+        num_poses: the dataset's pose count: every pose of the set must be below it.
+
+    Per-camera arrays are validated (shape, dtype, finite, |d| <= MAX_DISPLACEMENT) when
+    first read.
+    """
+    from .camera import check_camera_name
+    from .dataset import validate_mesh
+
     path = Path(path)
+    header = path / "texcoords.json"
     meta = read_header(path, "texcoords.json", FORMAT, VERSION, "a texcoord set")
-    for key in ("poses", "cameras"):
-        if not isinstance(meta.get(key), list):
-            raise InputError(path / "texcoords.json", f"missing list '{key}'")
-    mesh = load_npz(path / "mesh.npz")
+    poses = _int_list(meta, "poses", header)
+    if not poses:
+        raise InputError(header, "'poses' is empty")
+    if not all(isinstance(p, int) and not isinstance(p, bool) for p in poses):
+        raise InputError(header, "'poses' must be a list of integer pose indices")
+    bad = [p for p in poses if p < 0 or (num_poses is not None and p >= num_poses)]
+    if bad:
+        limit = f"[0, {num_poses})" if num_poses is not None else "non-negative"
+        raise InputError(header, f"pose index {bad[0]} out of range ({limit})")
+    if len(set(poses)) != len(poses):
+        raise InputError(header, "'poses' lists a pose twice")
+    cameras = _int_list(meta, "cameras", header)
+    if not cameras:
+        raise InputError(header, "'cameras' is empty")
+    try:
+        for name in cameras:
+            check_camera_name(name)
+    except ValueError as err:
+        raise InputError(header, str(err)) from None
+    if len({c.lower() for c in cameras}) != len(cameras):
+        raise InputError(header, "'cameras' names a camera twice")
+    subdiv = meta.get("subdiv", 0)
+    if not isinstance(subdiv, int) or isinstance(subdiv, bool) or not 0 <= subdiv <= MAX_SUBDIV:
+        raise InputError(header, f"'subdiv' must be an integer in 0..{MAX_SUBDIV}, got {subdiv!r}")
+    mesh_file = path / "mesh.npz"
+    mesh = load_npz(mesh_file)
     for key in ("faces", "uv", "parent"):
         if key not in mesh:
-            raise InputError(path / "mesh.npz", f"missing array '{key}'")
+            raise InputError(mesh_file, f"missing array '{key}'")
+    validate_mesh(mesh["faces"], mesh["uv"], mesh_file)
+    parent = mesh["parent"]
+    if parent.shape != (len(mesh["uv"]), 2) or not np.issubdtype(parent.dtype, np.integer):
+        raise InputError(mesh_file, f"parent must be integers with shape ({len(mesh['uv'])},2), got "
+                         f"{parent.shape} {parent.dtype}")
+    index = np.arange(len(parent))
+    base = (parent[:, 0] == index) & (parent[:, 1] == index)
+    if len(parent) and (parent.min() < 0 or not np.all(base | (parent.max(axis=1) < index))):
+        raise InputError(mesh_file, "parent names a vertex that does not precede it")
     tc = TexcoordSet(path=path, meta=meta, faces=mesh["faces"].astype(np.int32), uv=mesh["uv"].astype(np.float32),
-                     parent=mesh["parent"].astype(np.int32))
+                     parent=parent.astype(np.int32))
     if num_vertices is not None and tc.num_base_vertices != num_vertices:
-        raise InputError(path / "mesh.npz", f"made for a mesh of {tc.num_base_vertices} vertices, "
+        raise InputError(mesh_file, f"made for a mesh of {tc.num_base_vertices} vertices, "
                          f"the dataset has {num_vertices}")
     return tc
 

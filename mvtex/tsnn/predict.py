@@ -14,10 +14,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..camera import check_camera_name
 from ..errors import InputError
 from ..io import read_json
 from ..texcoords import save_texcoords
-from .train import MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint, rebuild_mesh
+from .train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH, MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint, rebuild_mesh
 
 
 @dataclass
@@ -69,26 +70,38 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     if meta.get("version") != MODEL_VERSION:
         raise InputError(file, f"unsupported version {meta.get('version')!r} (expected {MODEL_VERSION})")
     camera = _require(meta, file, "camera", str)
+    try:
+        check_camera_name(camera)
+    except ValueError as err:
+        raise InputError(file, str(err)) from None
     arch = _require(meta, file, "architecture", dict)
     mesh = _require(meta, file, "mesh", dict)
     for key in ("subdiv", "num_base_vertices", "num_vertices"):
         if not isinstance(mesh.get(key), int) or isinstance(mesh.get(key), bool) or mesh[key] < 0:
             raise InputError(file, f"missing or malformed 'mesh.{key}'")
+    # Checked before anything is built from it: each level multiplies the mesh by four.
+    if mesh["subdiv"] > MAX_SUBDIV:
+        raise InputError(file, f"mesh.subdiv is {mesh['subdiv']}, at most {MAX_SUBDIV} is supported")
     if not isinstance(mesh.get("base_mesh_sha256"), str):
         raise InputError(file, "missing or malformed 'mesh.base_mesh_sha256'")
     try:
         config = ModelConfig.from_dict(arch)
-    except (TypeError, ValueError) as err:
+    except (TypeError, ValueError, OverflowError) as err:
         raise InputError(file, f"bad 'architecture' ({err})") from None
+    if config.resolution > MAX_RESOLUTION or config.width > MAX_WIDTH or config.min_width > MAX_WIDTH:
+        raise InputError(file, f"architecture too large (resolution {config.resolution}, width {config.width}; "
+                         f"at most {MAX_RESOLUTION} and {MAX_WIDTH})")
     weights = path / "model.safetensors"
     if not weights.is_file():
         raise InputError(weights, "file not found")
     try:
         state = load_file(str(weights), device="cpu")
-    except (SafetensorError, OSError, ValueError) as err:
+    except (SafetensorError, OSError, ValueError, MemoryError) as err:
         raise InputError(weights, f"not a readable safetensors file ({err})") from None
-    network = TSNN(config)
-    expected = network.state_dict()
+    # The architecture is built on the "meta" device (no memory) and compared with the
+    # weights file first, so config.json cannot make us allocate more than the file holds.
+    with torch.device("meta"):
+        expected = TSNN(config).state_dict()
     missing = sorted(set(expected) - set(state))
     unexpected = sorted(set(state) - set(expected))
     if missing or unexpected:
@@ -100,6 +113,7 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
                          f"config.json needs {tuple(expected[bad[0]].shape)}")
     if not all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point()):
         raise InputError(weights, "NaN or infinite weights")
+    network = TSNN(config)
     network.load_state_dict(state)
     network.eval()
     return LoadedModel(path=path, camera=camera, meta=meta, network=network)

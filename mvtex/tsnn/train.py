@@ -35,6 +35,10 @@ MODEL_FORMAT = "mvtex-tsnn"
 MODEL_VERSION = 1
 
 
+MAX_RESOLUTION = 2048  # atlas image size: 2·R² floats per pose and per batch item
+MAX_WIDTH = 1024  # channels of the first stage
+MAX_SUBDIV = 3
+
 @dataclass(frozen=True)
 class TrainOptions:
     """Options of `train_camera`.
@@ -98,6 +102,11 @@ class TrainOptions:
                        deterministic=(not gpu) if self.deterministic is None else self.deterministic)
 
     def validate(self) -> None:
+        if self.resolution is not None and (not 8 <= self.resolution <= MAX_RESOLUTION
+                                            or self.resolution & (self.resolution - 1)):
+            raise ValueError(f"resolution must be a power of two in 8..{MAX_RESOLUTION}, got {self.resolution}")
+        if self.width is not None and not 1 <= self.width <= MAX_WIDTH:
+            raise ValueError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -139,6 +148,10 @@ def _split(dataset, texcoords) -> dict[str, list[int]]:
     if not split["train"]:
         raise InputError(texcoords.path / "texcoords.json", "holds none of the dataset's training poses "
                          f"({len(dataset.split['train'])} in the split of {dataset.path})")
+    if not split["val"]:  # early stopping and the choice of the best epoch need it
+        raise InputError(texcoords.path / "texcoords.json", "holds none of the dataset's validation poses "
+                         f"({len(dataset.split['val'])} in the split of {dataset.path}); slide them too, or "
+                         "give the dataset a split.json with a non-empty 'val'")
     return split
 
 
@@ -235,8 +248,11 @@ def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, option
     import torch
 
     out = Path(out)
-    options = options.resolved()
-    options.validate()
+    try:
+        options = options.resolved()
+        options.validate()
+    except ValueError as err:
+        raise InputError(None, f"training options: {err}") from None
     if camera not in texcoords.cameras:
         raise InputError(texcoords.path, f"no camera {camera!r} in this texcoord set (it has {', '.join(texcoords.cameras)})")
     faces, uv, _ = _check_texcoord_mesh(dataset, texcoords)

@@ -1,0 +1,254 @@
+"""Every loader fuzzed through the command line: damaged dataset files, rig YAML, texcoord
+sets, OBJ/PLY imports, model directories and option values. Whatever the damage, `main`
+returns 0 (the damage was harmless) or 2 with one line naming the file or option; it never
+raises, never leaves temporaries or half-written outputs, and writes nothing outside --out."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from mvtex.camera import save_rig
+from mvtex.cli import main
+
+FUZZ = settings(max_examples=25, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+# Damage to a file's bytes: cut it, flip one bit, empty it, or append garbage.
+damage = st.one_of(
+    st.tuples(st.just("truncate"), st.floats(0, 1)),
+    st.tuples(st.just("flip"), st.floats(0, 1), st.integers(0, 7)),
+    st.tuples(st.just("empty")),
+    st.tuples(st.just("append"), st.binary(min_size=1, max_size=64)),
+)
+
+hostile_text = st.sampled_from(["../../x", "/etc/x", "a/b", ".", "..", "mesh.npz", "", " ", "a" * 100, "\x00",
+                                "NaN", "-1", "1e400", "abc", "[1, 2]", "{}", "null", "true"])
+
+number_text = st.one_of(
+    st.integers(-10**12, 10**12).map(str),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.sampled_from(["nan", "inf", "-inf", "1e400", "0", "-0", "0x10", "", "abc", "1,2", " 3 "]),
+)
+
+
+def damage_file(path: Path, how: tuple) -> None:
+    data = path.read_bytes()
+    if how[0] == "truncate":
+        data = data[: int(how[1] * len(data))]
+    elif how[0] == "flip" and data:
+        i = min(len(data) - 1, int(how[1] * len(data)))
+        data = data[:i] + bytes([data[i] ^ (1 << how[2])]) + data[i + 1:]
+    elif how[0] == "empty":
+        data = b""
+    elif how[0] == "append":
+        data = data + how[1]
+    path.write_bytes(data)
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def check(argv: list, root: Path, out: Path | None, inputs: dict[str, bytes]) -> int:
+    """Run main(argv) in the sandbox `root`; assert the guarantees; return the exit code."""
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main([str(a) for a in argv])  # an exception here is a traceback for the user
+    err = err.getvalue()
+    assert code in (0, 2), err
+    if code == 2:
+        lines = [line for line in err.strip().splitlines() if line.startswith("mvtex ")]
+        assert len(lines) == 1 and "Traceback" not in err, err
+        assert out is None or not out.exists() or not any(out.iterdir()), "half-written output"
+    after = snapshot(root)
+    # Inputs untouched; everything new lies under --out; no temporaries, aside copies or locks.
+    for name, data in inputs.items():
+        assert after.get(name) == data, f"{name} changed"
+    new = [name for name in after if name not in inputs]
+    prefix = None if out is None else str(out.relative_to(root))
+    assert all(prefix is not None and (name == prefix or name.startswith(prefix + "/")) for name in new), new
+    hidden = [p.name for p in root.iterdir() if p.name.startswith(".")]
+    assert not hidden and not list(root.glob("*.partial")), hidden
+    return code
+
+
+@contextlib.contextmanager
+def sandbox(*sources: Path):
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        for src in sources:
+            if src.is_dir():
+                shutil.copytree(src, root / src.name)
+            else:
+                shutil.copy(src, root / src.name)
+        yield root
+
+
+@pytest.fixture(scope="module")
+def rig_yaml(tmp_path_factory, front_rig):
+    path = tmp_path_factory.mktemp("rig") / "rig.yaml"
+    save_rig(front_rig, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def texcoord_set(tmp_path_factory, tiny_dataset, rig_yaml, gl):
+    out = tmp_path_factory.mktemp("tcset") / "tc"
+    assert main(["slide", str(tiny_dataset), "--rig", str(rig_yaml), "--out", str(out), "--poses", "0:2",
+                 "--subdiv", "0", "--quiet"]) == 0
+    return out
+
+
+@pytest.mark.gl
+@FUZZ
+@given(name=st.sampled_from(["mesh.npz", "gt.npy", "inferred.npy", "poses.npy", "dataset.json", "split.json"]),
+       how=damage)
+def test_damaged_dataset_files(tiny_dataset, rig_yaml, gl, name, how):
+    with sandbox(tiny_dataset, rig_yaml) as root:
+        damage_file(root / "sheet" / name, how)
+        inputs = snapshot(root)
+        check(["render", root / "sheet", "--rig", root / "rig.yaml", "--pose", 1, "--cameras", "a",
+               "--out", root / "out", "--quiet"], root, root / "out", inputs)
+
+
+@pytest.mark.gl
+@FUZZ
+@given(field=st.sampled_from(["name", "width", "height", "format", "version"]), value=st.one_of(hostile_text, number_text),
+       cut=st.one_of(st.none(), st.floats(0, 1)))
+def test_damaged_rig_yaml(tiny_dataset, rig_yaml, gl, field, value, cut):
+    with sandbox(tiny_dataset, rig_yaml) as root:
+        lines = (root / "rig.yaml").read_text().splitlines()
+        i = next(i for i, line in enumerate(lines) if line.strip().startswith(f"{field}:"))
+        lines[i] = lines[i].split(":")[0] + ": " + json.dumps(value)
+        text = "\n".join(lines) + "\n"
+        if cut is not None:
+            text = text[: int(cut * len(text))]
+        (root / "rig.yaml").write_text(text)
+        inputs = snapshot(root)
+        check(["render", root / "sheet", "--rig", root / "rig.yaml", "--pose", 1, "--out", root / "out", "--quiet"],
+              root, root / "out", inputs)
+
+
+json_value = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-10**20, 10**20),
+                                    st.floats(allow_nan=False), hostile_text),
+                          lambda inner: st.lists(inner, max_size=3), max_leaves=6)
+
+
+@pytest.mark.gl
+@FUZZ
+@given(key=st.sampled_from(["poses", "cameras", "subdiv", "format", "version"]), value=json_value,
+       array=st.sampled_from([None, "nan", "inf", "huge", "float64", "int32", "shape", "truncate"]))
+def test_damaged_texcoord_sets(tiny_dataset, rig_yaml, texcoord_set, gl, key, value, array):
+    with sandbox(tiny_dataset, rig_yaml, texcoord_set) as root:
+        tc = root / "tc"
+        meta = json.loads((tc / "texcoords.json").read_text())
+        meta[key] = value
+        (tc / "texcoords.json").write_text(json.dumps(meta))
+        file = tc / "a" / "displacement.npy"
+        d = np.load(file)
+        if array == "truncate":
+            damage_file(file, ("truncate", 0.5))
+        elif array is not None:
+            d = {"nan": lambda: np.where(d == d.max(), np.nan, d), "inf": lambda: np.where(d == d.max(), np.inf, d),
+                 "huge": lambda: d * 1e30, "float64": lambda: d.astype(np.float64),
+                 "int32": lambda: d.astype(np.int32), "shape": lambda: d[:, :-1]}[array]()
+            np.save(file, d)
+        inputs = snapshot(root)
+        check(["eval", root / "sheet", "--rig", root / "rig.yaml", "--texcoords", tc, "--poses", "0", "--json",
+               "--quiet"], root, None, inputs)
+
+
+@FUZZ
+@given(which=st.sampled_from(["g0.obj", "g1.obj", "i1.obj"]), how=damage,
+       line=st.one_of(st.none(), st.tuples(st.floats(0, 1), st.sampled_from(
+           ["v nan 0 0", "v 1e400 0 0", "vt x y", "f 1 2 999999", "f -5 -6 -7", "v 1 2", "f 1/1", "o ../x"]))))
+def test_damaged_obj_imports(which, how, line):
+    from test_dataset import _write_obj
+
+    from conftest import grid_mesh, wave
+
+    with sandbox() as root:
+        faces, uv, rest = grid_mesh(4, 4)
+        for k in range(2):
+            _write_obj(root / f"g{k}.obj", wave(rest, 0.01, k), uv, faces)
+            _write_obj(root / f"i{k}.obj", wave(rest, 0.003, k), uv, faces)
+        if line is not None:
+            lines = (root / which).read_text().splitlines()
+            lines.insert(int(line[0] * len(lines)), line[1])
+            (root / which).write_text("\n".join(lines) + "\n")
+        damage_file(root / which, how)
+        inputs = snapshot(root)
+        code = check(["import", root / "ds", "--gt", root / "g*.obj", "--inferred", root / "i*.obj", "--quiet"],
+                     root, root / "ds", inputs)
+        if code == 0:
+            from mvtex.dataset import load_dataset
+
+            assert np.isfinite(np.asarray(load_dataset(root / "ds").gt)).all()
+
+
+@FUZZ
+@given(path=st.sampled_from([("camera",), ("mesh", "subdiv"), ("mesh", "num_vertices"), ("architecture", "resolution"),
+                             ("architecture", "width"), ("architecture", "pose_dim"), ("architecture", "depth"),
+                             ("format",), ("architecture",)]),
+       value=json_value, weights=st.one_of(st.none(), damage))
+def test_damaged_model_directories(tiny_dataset, path, value, weights):
+    pytest.importorskip("torch")
+    from test_safety import _fake_model
+
+    with sandbox(tiny_dataset) as root:
+        model = _fake_model(root / "m", root / "sheet")
+        config = json.loads((model / "config.json").read_text())
+        target = config
+        for key in path[:-1]:
+            target = target[key]
+        target[path[-1]] = value
+        (model / "config.json").write_text(json.dumps(config))
+        if weights is not None:
+            damage_file(model / "model.safetensors", weights)
+        inputs = snapshot(root)
+        check(["predict", root / "sheet", "--model", model, "--out", root / "out", "--poses", "0:2", "--quiet"],
+              root, root / "out", inputs)
+
+
+@FUZZ
+@given(option=st.sampled_from([("triangulate", "--max-reprojection-px"), ("triangulate", "--max-surface-distance"),
+                               ("triangulate", "--pose"), ("slide", "--max-displacement"), ("slide", "--workers"),
+                               ("slide", "--poses"), ("slide", "--subdiv"), ("train", "--epochs"),
+                               ("train", "--resolution"), ("train", "--device"), ("eval", "--workers"),
+                               ("eval", "--poses"), ("synth", "--poses")]),
+       value=st.one_of(number_text, hostile_text))
+def test_option_values(tiny_dataset, rig_yaml, texcoord_set, option, value):
+    """Every option value is either refused in one line or accepted; the run then stops at
+    a foreign --out (so a valid value costs nothing)."""
+    command, flag = option
+    with sandbox(tiny_dataset, rig_yaml, texcoord_set) as root:
+        out = root / "mine"
+        out.mkdir()
+        (out / "keep.txt").write_text("x")
+        base = {"triangulate": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--pose", "0"],
+                "slide": ["--rig", root / "rig.yaml"], "train": ["--texcoords", root / "tc", "--camera", "a"],
+                "eval": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--heatmaps", out / "h"],
+                "synth": []}[command]
+        target = [out] if command == "synth" else [root / "sheet"]
+        tail = [] if command in ("eval", "synth") else ["--out", out]
+        inputs = snapshot(root)
+        argv = [command, *target, *base, *tail, f"{flag}={value}"]
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            code = main([str(a) for a in argv])
+        if command == "eval" and code == 0:
+            return  # a valid eval: heatmaps under the given folder, checked elsewhere
+        assert code == 2, err.getvalue()
+        lines = [line for line in err.getvalue().strip().splitlines() if line.startswith("mvtex ")]
+        assert len(lines) == 1 and "Traceback" not in err.getvalue(), err.getvalue()
+        assert snapshot(root) == inputs
