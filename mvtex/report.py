@@ -29,8 +29,8 @@ def export_glb(path: str | os.PathLike, meshes: Sequence[tuple[str, np.ndarray, 
         meshes: (name, positions (n,3) m, faces (m,3) int, vertex colours (n,3) uint8).
         spacing: distance between neighbours, in units of the widest mesh's x extent.
 
-    The scene is turned from the OpenCV world (y down in the cameras, which look along -z
-    in the built-in rigs) to glTF's y-up by a rotation of 180° about x.
+    Positions are kept in world axes, only centred: the built-in data is y-up with the
+    cameras on +z, glTF's convention, so a viewer opens on the garment's front.
     """
     import trimesh
 
@@ -38,10 +38,9 @@ def export_glb(path: str | os.PathLike, meshes: Sequence[tuple[str, np.ndarray, 
 
     width = max(float(np.ptp(np.asarray(p)[:, 0])) for _, p, _, _ in meshes)
     scene = trimesh.Scene()
-    flip = np.diag([1.0, -1.0, -1.0])
     for i, (name, positions, faces, colors) in enumerate(meshes):
         p = np.asarray(positions, np.float64)
-        p = (p - p.mean(axis=0)) @ flip.T
+        p = p - p.mean(axis=0)
         p[:, 0] += (i - (len(meshes) - 1) / 2) * spacing * width
         rgba = np.hstack([np.asarray(colors, np.uint8), np.full((len(p), 1), 255, np.uint8)])
         mesh = trimesh.Trimesh(vertices=p, faces=np.asarray(faces, np.int64), vertex_colors=rgba, process=False)
@@ -141,7 +140,7 @@ def missing_images(html_text: str, folder: str | os.PathLike) -> list[str]:
 
 # -- the demo's stages that produce the report's novel-view pictures, and the report -------------
 
-def demo_novel_views(dataset, stereo, square, out: str | os.PathLike, *, path_poses: int = 4, grid_poses: int = 2,
+def demo_novel_views(dataset, stereo, square, out: str | os.PathLike, *, path_poses: int = 2, grid_poses: int = 1,
                      progress: bool = True) -> dict:
     """The two-camera plot (stereo, 5 views, first `path_poses` test poses) and the
     four-camera map (square4, 3×3 views, first `grid_poses` test poses) into OUT/views/.
@@ -189,7 +188,8 @@ def demo_preview(dataset, stereo, out: str | os.PathLike, pose: int, *, progress
     if (folder / "preview.json").is_file():
         return read_json(folder / "preview.json")
     tc = open_texcoords(Path(out) / "ts_stereo", dataset.num_vertices)
-    return stereo_preview(dataset, stereo, tc, pose, folder, options=PreviewOptions(path=True), progress=progress)
+    return stereo_preview(dataset, stereo, tc, pose, folder, options=PreviewOptions(path=True, frames_per_segment=4),
+                          progress=progress)
 
 
 def _pictures(out: Path, folder: str, limit: int) -> list[str]:
@@ -213,8 +213,8 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
     header = ["", "images", "inferred e-3", "texcoords e-3", "ratio", "same-chart inferred e-3",
               "same-chart texcoords e-3", "same-chart ratio"]
     ts = summary.get("texture_sliding", {})
-    heat = "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS (blue 0, red >= 0.04)")
-                   for p in _pictures(out, "heatmaps/stereo", 2))
+    heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS (blue 0, red >= 0.04)")
+                                         for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
     sections.append(("Texture sliding (SqrtMSE per image, mean)", table(header, ts_rows(ts.items())) + heat))
 
     rec = summary.get("reconstruction")
@@ -231,14 +231,16 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
             content += model_view(glb, "left to right: gt (grey), reconstruction, inferred — coloured by distance "
                                        "to gt, blue 0 to red >= 10 mm")
         if (out / "reconstruction" / "comparison.png").is_file():
-            content += figure("reconstruction/comparison.png", "gt / inferred / reconstruction: texture, strain, error")
+            content += figure("reconstruction/comparison.png", "gt / inferred / reconstruction: texture, strain, error",
+                              width="75%")
         sections.append(("Reconstruction", content))
 
     if "tsnn" in summary:
         r = summary["tsnn"]
         sections.append(("Texture sliding network (camera left, test poses)",
                          f"<p>trained on {r.get('train_poses')} poses.</p>" + table(header, ts_rows([("TSNN", r)])) +
-                         "".join(figure(p, f"TSNN heatmaps {Path(p).stem}") for p in _pictures(out, "heatmaps/tsnn", 1))))
+                         "".join(figure(p, f"TSNN error heatmaps {Path(p).stem}: inferred | TSNN", width="60%")
+                                 for p in _pictures(out, "heatmaps/tsnn", 1))))
 
     views = summary.get("views")
     if views:
