@@ -111,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     # -- novel views and stereo previews ----------------------------------------------------
     p = sub.add_parser("views", help="texcoords of novel views between array cameras -> texcoord set + rig.yaml")
-    p.add_argument("dataset", type=Path)
+    p.add_argument("dataset", type=Path, help="dataset directory")
     p.add_argument("--rig", required=True, help="the array's rig YAML or built-in rig name")
     p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set (slide or predict)")
     p.add_argument("--out", type=Path, required=True, help="texcoord set to write (with OUT/rig.yaml)")
@@ -131,11 +131,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_progress(p)
 
     p = sub.add_parser("preview", help="stereo AR preview: left/right eye renders, anaglyph, SSIM/PSNR vs gt")
-    p.add_argument("dataset", type=Path)
+    p.add_argument("dataset", type=Path, help="dataset directory")
     p.add_argument("--rig", required=True, help="the array's rig YAML or built-in rig name")
     p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set")
-    p.add_argument("--pose", type=int, required=True)
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--pose", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="output folder: stereo.png, anaglyph.png, comparison.png, preview.json")
     p.add_argument("--weights", help='viewpoint "A=0.5,B=0.5" (default: equal weights over the rig\'s cameras)')
     p.add_argument("--ipd", type=float, default=0.064, help="distance between the eyes in meters (default 0.064)")
     p.add_argument("--method", default="reconstruct", choices=("blend", "reconstruct"),
