@@ -114,8 +114,9 @@ def plot_grid(measured: dict, path: str | os.PathLike, steps: int, corners: Sequ
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    curves = [c for c in CURVES if c in measured[key]]
+    curves = [c for c in CURVES if c in measured[key] and c != "baseline"]
     values = {c: np.asarray(measured[key][c]).reshape(steps, steps) * 1e3 for c in curves}
+    # One colour scale for the methods; the baseline (an order of magnitude above) is quoted.
     vmax = max(float(np.nanmax(v)) for v in values.values())
     fig, axes = plt.subplots(1, len(curves), figsize=(3.1 * len(curves) + 0.8, 3.4), dpi=110)
     axes = np.atleast_1d(axes)
@@ -123,14 +124,16 @@ def plot_grid(measured: dict, path: str | os.PathLike, steps: int, corners: Sequ
         im = ax.imshow(values[curve], cmap="jet", vmin=0, vmax=vmax, origin="upper")
         for i in range(steps):
             for j in range(steps):
-                ax.text(j, i, f"{values[curve][i, j]:.2f}", ha="center", va="center", fontsize=7, color="white")
-        ax.set_title(f"{curve}\nmean {np.nanmean(values[curve]):.2f}e-3", fontsize=9)
+                ax.text(j, i, f"{values[curve][i, j]:.2f}", ha="center", va="center", fontsize=8, color="white")
+        ax.set_title(f"{curve}\nmean {np.nanmean(values[curve]):.3f}e-3", fontsize=9)
         ax.set_xticks([0, steps - 1], [corners[0], corners[1]])
         ax.set_yticks([0, steps - 1], [corners[0], corners[2]])
     fig.colorbar(im, ax=list(axes), shrink=0.8, label="SqrtMSE (1e-3 uv)")
+    base = measured[key].get("baseline")
+    base_text = f"; baseline mean {np.mean(base) * 1e3:.2f}e-3" if base is not None else ""
     label = "same-chart pixels" if key == "sqrt_mse_same_chart" else "all pixels"
     fig.suptitle(title or f"{steps}x{steps} views over {', '.join(corners)} ({label}, "
-                 f"{len(measured['poses'])} poses)", fontsize=10)
+                 f"{len(measured['poses'])} poses{base_text})", fontsize=10)
     return _save(fig, path)
 
 
