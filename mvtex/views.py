@@ -49,6 +49,9 @@ from .errors import InputError
 METHODS = ("blend", "reconstruct")
 COMBINES = ("reproject", "hit", "all")
 WEIGHT_TOLERANCE = 1e-6
+# A point counts as seen by an array camera when it is no deeper than the farthest
+# reconstructed surface around its projection, with this relative slack (4 mm at 2 m).
+_VISIBILITY_TOLERANCE = 2e-3
 
 
 @dataclass(frozen=True)
@@ -246,6 +249,7 @@ class PoseContext:
         displacement, assigned: array camera -> (n',2) float32 / (n',) bool.
         inferred: (n,3) float64 inferred positions X_N of the pose.
         reconstruction: `mvtex.recon.Reconstruction` or None (method "blend").
+        cache: per array camera, its rasters of the inferred and reconstructed meshes.
     """
 
     pose: int
@@ -315,7 +319,7 @@ class ViewSynthesizer:
                           assigned={c: np.asarray(tc.assigned(c, pose)) for c in self.array},
                           inferred=np.asarray(self.dataset.inferred[pose], np.float64))
         if self.options.method == "reconstruct":
-            from .recon import ReconOptions, reconstruct
+            from .recon import reconstruct
 
             if len(self.array) < 2:
                 raise InputError(tc.path, "method reconstruct needs texcoords of at least 2 rig cameras "
@@ -333,7 +337,7 @@ class ViewSynthesizer:
         Args:
             camera: the view's camera (need not be `interpolate_camera(weights)`: preview's
                 eyes sit off the array's span). weights: array camera -> weight, used by
-                the blend (and where the reconstruction is not trusted).
+                the blend and, for "reproject", to weight the cameras that see a point.
         """
         d_blend, a_blend = blend_displacement(ctx.displacement, ctx.assigned, weights)
         if self.options.method == "blend" or (_single(weights) is not None and
@@ -355,8 +359,9 @@ class ViewSynthesizer:
         return d, np.where(trusted, a_rec, a_blend)
 
     def _hit_points(self, d_rec: np.ndarray, a_rec: np.ndarray, points: np.ndarray):
-        """Where the slide against the reconstruction hit it: (k,) vertex indices, (k,3)
-        hit points, (k,) bool all three corners of the hit triangle triangulated."""
+        """Where the slide against the reconstruction hit it, found from the slid uv (the
+        reconstruction carries T_G): (k,) vertex indices, (k,3) hit points P, (k,) hit face
+        of the base mesh."""
         from .recon import locate_uv
 
         faces = np.asarray(self.dataset.faces, np.int64)
@@ -415,7 +420,7 @@ class ViewSynthesizer:
                     rr, cc = np.clip(row + dr, 0, H - 1), np.clip(col + dc, 0, W - 1)
                     front = np.maximum(front, np.where(r_rec.tri_id[rr, cc] >= 0, r_rec.depth[rr, cc], 0.0))
                     cand.append(r_inf.tri_id[rr, cc])
-            seen = inside & (z <= front * (1 + 2e-3))
+            seen = inside & (z <= front * (1 + _VISIBILITY_TOLERANCE))
             cand = np.stack(cand, axis=1)
             ray = np.repeat(np.arange(len(P)), cand.shape[1])
             tri = cand.ravel()
