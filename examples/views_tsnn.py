@@ -1,7 +1,7 @@
 """Novel views from TSNN texcoords: networks for the two stereo cameras, then `blend` and
 `reconstruct` between them, against direct texture sliding at each view (with gt).
 
-    python examples/views_tsnn.py WORKDIR [TOTAL_POSES] [PATH_POSES]
+    python examples/views_tsnn.py WORKDIR [TOTAL_POSES] [PATH_POSES] [EPOCHS]
 
 Default: a 1,200-pose dataset (960 training poses: with fewer the network barely learns,
 see examples/tsnn_poses.py), networks at the CPU defaults (no subdivision), the path
@@ -23,7 +23,7 @@ from mvtex.viewpath import measure_views
 from mvtex.views import between_weights, view_names
 
 
-def main(work: Path, total: int = 1200, path_poses: int = 12) -> dict:
+def main(work: Path, total: int = 1200, path_poses: int = 12, epochs: int = 60) -> dict:
     data = work / f"shirt{total}"
     if not (data / "dataset.json").exists():
         write_synth(data, SynthOptions(num_poses=total))
@@ -38,7 +38,7 @@ def main(work: Path, total: int = 1200, path_poses: int = 12) -> dict:
     for camera in stereo.names:
         model = work / f"tsnn_{camera}"
         if not (model / "config.json").exists():
-            train_camera(ds, tc, camera, model, TrainOptions(seed=0))
+            train_camera(ds, tc, camera, model, TrainOptions(seed=0, epochs=epochs))
         models.append(model)
     pred = work / "tsnn_test"
     if not (pred / "texcoords.json").exists():
