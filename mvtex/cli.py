@@ -149,6 +149,42 @@ def build_parser() -> argparse.ArgumentParser:
     _add_overwrite(p)
     _add_progress(p)
 
+    # -- novel views and stereo previews ----------------------------------------------------
+    p = sub.add_parser("views", help="texcoords of novel views between array cameras -> texcoord set + rig.yaml")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--rig", required=True, help="the array's rig YAML or built-in rig name")
+    p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set (slide or predict)")
+    p.add_argument("--out", type=Path, required=True, help="texcoord set to write (with OUT/rig.yaml)")
+    p.add_argument("--poses", help="pose SPEC (default: the texcoord set's poses)")
+    p.add_argument("--method", default="reconstruct", choices=("blend", "reconstruct"),
+                   help="blend the array's texcoords (the paper) or slide against the reconstruction "
+                        "(default reconstruct)")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--weights", help='one view: "A=0.3,B=0.7" (weights >= 0 summing to 1)')
+    g.add_argument("--between", help="A,B: --steps views evenly from A to B, both ends included")
+    g.add_argument("--grid", help="A,B,C,D: --steps x --steps views bilinear over a 2x2 array (row-major from A)")
+    p.add_argument("--steps", type=int, help="number of views along --between, per side of --grid")
+    p.add_argument("--name", default="view", help='name of the --weights view (default "view")')
+    p.add_argument("--plot", type=Path, help="also write a PNG of SqrtMSE against the path (needs gt): "
+                   "baseline, this method and TS computed directly at each view")
+    _add_json(p)
+    _add_progress(p)
+
+    p = sub.add_parser("preview", help="stereo AR preview: left/right eye renders, anaglyph, SSIM/PSNR vs gt")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--rig", required=True, help="the array's rig YAML or built-in rig name")
+    p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set")
+    p.add_argument("--pose", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="output folder: stereo.png, anaglyph.png, comparison.png, preview.json")
+    p.add_argument("--weights", help='viewpoint "A=0.5,B=0.5" (default: equal weights over the rig\'s cameras)')
+    p.add_argument("--ipd", type=float, default=0.064, help="distance between the eyes in meters (default 0.064)")
+    p.add_argument("--method", default="reconstruct", choices=("blend", "reconstruct"),
+                   help="how each eye's texcoords are computed (as in views; default reconstruct)")
+    p.add_argument("--path", action="store_true", help="also write path.gif: the viewpoint moving across the array")
+    _add_json(p)
+    _add_progress(p)
+
     p = sub.add_parser("bench", help="throughput: raster vs ray-cast sliding, and eval")
     p.add_argument("dataset", type=Path, help="mvtex dataset directory")
     p.add_argument("--rig", required=True, help="rig YAML, or a built-in rig name (stereo, square4, trapezoid12)")
@@ -404,6 +440,71 @@ def cmd_predict(args) -> None:
     print(f"wrote {out}")
 
 
+# -- novel views and stereo previews ------------------------------------------------------------
+
+def _view_weights(args, rig, rig_path):
+    from .views import between_weights, grid_weights, parse_weights, view_names
+
+    if args.weights is not None:
+        if args.steps is not None:
+            raise InputError(None, "--steps goes with --between or --grid, not --weights")
+        return [parse_weights(args.weights)], [args.name]
+    if args.steps is None:
+        raise InputError(None, "--between and --grid need --steps N")
+    corners = _cameras(args.between if args.between is not None else args.grid) or []
+    if len(corners) != (2 if args.between is not None else 4):
+        raise InputError(None, f"--{'between' if args.between is not None else 'grid'} needs "
+                         f"{2 if args.between is not None else 4} comma-separated camera names, got {corners}")
+    rig.select(corners, rig_path)
+    weights = between_weights(*corners, args.steps) if len(corners) == 2 else grid_weights(*corners, args.steps)
+    return weights, view_names(len(weights))
+
+
+def cmd_views(args) -> dict:
+    from .dataset import load_dataset
+    from .texcoords import open_texcoords
+    from .views import ViewOptions, novel_views
+
+    dataset = load_dataset(args.dataset)
+    rig, rig_path = _load_rig(args.rig)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices)
+    weights, names = _view_weights(args, rig, rig_path)
+    poses = dataset.select(args.poses) if args.poses else None
+    result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses,
+                         options=ViewOptions(method=args.method), rig_source=rig_path, progress=not args.quiet)
+    if args.plot is not None:
+        from .viewpath import path_plot
+
+        if args.weights is not None:
+            raise InputError(args.plot, "--plot needs the views of --between or --grid")
+        result["measured"] = path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
+                                       progress=not args.quiet)
+    _emit(args, result, f"wrote {len(names)} view(s) x {len(result['poses'])} pose(s) ({args.method}) to {args.out}")
+    return result
+
+
+def cmd_preview(args) -> dict:
+    from .dataset import load_dataset
+    from .preview import PreviewOptions, stereo_preview
+    from .texcoords import open_texcoords
+    from .views import parse_weights
+
+    dataset = load_dataset(args.dataset)
+    rig, rig_path = _load_rig(args.rig)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices)
+    weights = parse_weights(args.weights) if args.weights else None
+    if not (args.ipd >= 0 and args.ipd < 10):
+        raise InputError(None, f"--ipd must be in [0, 10) meters, got {args.ipd}")
+    result = stereo_preview(dataset, rig, tc, args.pose, args.out, weights=weights,
+                            options=PreviewOptions(ipd=args.ipd, method=args.method, path=args.path),
+                            rig_source=rig_path, progress=not args.quiet)
+    eyes = result["eyes"]
+    _emit(args, result, f"pose {result['pose']}: SSIM inferred -> texcoords: left {eyes['left']['ssim']['inferred']:.3f}"
+          f" -> {eyes['left']['ssim']['texcoords']:.3f}, right {eyes['right']['ssim']['inferred']:.3f} -> "
+          f"{eyes['right']['ssim']['texcoords']:.3f}; wrote {args.out}")
+    return result
+
+
 def cmd_bench(args) -> dict:
     from .bench import run_bench
     from .dataset import load_dataset
@@ -433,7 +534,7 @@ def cmd_demo(args) -> dict:
 
 COMMANDS = {"synth": cmd_synth, "import": cmd_import, "render": cmd_render, "slide": cmd_slide, "eval": cmd_eval,
             "triangulate": cmd_triangulate, "train": cmd_train, "predict": cmd_predict, "bench": cmd_bench,
-            "demo": cmd_demo}
+            "demo": cmd_demo, "views": cmd_views, "preview": cmd_preview}
 
 # -- calibration: calibrate, board, rig, undistort ------------------------------------------
 

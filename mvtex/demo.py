@@ -2,6 +2,7 @@
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
           -> train a TSNN for one camera -> predict -> eval
+          -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
 
 Each step writes into OUT and is skipped when its output is already there, so an
 interrupted demo resumes where it stopped.
@@ -113,9 +114,23 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
         summary["tsnn"]["train_poses"] = len(dataset.split["train"])
         timings["tsnn_predict_eval"] = time.perf_counter() - t
 
+    from .report import demo_novel_views, demo_preview
+
+    t = _step("novel views: two-camera path (stereo) and four-camera map (square4)", progress)
+    summary["views"] = demo_novel_views(dataset, stereo, square, out, progress=progress)
+    timings["views"] = time.perf_counter() - t
+    t = _step(f"stereo preview of pose {test_pose}", progress)
+    summary["preview"] = demo_preview(dataset, stereo, out, test_pose, progress=progress)
+    timings["preview"] = time.perf_counter() - t
+
     summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     summary["pictures"] = sorted(str(p.relative_to(out)) for p in out.rglob("*.png")
                                  if "heatmaps" in p.parts or p.parent.name in ("render", "reconstruction"))
+    from .report import demo_report
+
+    t = _step("writing report.html", progress)
+    summary["report"] = str(demo_report(out, summary, dataset))
+    summary["timings_s"]["report"] = round(time.perf_counter() - t, 2)
     summary["summary_text"] = _text(summary)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
@@ -159,5 +174,16 @@ def _text(summary: dict) -> str:
         lines.append(f"TSNN (camera left, {r['num_images']} test poses): {_pair(r)}")
         lines.append(f"  trained on {r['train_poses']} poses only; the network needs about 1,000 to reach a same-chart "
                      "ratio of 2 (README, examples/tsnn_poses.py)")
+    if "views" in summary:
+        v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
+        lines.append("novel view at the stereo midpoint (same-chart SqrtMSE e-3): " +
+                     ", ".join(f"{k} {x:.3f}" for k, x in v.items()))
+    if "preview" in summary:
+        e = summary["preview"]["eyes"]
+        lines.append(f"stereo preview SSIM (inferred -> texcoords): left {e['left']['ssim']['inferred']:.3f} -> "
+                     f"{e['left']['ssim']['texcoords']:.3f}, right {e['right']['ssim']['inferred']:.3f} -> "
+                     f"{e['right']['ssim']['texcoords']:.3f}")
+    if "report" in summary:
+        lines.append(f"report: {summary['report']}")
     lines.append("pictures: " + ", ".join(summary["pictures"][:8]) + (" ..." if len(summary["pictures"]) > 8 else ""))
     return "\n".join(lines)

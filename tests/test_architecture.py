@@ -20,7 +20,7 @@ LAYERS = [
     ["locate", "calibrate"],
     ["recon", "rigs", "slide_jobs", "metrics", "render", "tsnn.atlas", "tsnn.model", "tsnn.train", "tsnn.predict",
      "tsnn", "bench"],
-    ["export"],
+    ["export", "views", "viewpath", "preview", "report"],
     ["demo", "cli", "__main__"],
 ]
 # `triangulate_pose` (the command's library call) writes its output directory through export.

@@ -149,6 +149,13 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
     assert summary["tsnn"]["num_images"] >= 1 and summary["tsnn"]["train_poses"] == 8
     for picture in summary["pictures"]:
         assert (out_dir / picture).stat().st_size > 0
+    # The report links only files that exist; the preview's texcoords look more like gt than T_G.
+    from mvtex.report import missing_images
+
+    report = (out_dir / "report.html").read_text()
+    assert missing_images(report, out_dir) == [] and "<model-viewer" in report
+    for eye in summary["preview"]["eyes"].values():
+        assert eye["ssim"]["texcoords"] > eye["ssim"]["inferred"]
     # A second run finds every step's output and reports the same numbers.
     code, out2, _ = run(capsys, "demo", "--out", out_dir, "--poses", 10, "--epochs", 2, "--json", "--quiet")
     assert code == 0

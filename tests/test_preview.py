@@ -1,0 +1,109 @@
+"""Stereo previews: eye geometry against OpenCV, scores against closed forms, the command
+end to end on the wavy sheet."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mvtex.camera import builtin_rig_path, load_rig, save_rig
+from mvtex.cli import main
+from mvtex.preview import anaglyph, eye_cameras, garment_box, image_scores
+from mvtex.views import interpolate_camera
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_eyes_are_ipd_apart_and_see_the_expected_disparity():
+    import cv2
+
+    rig = load_rig(builtin_rig_path("stereo"))
+    view = interpolate_camera(rig, {"left": 0.5, "right": 0.5}, "v")
+    left, right = eye_cameras(view, 0.064)
+    assert np.linalg.norm(left.center - right.center) == pytest.approx(0.064, abs=1e-12)
+    assert np.allclose((left.center + right.center) / 2, view.center, atol=1e-12)
+    depth = 2.0
+    point = view.center + depth * view.R[2]  # on the viewpoint's optical axis
+    f, cx = view.K[0, 0], view.K[0, 2]
+    for eye, sign in ((left, 1.0), (right, -1.0)):
+        rvec, _ = cv2.Rodrigues(eye.R)
+        pixel, _ = cv2.projectPoints(point[None], rvec, eye.t, eye.K, np.zeros(5))
+        # The left eye sits ipd/2 to the left: the point appears f*(ipd/2)/depth right of centre.
+        assert pixel[0, 0, 0] == pytest.approx(cx + sign * f * 0.032 / depth, abs=1e-6)
+
+
+def test_scores_and_anaglyph_closed_forms():
+    rng = np.random.default_rng(0)
+    a = rng.integers(20, 200, (64, 80, 3)).astype(np.uint8)
+    box = (slice(None), slice(None))
+    ssim, psnr = image_scores(a, a + 5, box)  # constant offset 5: MSE 25
+    assert psnr == pytest.approx(10 * np.log10(255 ** 2 / 25), abs=1e-9)
+    assert image_scores(a, a, box)[0] == pytest.approx(1.0)
+    ana = anaglyph(a, 255 - a)
+    assert np.array_equal(ana[..., 0], a[..., 0]) and np.array_equal(ana[..., 1:], (255 - a)[..., 1:])
+    bg = np.zeros((50, 60, 3), np.uint8) + np.array([40, 40, 46], np.uint8)
+    fg = bg.copy()
+    fg[10:20, 30:35] = 200
+    rows, cols = garment_box([bg, fg], margin=2)
+    assert (rows.start, rows.stop, cols.start, cols.stop) == (8, 22, 28, 37)
+
+
+@pytest.fixture(scope="module")
+def sheet_set(tmp_path_factory, tiny_dataset, front_rig, gl):
+    from mvtex.slide_jobs import slide_dataset
+    from mvtex.sliding import SlideOptions
+
+    root = tmp_path_factory.mktemp("preview")
+    save_rig(front_rig, root / "rig.yaml")
+    slide_dataset(tiny_dataset, front_rig, root / "ts", poses=[1, 3], options=SlideOptions(subdiv=1), workers=1,
+                  progress=False)
+    return tiny_dataset, root / "rig.yaml", root / "ts"
+
+
+@pytest.mark.parametrize("method", ["blend", "reconstruct"])
+def test_preview_command(tmp_path, sheet_set, capsys, method):
+    import imageio.v3 as iio
+
+    dataset, rig_path, ts = sheet_set
+    out = tmp_path / "prev"
+    code, stdout, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3,
+                            "--out", out, "--method", method, "--ipd", 0.05, "--json", "--quiet",
+                            *(["--path"] if method == "blend" else []))
+    assert code == 0, err
+    report = json.loads(stdout)
+    assert report == json.loads((out / "preview.json").read_text())
+    assert report["pose"] == 3
+    for eye in ("left", "right"):
+        scores = report["eyes"][eye]
+        assert set(scores["ssim"]) == {"inferred", "texcoords"} and set(scores["psnr"]) == {"inferred", "texcoords"}
+        # Texture sliding makes the smooth sheet show the folded sheet's material.
+        assert scores["ssim"]["texcoords"] > scores["ssim"]["inferred"]
+    stereo = iio.imread(out / "stereo.png")
+    assert stereo.shape == (120, 320, 3)
+    assert iio.imread(out / "anaglyph.png").shape == (120, 160, 3)
+    if method == "blend":
+        assert iio.imread(out / "path.gif", index=None).shape[0] >= 6
+
+
+def test_preview_bad_input(tmp_path, sheet_set, capsys):
+    dataset, rig_path, ts = sheet_set
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "mine.txt").write_text("not mvtex's")
+    code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out", taken,
+                       "--quiet")
+    assert code == 2 and "not an mvtex preview" in err and len(err.strip().splitlines()) == 1
+    assert (taken / "mine.txt").read_text() == "not mvtex's"
+    code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 2, "--out",
+                       tmp_path / "p", "--quiet")
+    assert code == 2 and "pose 2" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out",
+                       tmp_path / "p", "--weights", "a=0.7,b=0.7", "--quiet")
+    assert code == 2 and "sum to 1" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "p").exists()
