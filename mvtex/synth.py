@@ -453,7 +453,9 @@ def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: i
         n_components: PCA components kept (at most K - 1 are used).
         ridge: penalty on the pose weights (not on the bias).
     """
-    gt = np.asarray(gt_train, dtype=np.float64)
+    # Kept in its own (float32) type until the distinct tracks are gathered: every step
+    # before that is a comparison or an ordering, exact in either type.
+    gt = np.asarray(gt_train)
     poses = np.asarray(poses_train, dtype=np.float64)
     if gt.ndim != 3 or gt.shape[2] != 3 or poses.ndim != 2 or len(poses) != len(gt) or len(gt) < 1:
         raise ValueError(f"expected gt_train (K, n, 3) and poses_train (K, P), got {gt.shape} and {poses.shape}")
@@ -467,7 +469,7 @@ def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: i
     untied = np.flatnonzero(differs)
     first = np.concatenate([first, untied])
     expand[untied] = len(first) - len(untied) + np.arange(len(untied))
-    shapes = gt[:, first].reshape(num, -1)
+    shapes = gt[:, first].reshape(num, -1).astype(np.float64)
     del gt
     mean = shapes.mean(axis=0)
     shapes -= mean  # in place: the same values as shapes - mean, one array fewer
