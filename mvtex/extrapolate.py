@@ -153,9 +153,9 @@ class FillSystem:
         cols = self._csc[:, vertices]
         rows = local[cols.indices]
         keep = rows >= 0
-        counts = np.add.reduceat(keep, cols.indptr[:-1]) if len(keep) else np.zeros(len(vertices), np.int64)
-        # reduceat repeats the next value for empty columns; a column of L always holds its
-        # diagonal, so no column is empty.
+        # Kept entries per column (reduceat would repeat the next value for an empty column,
+        # but every column of L holds its diagonal).
+        counts = np.add.reduceat(keep.astype(np.int64), cols.indptr[:-1]) if len(keep) else np.zeros(0, np.int64)
         indptr = np.concatenate([[0], np.cumsum(counts)])
         out = sp.csc_matrix((cols.data[keep], rows[keep], indptr), shape=(len(vertices), len(vertices)))
         out.sort_indices()
