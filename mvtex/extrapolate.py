@@ -153,10 +153,8 @@ class FillSystem:
         cols = self._csc[:, vertices]
         rows = local[cols.indices]
         keep = rows >= 0
-        # Kept entries per column (reduceat would repeat the next value for an empty column,
-        # but every column of L holds its diagonal).
-        counts = np.add.reduceat(keep.astype(np.int64), cols.indptr[:-1]) if len(keep) else np.zeros(0, np.int64)
-        indptr = np.concatenate([[0], np.cumsum(counts)])
+        # Column j keeps the kept entries among cols.indptr[j]:cols.indptr[j + 1].
+        indptr = np.concatenate([[0], np.cumsum(keep)])[cols.indptr]
         out = sp.csc_matrix((cols.data[keep], rows[keep], indptr), shape=(len(vertices), len(vertices)))
         out.sort_indices()
         return out
