@@ -34,7 +34,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.special import expit, ndtr
 
 from .dataset import default_split
-from .mesh import edge_strain, edges, rms_distance
+from .mesh import edge_strain, edges
 
 __all__ = [
     "POSE_DIM",
@@ -488,11 +488,6 @@ def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: i
 
 
 # ------------------------------------------------------------------------- synthesize
-
-
-def _mean_abs_edge_strain(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> float:
-    """Mean over poses and unique edges of |length / rest length - 1|."""
-    return float(np.mean(np.abs(edge_strain(positions, rest, edges(faces)))))
 
 
 def _check_options(options: SynthOptions) -> None:
