@@ -57,3 +57,13 @@ def test_fill_laplacian_compares_both_operators(tmp_path, gl, tiny_dataset, fron
     for r in result.values():
         assert r["images"] == 4 and r["held_out_vertices"] > 0
         assert 0 <= r["held_out_rmse_uv"] < 0.01 and r["ratio_same_chart"] > 1
+
+
+@pytest.mark.slow
+def test_paper_scale_runs_small(tmp_path):
+    table = load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
+    rows = [line for line in table.splitlines() if line.startswith("| slide")]
+    assert len(rows) == 2 and all(float(row.split("|")[4]) > 0 for row in rows)
+    assert (tmp_path / "work" / "stereo_w1" / "texcoords.json").exists()
+    with pytest.raises(SystemExit, match="exists"):
+        load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
