@@ -103,8 +103,9 @@ def _group_dirichlet(values: np.ndarray, assigned: np.ndarray, index: np.ndarray
     """Per welded vertex: assigned flag and the mean of its assigned members' values."""
     a_idx = np.flatnonzero(assigned)
     count = np.bincount(index[a_idx], minlength=ng).astype(np.float64)
-    acc = np.zeros((ng, values.shape[1]))
-    np.add.at(acc, index[a_idx], values[a_idx].astype(np.float64))
+    rows = values[a_idx].astype(np.float64)
+    # bincount adds in input order, as a loop over the assigned vertices would.
+    acc = np.stack([np.bincount(index[a_idx], rows[:, c], minlength=ng) for c in range(values.shape[1])], axis=1)
     known = count > 0
     acc[known] /= count[known, None]
     return known, acc
@@ -139,6 +140,24 @@ class FillSystem:
         self.laplacian = laplacian_matrix(pos_w, faces_w, self.kind)
         self.label = csgraph.connected_components(self.laplacian, directed=False)[1]
         self._rank: np.ndarray | None = None
+        self._csc = self.laplacian.tocsc()
+        self._csc.sort_indices()
+
+    def principal_submatrix(self, vertices: np.ndarray) -> sp.csc_matrix:
+        """L[vertices][:, vertices] as a CSC matrix (k,k), rows and columns in the order of
+        `vertices` ((k,) distinct welded indices), built from the stored CSC by selecting
+        columns and relabelling rows (no sparse fancy indexing of the minor axis)."""
+        vertices = np.asarray(vertices, dtype=np.int64)
+        local = np.full(self.num_welded, -1, np.int64)
+        local[vertices] = np.arange(len(vertices))
+        cols = self._csc[:, vertices]
+        rows = local[cols.indices]
+        keep = rows >= 0
+        # Column j keeps the kept entries among cols.indptr[j]:cols.indptr[j + 1].
+        indptr = np.concatenate([[0], np.cumsum(keep)])[cols.indptr]
+        out = sp.csc_matrix((cols.data[keep], rows[keep], indptr), shape=(len(vertices), len(vertices)))
+        out.sort_indices()
+        return out
 
     @property
     def rank(self) -> np.ndarray:
@@ -231,10 +250,11 @@ def _harmonic(system: FillSystem, known: np.ndarray, vals: np.ndarray) -> np.nda
         return vals
     # Unknowns in the system's precomputed elimination order (see `FillSystem.rank`).
     u = u[np.argsort(system.rank[u], kind="stable")]
-    k = np.flatnonzero(known)
-    L_u = L[u]
-    L_uu = L_u[:, u].tocsc()
-    rhs = -(L_u[:, k] @ vals[k])
+    L_uu = system.principal_submatrix(u)
+    # Only known values enter the right-hand side: the unknown entries are 0 here, and a
+    # product with 0 adds nothing to a row sum.
+    vals[u] = 0.0
+    rhs = -(L[u] @ vals)
     # Every unknown's component touches a known vertex, so L_uu is nonsingular and
     # symmetric positive definite (a principal submatrix of a connected Laplacian): no
     # pivoting, and the rows are already in a fill-reducing order, so SuperLU keeps it.

@@ -99,6 +99,7 @@ class SlideTopology:
         reference: (n,3) float64 reference shape (`dataset.reference_shape`): the material
             coordinates in which edge breaking measures how far apart two hits are on the cloth.
         reference_sub: (n',3) the same on the subdivided mesh.
+        edge_reference_length: (e,) float64 length of each of `edges` in `reference_sub`.
         face_neighbours: (m,3) int64 base faces across each edge of each base face (-1 on
             a boundary); candidates include them, for thin (sub-pixel) triangles at fold
             contours that cover the ray but no pixel centre.
@@ -117,6 +118,7 @@ class SlideTopology:
     fill_system: object
     reference: np.ndarray
     reference_sub: np.ndarray
+    edge_reference_length: np.ndarray
     face_neighbours: np.ndarray
 
     def positions(self, base: np.ndarray) -> np.ndarray:
@@ -184,11 +186,14 @@ def build_topology(faces: np.ndarray, uv: np.ndarray, reference: np.ndarray, sub
     base_face = np.arange(len(sub_faces)) % m  # child k*m_prev + f keeps f modulo m
     host_keys = np.unique((sub_faces * m + base_face[:, None]).ravel())
     groups = groups.astype(np.int64)
-    return SlideTopology(subdivision=sub, faces=sub_faces, uv=uv_sub, edges=edges(sub_faces),
+    sub_edges = edges(sub_faces)
+    return SlideTopology(subdivision=sub, faces=sub_faces, uv=uv_sub, edges=sub_edges,
                          chart=chart, gt_chart=base_chart[faces[:, 0]], groups=groups,
                          levels=levels, extend=extend, host_keys=host_keys,
                          fill_system=FillSystem(sub_faces, ref_sub, groups),
                          reference=np.asarray(reference, np.float64), reference_sub=ref_sub,
+                         edge_reference_length=np.linalg.norm(ref_sub[sub_edges[:, 0]] - ref_sub[sub_edges[:, 1]],
+                                                              axis=1),
                          face_neighbours=face_neighbours(faces))
 
 
@@ -323,16 +328,18 @@ def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: 
     k = len(dirs)
     t, b1, b2, facing = intersect_pairs(origin, dirs[ray], gt, gt_faces, tri)
     _, t_min = _first_per_ray(ray, t, k)
-    near = np.isfinite(t) & (t <= t_min[ray] * (1 + 1e-9))
-    back = facing > 0
+    # Only the pairs tied for the nearest hit compete on the tie-break key; they keep their
+    # order, so the first best pair is the same as over all pairs.
+    near = np.flatnonzero(np.isfinite(t) & (t <= t_min[ray] * (1 + 1e-9)))
+    ray, tri, b1, b2 = ray[near], tri[near], b1[near], b2[near]
+    back = facing[near] > 0
     other = gt_chart[tri] != vert_chart[ray]
     key = 4.0 * other + 2.0 * back
     if vert_uv is not None and gt_uv is not None:
         corners = gt_uv[gt_faces[tri]]
         w = np.stack([1 - b1 - b2, b1, b2], axis=1)
-        hit_uv = np.einsum("kj,kjc->kc", np.nan_to_num(w), corners)
+        hit_uv = np.einsum("kj,kjc->kc", w, corners)
         key = key + np.minimum(np.linalg.norm(hit_uv - vert_uv[ray], axis=1), 1.0)
-    key = np.where(near, key, np.inf)
     best, _ = _first_per_ray(ray, key, k)
     found = best >= 0
     sel = best[found]
@@ -427,7 +434,7 @@ def displacement_from_hits(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: 
     m_n = np.zeros((n, 3))
     m_n[found] = np.einsum("kj,kjc->kc", hits.bary[found], topo.reference[f])
     dmn = np.linalg.norm(m_n[ee[:, 0]] - m_n[ee[:, 1]], axis=1)
-    dmg = np.linalg.norm(topo.reference_sub[ee[:, 0]] - topo.reference_sub[ee[:, 1]], axis=1)
+    dmg = topo.edge_reference_length[both]
     broken = ee[dmn > options.break_ratio * dmg] if options.break_ratio is not None else ee[:0]
     if len(broken):
         norm = np.linalg.norm(d, axis=1)

@@ -20,8 +20,8 @@ A ground-truth pose is built in two layers:
 
 The *inferred* meshes come from a predictor fitted on the training poses (PCA of the
 ground-truth shapes, ridge regression from the pose to the PCA coefficients).
-`synthesize` writes nothing; `write_synth` hands its result to `mvtex.dataset.save_dataset`,
-which owns the file format.
+`synthesize` writes nothing; `mvtex.dataset.save_dataset` owns the file format, and
+`write_synth` writes the same files while streaming the shapes to disk.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.special import expit, ndtr
 
 from .dataset import default_split
-from .mesh import edge_strain, edges, rms_distance
+from .mesh import edge_strain, edges
 
 __all__ = [
     "GARMENTS",
@@ -59,6 +59,7 @@ POSE_DIM = 12
 _U0_FRONT, _U0_BACK, _CHART_WIDTH = 0.02, 0.52, 0.46  # chart placement in u
 _TABLE_S, _TABLE_AMP = 241, 17  # fold profile tables: samples along s, amplitude levels
 GARMENTS = ("shirt", "skirt")
+_CHUNK = 256  # poses per block when streaming shapes to and from disk
 
 
 @dataclass(frozen=True)
@@ -458,7 +459,9 @@ def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: i
         n_components: PCA components kept (at most K - 1 are used).
         ridge: penalty on the pose weights (not on the bias).
     """
-    gt = np.asarray(gt_train, dtype=np.float64)
+    # Kept in its own (float32) type until the distinct tracks are gathered: every step
+    # before that is a comparison or an ordering, exact in either type.
+    gt = np.asarray(gt_train)
     poses = np.asarray(poses_train, dtype=np.float64)
     if gt.ndim != 3 or gt.shape[2] != 3 or poses.ndim != 2 or len(poses) != len(gt) or len(gt) < 1:
         raise ValueError(f"expected gt_train (K, n, 3) and poses_train (K, P), got {gt.shape} and {poses.shape}")
@@ -466,12 +469,17 @@ def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: i
     # Tie vertices that coincide in every training shape; candidates come from the first.
     _, first, expand = np.unique(gt[0], axis=0, return_index=True, return_inverse=True)
     expand = expand.reshape(-1)
-    untied = np.flatnonzero(np.any(gt[:, first[expand]] != gt, axis=(0, 2)))
+    differs = np.zeros(gt.shape[1], bool)
+    for lo in range(0, num, _CHUNK):  # no second (K, n, 3) array
+        differs |= np.any(gt[lo:lo + _CHUNK, first[expand]] != gt[lo:lo + _CHUNK], axis=(0, 2))
+    untied = np.flatnonzero(differs)
     first = np.concatenate([first, untied])
     expand[untied] = len(first) - len(untied) + np.arange(len(untied))
-    shapes = gt[:, first].reshape(num, -1)
+    shapes = gt[:, first].reshape(num, -1).astype(np.float64)
+    del gt
     mean = shapes.mean(axis=0)
-    centred = shapes - mean
+    shapes -= mean  # in place: the same values as shapes - mean, one array fewer
+    centred = shapes
     # PCA through the small (K, K) Gram matrix: K << 3n, much faster than an SVD of the data.
     eigval, eigvec = np.linalg.eigh(centred @ centred.T)
     keep = np.argsort(eigval)[::-1][: max(0, min(n_components, num - 1))]
@@ -488,9 +496,85 @@ def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: i
 # ------------------------------------------------------------------------- synthesize
 
 
-def _mean_abs_edge_strain(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> float:
-    """Mean over poses and unique edges of |length / rest length - 1|."""
-    return float(np.mean(np.abs(edge_strain(positions, rest, edges(faces)))))
+def _garment_shape_function(garment: str):
+    """((faces, uv, rest), shape) of a built-in garment, where shape(pose) -> (positions
+    (n,3) in vertex order, fold info [(depth, wavelength, peak angle), ...])."""
+    if garment == "shirt":
+        faces, uv, rest = make_garment()
+        a, h, inverse = _material_coords(rest, uv)
+
+        def shape(pose):
+            positions, info = _deform_material(a, h, pose)
+            return positions[inverse], info
+
+        return (faces, uv, rest), shape
+    from . import skirt
+
+    return skirt.make_garment(), skirt.deform_with_info
+
+
+def _check_options(options: SynthOptions) -> None:
+    if options.garment not in GARMENTS:
+        raise ValueError(f"garment must be one of {', '.join(GARMENTS)}, got {options.garment!r}")
+    if options.num_poses < 3:
+        raise ValueError(f"num_poses must be at least 3 (one pose per split), got {options.num_poses}")
+    if options.pca_components < 1 or options.ridge < 0:
+        raise ValueError(f"need pca_components >= 1 and ridge >= 0, got {options.pca_components} and {options.ridge}")
+
+
+def _generate(options: SynthOptions, gt_out: np.ndarray, inferred_out: np.ndarray) -> tuple:
+    """Fill gt_out and inferred_out ((K, n, 3) float32, in memory or `_RowFile`) pose by
+    pose and block by block, and compute the statistics. The shapes are computed per pose
+    (or per row of a block), so they do not depend on the block size; the statistics'
+    means are sums of per-pose sums (equal to a one-pass mean up to rounding).
+
+    Returns:
+        (faces, uv, rest, poses, split, stats) as in `synthesize`.
+    """
+    (faces, uv, rest), shape = _garment_shape_function(options.garment)
+    poses = sample_poses(options.num_poses, options.seed)
+    depths, wavelengths, peaks = [], [], []
+    for k, pose in enumerate(poses):
+        positions, info = shape(pose)
+        gt_out[k] = positions
+        depths.append(max(d for d, _, _ in info))
+        wavelengths += [w for d, w, _ in info if d >= 5e-3]
+        peaks.append(max(p for _, _, p in info))
+    split = default_split(options.num_poses, options.seed)
+    predictor = fit_predictor(gt_out[split["train"]], poses[split["train"]], options.pca_components, options.ridge)
+    edge_list = edges(faces)
+    # Per-pose sums (K,) float64: the means over poses and edges / vertices need no (K, e)
+    # array, so memory does not grow with K.
+    strain_gt = np.empty(options.num_poses)
+    strain_inferred = np.empty(options.num_poses)
+    squared = np.empty(options.num_poses)
+    for lo in range(0, options.num_poses, _CHUNK):
+        block = slice(lo, min(lo + _CHUNK, options.num_poses))
+        inferred = predictor.predict(poses[block])
+        inferred_out[block] = inferred
+        gt = np.asarray(gt_out[block])
+        strain_gt[block] = np.abs(edge_strain(gt, rest, edge_list)).sum(axis=1)
+        strain_inferred[block] = np.abs(edge_strain(inferred, rest, edge_list)).sum(axis=1)
+        squared[block] = np.sum((inferred.astype(np.float64) - gt.astype(np.float64)) ** 2, axis=(1, 2))
+
+    def rmse(part: list[int]) -> float:
+        # As `mesh.rms_distance` over the poses of one split.
+        return float(np.sqrt(squared[part].sum() / (len(part) * len(rest))))
+
+    stats = {
+        "num_vertices": float(len(rest)),
+        "num_faces": float(len(faces)),
+        "pose_dim": float(POSE_DIM),
+        "fold_depth_m": float(np.median(depths)),
+        "fold_wavelength_m": float(np.median(wavelengths)) if wavelengths else 0.0,
+        "max_fold_angle_deg": float(np.degrees(max(peaks))),
+        "overhanging_pose_fraction": float(np.mean(np.array(peaks) > np.pi / 2)),
+        "mean_abs_edge_strain_gt": float(strain_gt.sum() / strain_gt.size / len(edge_list)),
+        "mean_abs_edge_strain_inferred": float(strain_inferred.sum() / strain_inferred.size / len(edge_list)),
+        "rmse_inferred_train_m": rmse(split["train"]),
+        "rmse_inferred_test_m": rmse(split["test"]),
+    }
+    return faces, uv, rest, poses, split, stats
 
 
 def synthesize(options: SynthOptions = SynthOptions()) -> dict:
@@ -510,54 +594,49 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
     Raises:
         ValueError: num_poses < 3, pca_components < 1, ridge < 0 or an unknown garment.
     """
-    if options.num_poses < 3:
-        raise ValueError(f"num_poses must be at least 3 (one pose per split), got {options.num_poses}")
-    if options.pca_components < 1 or options.ridge < 0:
-        raise ValueError(f"need pca_components >= 1 and ridge >= 0, got {options.pca_components} and {options.ridge}")
-    if options.garment not in GARMENTS:
-        raise ValueError(f"garment must be one of {', '.join(GARMENTS)}, got {options.garment!r}")
-    poses = sample_poses(options.num_poses, options.seed)
-    depths, wavelengths, peaks = [], [], []
-    if options.garment == "shirt":
-        faces, uv, rest = make_garment()
-        a, h, inverse = _material_coords(rest, uv)
-
-        def shape(pose):
-            positions, info = _deform_material(a, h, pose)
-            return positions[inverse], info
-    else:
-        from . import skirt
-
-        faces, uv, rest = skirt.make_garment()
-        shape = skirt.deform_with_info
-    gt = np.empty((options.num_poses, len(rest), 3), dtype=np.float32)
-    for k, pose in enumerate(poses):
-        gt[k], info = shape(pose)
-        depths.append(max(d for d, _, _ in info))
-        wavelengths += [w for d, w, _ in info if d >= 5e-3]
-        peaks.append(max(p for _, _, p in info))
-    split = default_split(options.num_poses, options.seed)
-    predictor = fit_predictor(gt[split["train"]], poses[split["train"]], options.pca_components, options.ridge)
-    inferred = predictor.predict(poses)
-    stats = {
-        "num_vertices": float(len(rest)),
-        "num_faces": float(len(faces)),
-        "pose_dim": float(POSE_DIM),
-        "fold_depth_m": float(np.median(depths)),
-        "fold_wavelength_m": float(np.median(wavelengths)) if wavelengths else 0.0,
-        "max_fold_angle_deg": float(np.degrees(max(peaks))),
-        "overhanging_pose_fraction": float(np.mean(np.array(peaks) > np.pi / 2)),
-        "mean_abs_edge_strain_gt": _mean_abs_edge_strain(gt, rest, faces),
-        "mean_abs_edge_strain_inferred": _mean_abs_edge_strain(inferred, rest, faces),
-        "rmse_inferred_train_m": rms_distance(inferred[split["train"]], gt[split["train"]]),
-        "rmse_inferred_test_m": rms_distance(inferred[split["test"]], gt[split["test"]]),
-    }
+    _check_options(options)
+    n = len(_garment_shape_function(options.garment)[0][2])
+    gt = np.empty((options.num_poses, n, 3), dtype=np.float32)
+    inferred = np.empty_like(gt)
+    faces, uv, rest, poses, split, stats = _generate(options, gt, inferred)
     return dict(name=options.garment, faces=faces, uv=uv, rest=rest, gt=gt, inferred=inferred, poses=poses,
                 split=split, stats=stats)
 
 
+class _RowFile:
+    """A (K, n, 3) float32 .npy file written and read in blocks of rows through short-lived
+    memory maps: the process never keeps more than one block mapped, so its resident memory
+    does not grow with K. Supports `obj[k] = rows`, `obj[block] = rows` and `obj[index]`."""
+
+    def __init__(self, path, shape: tuple[int, ...]):
+        from numpy.lib.format import open_memmap
+
+        self.path = path
+        self.shape = shape
+        open_memmap(path, mode="w+", dtype=np.float32, shape=shape).flush()
+
+    def _map(self, mode: str) -> np.memmap:
+        return np.load(self.path, mmap_mode=mode, allow_pickle=False)
+
+    def __setitem__(self, index, rows) -> None:
+        mapped = self._map("r+")
+        mapped[index] = rows
+        mapped.flush()
+        del mapped
+
+    def __getitem__(self, index) -> np.ndarray:
+        mapped = self._map("r")
+        out = np.array(mapped[index])
+        del mapped
+        return out
+
+
 def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> dict:
-    """Synthesize and save the dataset directory at `path` (format: DESIGN §4).
+    """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
+    streaming: the shapes go to gt.npy / inferred.npy block by block as they are made, so
+    memory does not hold all poses (the predictor fit still holds the training shapes).
+    The files are byte for byte those `mvtex.dataset.save_dataset` writes for
+    `synthesize(options)` (tests/test_synth.py checks it).
 
     The statistics are also stored under "stats" in dataset.json, the garment under
     "garment".
@@ -565,8 +644,26 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
     Returns:
         The `stats` dict of `synthesize`.
     """
-    from .dataset import save_dataset  # the dataset module owns the on-disk format
+    import json
+    from pathlib import Path
 
-    data = synthesize(options)
-    save_dataset(path, garment=options.garment, **data)
-    return data["stats"]
+    from .dataset import FORMAT, VERSION, validate_mesh
+    from .io import atomic_path
+
+    _check_options(options)
+    path = Path(path)
+    (faces, uv, rest), _ = _garment_shape_function(options.garment)
+    validate_mesh(faces, uv, path)
+    shape = (options.num_poses, len(rest), 3)
+    with atomic_path(path) as tmp:
+        tmp.mkdir()
+        gt, inferred = _RowFile(tmp / "gt.npy", shape), _RowFile(tmp / "inferred.npy", shape)
+        faces, uv, rest, poses, split, stats = _generate(options, gt, inferred)
+        meta = {"format": FORMAT, "version": VERSION, "name": options.garment, "units": "m", "num_poses": shape[0],
+                "num_vertices": shape[1], "pose_dim": int(poses.shape[1]), "garment": options.garment, "stats": stats}
+        np.savez_compressed(tmp / "mesh.npz", faces=np.asarray(faces, np.int32), uv=np.asarray(uv, np.float32),
+                            rest=np.asarray(rest, np.float32))
+        np.save(tmp / "poses.npy", np.asarray(poses, np.float32), allow_pickle=False)
+        (tmp / "split.json").write_text(json.dumps({k: [int(i) for i in split[k]] for k in ("train", "val", "test")}) + "\n")
+        (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return stats

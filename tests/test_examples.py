@@ -72,3 +72,13 @@ def test_defaults_study_small(tmp_path, gl):
             assert r["material_mm"]["texcoords"] < r["material_mm"]["inferred"]
     table = module.markdown(rows, ["stereo"])
     assert table.count("| skirt |") == 2 and "TS+1 material mm" in table
+
+
+@pytest.mark.slow
+def test_paper_scale_runs_small(tmp_path):
+    table = load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
+    rows = [line for line in table.splitlines() if line.startswith("| slide")]
+    assert len(rows) == 2 and all(float(row.split("|")[4]) > 0 for row in rows)
+    assert (tmp_path / "work" / "stereo_w1" / "texcoords.json").exists()
+    with pytest.raises(SystemExit, match="exists"):
+        load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
