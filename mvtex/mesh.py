@@ -282,3 +282,23 @@ def charts_through_parent(base_charts: np.ndarray, faces: np.ndarray, num_vertic
     lut = np.full(sub.max() + 1, -1, dtype=np.int64)
     lut[sub[:n]] = base_charts
     return lut[sub]
+
+
+def grid_faces(rows: int, columns: int, charts: int = 1) -> np.ndarray:
+    """Triangles of `charts` regular grids stored one after another, each `rows` x
+    (`columns` + 1) vertices in row-major order: (charts * 2 * (rows-1) * columns, 3) int32.
+
+    The quad diagonal alternates (checkerboard), so diagonal folds do not alias along one
+    direction; both triangles of a quad keep the orientation of (row, column) order.
+    """
+    i, j = np.meshgrid(np.arange(rows - 1), np.arange(columns), indexing="ij")
+    even = ((i + j) % 2 == 0).ravel()[:, None]
+    faces = []
+    for chart in range(charts):
+        v00 = (chart * rows * (columns + 1) + i * (columns + 1) + j).ravel()
+        v01, v10 = v00 + 1, v00 + columns + 1
+        v11 = v10 + 1
+        t1 = np.where(even, np.stack([v00, v01, v11], 1), np.stack([v00, v01, v10], 1))
+        t2 = np.where(even, np.stack([v00, v11, v10], 1), np.stack([v01, v11, v10], 1))
+        faces.append(np.stack([t1, t2], axis=1).reshape(-1, 3))
+    return np.concatenate(faces).astype(np.int32)

@@ -34,6 +34,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import expit
 
+from .mesh import grid_faces
+
 __all__ = ["POSE_DIM", "make_garment", "deform", "deform_with_info"]
 
 WAIST_RADIUS = 0.15  # m
@@ -86,18 +88,9 @@ def _garment() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     v0 = np.where(np.arange(len(distinct)) < len(col), _V0_FRONT, _V0_BACK)
     uv = np.stack([0.5 + _U_SCALE * rho * np.sin(omega), v0 + _U_SCALE * (outer - rho * np.cos(omega))], axis=1)
     # Both splits of a quad are counter-clockwise seen from outside (d/dtheta x d/dh points out).
-    i, jj = np.meshgrid(np.arange(N_RINGS - 1), np.arange(half), indexing="ij")
-    faces = []
-    for chart in range(2):
-        v00 = (chart * N_RINGS * (half + 1) + i * (half + 1) + jj).ravel()
-        v01, v10 = v00 + 1, v00 + half + 1
-        v11 = v10 + 1
-        even = ((i + jj) % 2 == 0).ravel()[:, None]
-        t1 = np.where(even, np.stack([v00, v01, v11], 1), np.stack([v00, v01, v10], 1))
-        t2 = np.where(even, np.stack([v00, v11, v10], 1), np.stack([v01, v11, v10], 1))
-        faces.append(np.stack([t1, t2], axis=1).reshape(-1, 3))
+    faces = grid_faces(N_RINGS, half, charts=2)
     index = ring2 * N_AROUND + distinct  # vertex -> distinct (ring, column) point
-    return np.concatenate(faces).astype(np.int32), uv.astype(np.float32), rest.astype(np.float32), index
+    return faces, uv.astype(np.float32), rest.astype(np.float32), index
 
 
 def make_garment() -> tuple[np.ndarray, np.ndarray, np.ndarray]:

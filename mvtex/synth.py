@@ -35,7 +35,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.special import expit, ndtr
 
 from .dataset import default_split
-from .mesh import edge_strain, edges
+from .mesh import edge_strain, edges, grid_faces
 
 __all__ = [
     "GARMENTS",
@@ -155,19 +155,8 @@ def _garment() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     uv = np.stack([u, 0.5 + _uv_scale() * heights[ring2]], axis=1)
     rest = np.stack([sx[distinct], heights[ring2], sz[distinct]], axis=1)
 
-    i, jj = np.meshgrid(np.arange(N_RINGS - 1), np.arange(half), indexing="ij")
-    faces = []
-    for chart in range(2):
-        v00 = (chart * N_RINGS * (half + 1) + i * (half + 1) + jj).ravel()
-        v01, v10 = v00 + 1, v00 + half + 1
-        v11 = v10 + 1
-        # Alternate the quad diagonal so diagonal folds do not alias along one direction.
-        # Both splits are counter-clockwise seen from outside: d/da x d/dh points outward.
-        even = ((i + jj) % 2 == 0).ravel()[:, None]
-        t1 = np.where(even, np.stack([v00, v01, v11], 1), np.stack([v00, v01, v10], 1))
-        t2 = np.where(even, np.stack([v00, v11, v10], 1), np.stack([v01, v11, v10], 1))
-        faces.append(np.stack([t1, t2], axis=1).reshape(-1, 3))
-    return np.concatenate(faces).astype(np.int32), uv.astype(np.float32), rest.astype(np.float32)
+    # Both splits of a quad are counter-clockwise seen from outside: d/da x d/dh points outward.
+    return grid_faces(N_RINGS, half, charts=2), uv.astype(np.float32), rest.astype(np.float32)
 
 
 def make_garment() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
