@@ -90,23 +90,31 @@ def build_parser() -> argparse.ArgumentParser:
     _add_json(p)
     _add_progress(p)
 
-    p = sub.add_parser("train", help="train the texture sliding network of one camera")
-    p.add_argument("dataset", type=Path)
-    p.add_argument("--texcoords", type=Path, required=True)
-    p.add_argument("--camera", required=True)
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--epochs", type=int)
-    p.add_argument("--resolution", type=int)
+    p = sub.add_parser("train", help="train a texture sliding network (one camera, or all conditioned on the camera)")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set with the training targets")
+    p.add_argument("--camera", help="train this camera's network (default: one network for every camera of "
+                   "--texcoords, conditioned on the camera)")
+    p.add_argument("--rig", help="rig of the texcoord set's cameras (needed without --camera: builtin name or "
+                   "rig.yaml; default TEXCOORDS/rig.yaml)")
+    p.add_argument("--out", type=Path, required=True, help="model directory to write")
+    p.add_argument("--arch", choices=("unet", "paper"), default="unet",
+                   help="unet: geometry images of the inferred mesh + pose (default); paper: pose only, per camera")
+    p.add_argument("--epochs", type=int, help="most training epochs (default 60)")
+    p.add_argument("--resolution", type=int, help="atlas image size (default 64 on CPU)")
     p.add_argument("--device", default=None, help="cpu, cuda, cuda:0 ... (default: cuda if available)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of initialisation and batch order (default 0)")
     _add_json(p)
     _add_progress(p)
 
-    p = sub.add_parser("predict", help="camera networks -> texcoord set")
-    p.add_argument("dataset", type=Path)
-    p.add_argument("--model", type=Path, action="append", required=True, help="a trained model (repeat per camera)")
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--poses", default="all")
+    p = sub.add_parser("predict", help="trained networks -> texcoord set")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--model", type=Path, action="append", required=True,
+                   help="a trained model (repeat: one per camera, or a camera-conditioned one)")
+    p.add_argument("--out", type=Path, required=True, help="texcoord set directory to write")
+    p.add_argument("--poses", default="all", help="all, train, val, test, a:b or 3,5,7 (default all)")
+    p.add_argument("--rig", help="predict these cameras (a camera-conditioned model serves any camera; "
+                   "default: the models' own cameras)")
     _add_progress(p)
 
     p = sub.add_parser("bench", help="throughput: raster vs ray-cast sliding, and eval")
@@ -234,15 +242,24 @@ def cmd_train(args) -> dict:
 
     from .dataset import load_dataset
     from .texcoords import open_texcoords
-    from .tsnn.train import TrainOptions, train_camera
+    from .tsnn.train import TrainOptions, train
 
     dataset = load_dataset(args.dataset)
     tc = open_texcoords(args.texcoords, dataset.num_vertices)
-    options = TrainOptions(seed=args.seed)
+    options = TrainOptions(seed=args.seed, arch=args.arch)
     changes = {k: getattr(args, k) for k in ("epochs", "resolution", "device") if getattr(args, k) is not None}
     options = replace(options, **changes)
-    result = train_camera(dataset, tc, args.camera, args.out, options, progress=not args.quiet)
-    _emit(args, result, f"wrote {args.out}")
+    rig = None
+    if args.camera is None:
+        if args.rig is None and not (args.texcoords / "rig.yaml").is_file():
+            raise InputError(args.texcoords, "one network for every camera needs their rig: give --rig "
+                             "(or --camera NAME for one camera's network)")
+        rig, _ = _load_rig(args.rig or str(args.texcoords / "rig.yaml"))
+    try:
+        result = train(dataset, tc, args.out, camera=args.camera, rig=rig, options=options, progress=not args.quiet)
+    except ValueError as err:
+        raise InputError(None, str(err)) from None
+    _emit(args, result, f"wrote {args.out} ({result['arch']}, {', '.join(result['cameras'])})")
     return result
 
 
@@ -251,7 +268,8 @@ def cmd_predict(args) -> None:
     from .tsnn.predict import predict
 
     dataset = load_dataset(args.dataset)
-    out = predict(dataset, args.model, args.out, poses=dataset.select(args.poses), progress=not args.quiet)
+    rig = _load_rig(args.rig)[0] if args.rig else None
+    out = predict(dataset, args.model, args.out, poses=dataset.select(args.poses), rig=rig, progress=not args.quiet)
     print(f"wrote {out}")
 
 

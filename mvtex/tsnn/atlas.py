@@ -45,6 +45,33 @@ def uv_overlap(uv: np.ndarray, faces: np.ndarray, resolution: int) -> np.ndarray
     return forward != backward
 
 
+def vertex_grid(uv: np.ndarray):
+    """`grid_sample` coordinates (1,1,n,2) float32 torch tensor of texcoords (n,2): 2·uv − 1."""
+    import torch
+
+    return torch.from_numpy(2.0 * np.asarray(uv, dtype=np.float32) - 1.0).view(1, 1, -1, 2)
+
+
+def sample_at(images, grid):
+    """Read atlas images at texcoords with bilinear interpolation.
+
+    The one place that reads per-vertex values out of atlas images, in training and in
+    prediction alike.
+
+    Args:
+        images: (B,C,H,W) torch tensor (row 0 at v ≈ 0).
+        grid: (1,1,n,2) from `vertex_grid`, on the images' device.
+
+    Returns:
+        (B,n,C) tensor, differentiable with respect to `images`.
+    """
+    import torch.nn.functional as F
+
+    g = grid.to(images.dtype).expand(images.shape[0], -1, -1, -1)
+    out = F.grid_sample(images, g, mode="bilinear", padding_mode="border", align_corners=False)
+    return out[:, :, 0, :].transpose(1, 2)
+
+
 @dataclass(frozen=True)
 class AtlasLayout:
     """Where every texel of an atlas image gets its value from.
@@ -146,27 +173,11 @@ class AtlasSampler:
 
     def grid(self):
         """The `grid_sample` grid of the vertices' T_G, (1,1,n,2) float32 torch tensor in [-1,1]."""
-        import torch
-
-        return torch.from_numpy(2.0 * self.uv.astype(np.float32) - 1.0).view(1, 1, -1, 2)
+        return vertex_grid(self.uv)
 
     def sample(self, images, grid=None):
-        """Read atlas images at every vertex's T_G with bilinear interpolation.
-
-        Args:
-            images: (B,C,H,W) torch tensor (row 0 at v ≈ 0), H = W = resolution.
-            grid: the result of `grid()` already on the images' device (saves a copy per call).
-
-        Returns:
-            (B,n,C) tensor, differentiable with respect to `images`.
-        """
-        import torch.nn.functional as F
-
-        if grid is None:
-            grid = self.grid().to(images.device)
-        g = grid.to(images.dtype).expand(images.shape[0], -1, -1, -1)
-        out = F.grid_sample(images, g, mode="bilinear", padding_mode="border", align_corners=False)
-        return out[:, :, 0, :].transpose(1, 2)
+        """Read atlas images at every vertex's T_G with bilinear interpolation (`sample_at`)."""
+        return sample_at(images, self.grid().to(images.device) if grid is None else grid)
 
     def sample_numpy(self, image: np.ndarray) -> np.ndarray:
         """`sample` for one (H,W,C) numpy image; returns (n,C) float32."""
