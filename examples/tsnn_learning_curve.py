@@ -1,6 +1,6 @@
 """TSNN learning curve: every method on the same test poses, at growing training sets.
 
-    python examples/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30]
+    python examples/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30] [--steps 1500]
            [--methods pca_ridge,paper,unet,unet_all] [--plot docs/tsnn_learning_curve.png]
 
 On the built-in garment (`mvtex synth --poses 1200`: 960 training, 120 validation, 120
@@ -89,7 +89,7 @@ def summary_of(result: dict) -> dict:
     return out
 
 
-def run(work: Path, sizes: list[int], methods: list[str], epochs: int) -> dict:
+def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: int) -> dict:
     import torch
 
     from mvtex.camera import builtin_rig_path, load_rig
@@ -143,7 +143,9 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int) -> dict:
                                assigned={"left": np.ones(d_test.shape[:2], bool)})
             else:
                 arch = "paper" if method == "paper" else "unet"
-                options = TrainOptions(arch=arch, epochs=epochs, device="cpu", patience=max(5, epochs // 4))
+                # The same number of optimiser steps at every size, at least `epochs` epochs.
+                n_epochs = max(epochs, -(-steps * TrainOptions(arch=arch).resolved().batch_size // m))
+                options = TrainOptions(arch=arch, epochs=n_epochs, device="cpu", patience=max(5, n_epochs // 4))
                 model = work / f"model_{method}_{m}"
                 summary = train(ds, tc, model, camera=None if method == "unet_all" else "left", rig=stereo,
                                 options=options, train_poses=poses, progress=False)
@@ -217,7 +219,9 @@ def main() -> None:
     parser.add_argument("work", type=Path, help="working directory (dataset, texcoords, models, results.json)")
     parser.add_argument("--sizes", default="120,240,480,960", help="training set sizes (default 120,240,480,960)")
     parser.add_argument("--methods", default=",".join(METHODS), help=f"subset of {','.join(METHODS)}")
-    parser.add_argument("--epochs", type=int, default=30, help="most epochs per network (default 30)")
+    parser.add_argument("--epochs", type=int, default=30, help="fewest epochs per network (default 30)")
+    parser.add_argument("--steps", type=int, default=1500,
+                        help="more epochs on small sets until a network gets this many optimiser steps (default 1500)")
     parser.add_argument("--plot", type=Path, help="write the learning-curve plot here")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -225,7 +229,7 @@ def main() -> None:
     unknown = set(methods) - set(METHODS)
     if unknown:
         parser.error(f"unknown methods {sorted(unknown)}")
-    results = run(args.work, sizes, methods, args.epochs)
+    results = run(args.work, sizes, methods, args.epochs, args.steps)
     print(table(results, sizes, methods))
     if args.plot:
         plot(results, sizes, methods, args.plot)
