@@ -1,7 +1,7 @@
 """`mvtex demo`: the whole pipeline on the built-in garment, with pictures to look at.
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
-          -> train one TSNN for both stereo cameras -> predict camera left -> eval
+          -> train the TSNN of camera left (U-Net on geometry images) -> predict -> eval
 
 Each step writes into OUT and is skipped when its output is already there, so an
 interrupted demo resumes where it stopped.
@@ -92,11 +92,11 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
         from .tsnn.predict import predict
         from .tsnn.train import TrainOptions, train
 
-        t = _step("training one texture sliding network for both stereo cameras", progress)
-        model = out / "tsnn_stereo"
+        t = _step("training the texture sliding network of camera 'left'", progress)
+        model = out / "tsnn_left"
         train_opts = TrainOptions(seed=options.seed, epochs=options.epochs or 30)
         if not (model / "config.json").exists():
-            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, rig=stereo,
+            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
                   options=train_opts, progress=progress)
         timings["train"] = time.perf_counter() - t
         t = _step("predicting texcoords for the test poses and evaluating", progress)
@@ -145,7 +145,7 @@ def _text(summary: dict) -> str:
     if "tsnn" in summary:
         r = summary["tsnn"]
         lines.append(f"TSNN (camera left, {r['num_images']} test poses): {_pair(r)}")
-        lines.append(f"  one network for both cameras, trained on {r['train_poses']} poses; accuracy grows with the "
-                     "number of poses (README, examples/tsnn_learning_curve.py)")
+        lines.append(f"  trained on {r['train_poses']} poses only; accuracy grows with the number of poses "
+                     "(README, examples/tsnn_learning_curve.py)")
     lines.append("pictures: " + ", ".join(summary["pictures"][:8]) + (" ..." if len(summary["pictures"]) > 8 else ""))
     return "\n".join(lines)
