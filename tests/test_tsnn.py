@@ -423,6 +423,17 @@ def test_model_of_one_mesh_refuses_another(rig_data, tmp_path):
     with pytest.raises(InputError, match="another mesh"):
         predict(other, [tmp_path / "m"], tmp_path / "out", poses=[0], progress=False)
     assert not (tmp_path / "out").exists()
+    # A camera-conditioned model whose camera list is broken names its config.json.
+    import shutil
+
+    from mvtex.tsnn.predict import load_model
+
+    shutil.copytree(tmp_path / "m", tmp_path / "broken")
+    meta = json.loads((tmp_path / "broken" / "config.json").read_text())
+    meta["cameras"]["a"] = [[1.0, 0.0]]
+    (tmp_path / "broken" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="config.json.*cameras"):
+        load_model(tmp_path / "broken")
 
 
 def test_cli_trains_one_network_for_all_cameras_and_predicts_a_rig(rig_data, tmp_path, capsys):

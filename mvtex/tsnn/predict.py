@@ -113,10 +113,10 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
             cameras = None
         if not cameras or any(v.shape != (3, 4) or not np.all(np.isfinite(v)) for v in cameras.values()):
             raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices")
-    dilation = meta.get("atlas", {}).get("dilation", 2) if isinstance(meta.get("atlas"), dict) else None
-    if network.__class__.__name__ == "UNet" and (not isinstance(dilation, int) or isinstance(dilation, bool)
-                                                  or not 0 <= dilation <= 64):
-        raise InputError(file, "missing or malformed 'atlas.dilation'")
+    if hasattr(network, "geometry_mean"):  # the U-Net rebuilds its input images: it needs the atlas
+        dilation = meta.get("atlas", {}).get("dilation") if isinstance(meta.get("atlas"), dict) else None
+        if not isinstance(dilation, int) or isinstance(dilation, bool) or not 0 <= dilation <= 64:
+            raise InputError(file, "missing or malformed 'atlas.dilation'")
     weights = path / "model.safetensors"
     if not weights.is_file():
         raise InputError(weights, "file not found")
