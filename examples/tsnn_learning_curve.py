@@ -2,6 +2,7 @@
 
     python examples/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30] [--steps 1500]
            [--methods pca_ridge,paper,unet,unet_all] [--plot docs/tsnn_learning_curve.png]
+           [--merge OTHER_WORK ...] [--report-only]
 
 On the built-in garment (`mvtex synth --poses 1200`: 960 training, 120 validation, 120
 test poses), targets from texture sliding with 1 subdivision on the stereo rig, scored on
@@ -16,7 +17,8 @@ camera `left` over the 120 test poses:
 
 Every method sees the first N training poses (N = --sizes) and the same validation poses
 (early stopping / model choice). Results are cached in WORK/results.json, so a rerun
-resumes. Prints a Markdown table (paper metric: SqrtMSE of uv over all pixels and over
+resumes; runs split over several processes (one WORK each, sharing the dataset and the
+texcoord set by links) are put together with --merge and --report-only. Prints a Markdown table (paper metric: SqrtMSE of uv over all pixels and over
 same-chart pixels; material error in mm when `mvtex eval` reports it).
 """
 
@@ -223,13 +225,25 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1500,
                         help="more epochs on small sets until a network gets this many optimiser steps (default 1500)")
     parser.add_argument("--plot", type=Path, help="write the learning-curve plot here")
+    parser.add_argument("--merge", type=Path, action="append", default=[],
+                        help="add the cached results of another WORK (runs split over processes)")
+    parser.add_argument("--report-only", action="store_true", help="print the cached results, compute nothing")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     methods = [m for m in args.methods.split(",") if m]
     unknown = set(methods) - set(METHODS)
     if unknown:
         parser.error(f"unknown methods {sorted(unknown)}")
-    results = run(args.work, sizes, methods, args.epochs, args.steps)
+    cache = args.work / "results.json"
+    if args.report_only:
+        results = json.loads(cache.read_text()) if cache.exists() else {}
+    else:
+        results = run(args.work, sizes, methods, args.epochs, args.steps)
+    for other in args.merge:
+        for key, value in json.loads((other / "results.json").read_text()).items():
+            results.setdefault(key, value)
+    if "inferred" not in results:
+        parser.error(f"no results in {cache}")
     print(table(results, sizes, methods))
     if args.plot:
         plot(results, sizes, methods, args.plot)
