@@ -99,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "rig.yaml; default TEXCOORDS/rig.yaml)")
     p.add_argument("--out", type=Path, required=True, help="model directory to write")
     p.add_argument("--arch", choices=("unet", "paper"), default="unet",
-                   help="unet: geometry images of the inferred mesh + pose (default); paper: pose only, per camera")
+                   help="unet: geometry images of the inferred mesh + pose, any camera (default; best up to "
+                   "~500 poses); paper: pose only, per camera (best with ~1,000 poses per camera)")
     p.add_argument("--epochs", type=int, help="most training epochs (default 60)")
     p.add_argument("--resolution", type=int, help="atlas image size (default 64 on CPU)")
     p.add_argument("--device", default=None, help="cpu, cuda, cuda:0 ... (default: cuda if available)")

@@ -51,8 +51,10 @@ class TrainOptions:
     """Options of `train`.
 
     Attributes:
-        arch: "unet" (geometry images of X_N + pose, a U-Net) or "paper" (pose only; one
-            camera). Default chosen by held-out accuracy (README, examples/tsnn_learning_curve.py).
+        arch: "unet" (geometry images of X_N + pose, a U-Net; the only one that conditions
+            on the camera) or "paper" (pose only; one camera). On the built-in garment's test
+            poses the U-Net is the more accurate up to 480 training poses, the paper's
+            decoder at 960 (README, examples/tsnn_learning_curve.py).
         widths: channels per U-Net level (None: (8, 16, 32, 64)).
         epochs: most passes over the training poses.
         resolution: atlas image size R; None: 64 on CPU, 512 on CUDA. d is smooth over the
