@@ -6,7 +6,8 @@ by ray vs by fill (Table 4 form), and reconstruction from TSNN texcoords (stereo
 
 Default: a 1,200-pose dataset (960 training poses; with fewer the network barely learns,
 see examples/tsnn_poses.py). Trains three networks (left and right without subdivision,
-left with one level) with the default settings: about 15-20 minutes on a 2-core CPU.
+left with one level) with the paper architecture (`arch="paper"`; the default U-Net is
+compared in examples/tsnn_learning_curve.py): about 15-20 minutes on a 2-core CPU.
 """
 
 import json
@@ -70,7 +71,7 @@ def main(work: Path, total: int = 1200) -> dict:
             model = work / f"net_{cam}_s{subdiv}"
             if not (model / "config.json").exists():
                 t = time.perf_counter()
-                train_camera(ds, tc, cam, model, TrainOptions())
+                train_camera(ds, tc, cam, model, TrainOptions(arch="paper"))
                 out["train_seconds"][f"{cam}_s{subdiv}"] = round(time.perf_counter() - t, 1)
             models.append(model)
         pred = work / f"pred_s{subdiv}"

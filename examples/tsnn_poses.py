@@ -1,5 +1,6 @@
 """How the TSNN's test accuracy grows with the number of training poses, on the built-in
-garment (camera `left` of the stereo rig, no subdivision).
+garment (camera `left` of the stereo rig, no subdivision), with the paper architecture;
+examples/tsnn_learning_curve.py compares every method at these sizes.
 
     python examples/tsnn_poses.py WORKDIR [TOTAL_POSES] [TRAIN_SIZES]
 
@@ -48,7 +49,7 @@ def main(work: Path, total: int = 1200, sizes: tuple[int, ...] = (120, 240, 480,
         summary_path = work / f"net_left_{m}.json"
         if not summary_path.exists():
             t = time.perf_counter()
-            summary = train_camera(ds, open_texcoords(ts, ds.num_vertices), "left", model, TrainOptions())
+            summary = train_camera(ds, open_texcoords(ts, ds.num_vertices), "left", model, TrainOptions(arch="paper"))
             summary["wall_seconds"] = round(time.perf_counter() - t, 1)
             summary_path.write_text(json.dumps(summary, indent=2))
         summary = json.loads(summary_path.read_text())

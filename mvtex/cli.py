@@ -128,24 +128,34 @@ def build_parser() -> argparse.ArgumentParser:
     _add_json(p)
     _add_progress(p)
 
-    p = sub.add_parser("train", help="train the texture sliding network of one camera")
-    p.add_argument("dataset", type=Path, help="mvtex dataset directory")
-    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set directory")
-    p.add_argument("--camera", required=True, help="the camera of the texcoord set to learn")
-    p.add_argument("--out", type=Path, required=True, help="output directory")
-    p.add_argument("--epochs", type=int, help="training epochs (at least 1; default: the training default)")
-    p.add_argument("--resolution", type=int, help=f"atlas image size, a power of two in 8..{MAX_RESOLUTION} (default: 512 on GPU, 64 on CPU)")
+    p = sub.add_parser("train", help="train a texture sliding network (one camera, or all conditioned on the camera)")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set with the training targets")
+    p.add_argument("--camera", help="train this camera's network (default: one network for every camera of "
+                   "--texcoords, conditioned on the camera)")
+    p.add_argument("--rig", help="rig of the texcoord set's cameras (needed without --camera: builtin name or "
+                   "rig.yaml; default TEXCOORDS/rig.yaml)")
+    p.add_argument("--out", type=Path, required=True, help="model directory to write")
+    p.add_argument("--arch", choices=("unet", "paper"), default="unet",
+                   help="unet: geometry images of the inferred mesh + pose, any camera (default; best up to "
+                   "~500 poses); paper: pose only, per camera (best with ~1,000 poses per camera)")
+    p.add_argument("--epochs", type=int, help="most training epochs (default 60)")
+    p.add_argument("--resolution", type=int,
+                   help=f"atlas image size, a power of two in 8..{MAX_RESOLUTION} (default: 512 on GPU, 64 on CPU)")
     p.add_argument("--device", default=None, help="cpu, cuda, cuda:0 ... (default: cuda if available)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the initial weights and batches (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of initialisation and batch order (default 0)")
     _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
 
-    p = sub.add_parser("predict", help="camera networks -> texcoord set")
-    p.add_argument("dataset", type=Path, help="mvtex dataset directory")
-    p.add_argument("--model", type=Path, action="append", required=True, help="a trained model (repeat per camera)")
-    p.add_argument("--out", type=Path, required=True, help="output directory")
-    p.add_argument("--poses", default="all", help="pose SPEC (default all)")
+    p = sub.add_parser("predict", help="trained networks -> texcoord set")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--model", type=Path, action="append", required=True,
+                   help="a trained model (repeat: one per camera, or a camera-conditioned one)")
+    p.add_argument("--out", type=Path, required=True, help="texcoord set directory to write")
+    p.add_argument("--poses", default="all", help="all, train, val, test, a:b or 3,5,7 (default all)")
+    p.add_argument("--rig", help="predict these cameras (a camera-conditioned model serves any camera; "
+                   "default: the models' own cameras)")
     _add_overwrite(p)
     _add_progress(p)
 
@@ -410,7 +420,7 @@ def cmd_train(args) -> dict:
 
     from .dataset import load_dataset
     from .texcoords import open_texcoords
-    from .tsnn.train import TrainOptions, train_camera
+    from .tsnn.train import TrainOptions, train
 
     _at_least(args.epochs, "--epochs", 1)
     if args.resolution is not None and (args.resolution < 8 or args.resolution > MAX_RESOLUTION
@@ -420,12 +430,22 @@ def cmd_train(args) -> dict:
         raise InputError(None, f"--device must be auto, cpu, mps, cuda or cuda:N (got {args.device!r})")
     dataset = load_dataset(args.dataset)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
-    options = TrainOptions(seed=args.seed)
+    options = TrainOptions(seed=args.seed, arch=args.arch)
     changes = {k: getattr(args, k) for k in ("epochs", "resolution", "device") if getattr(args, k) is not None}
     options = replace(options, **changes)
+    rig = None
+    if args.camera is None:
+        if args.rig is None and not (args.texcoords / "rig.yaml").is_file():
+            raise InputError(args.texcoords, "one network for every camera needs their rig: give --rig "
+                             "(or --camera NAME for one camera's network)")
+        rig, _ = _load_rig(args.rig or str(args.texcoords / "rig.yaml"))
     with _output(args, "train"):
-        result = train_camera(dataset, tc, args.camera, args.out, options, progress=not args.quiet)
-    _emit(args, result, f"wrote {args.out}")
+        try:
+            result = train(dataset, tc, args.out, camera=args.camera, rig=rig, options=options,
+                           progress=not args.quiet)
+        except ValueError as err:
+            raise InputError(None, str(err)) from None
+    _emit(args, result, f"wrote {args.out} ({result['arch']}, {', '.join(result['cameras'])})")
     return result
 
 
@@ -434,9 +454,10 @@ def cmd_predict(args) -> None:
     from .tsnn.predict import predict
 
     dataset = load_dataset(args.dataset)
+    rig = _load_rig(args.rig)[0] if args.rig else None
     poses = dataset.select(args.poses)
     with _output(args, "predict"):
-        out = predict(dataset, args.model, args.out, poses=poses, progress=not args.quiet)
+        out = predict(dataset, args.model, args.out, poses=poses, rig=rig, progress=not args.quiet)
     print(f"wrote {out}")
 
 

@@ -1,7 +1,7 @@
 """`mvtex demo`: the whole pipeline on the built-in garment, with pictures to look at.
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
-          -> train a TSNN for one camera -> predict -> eval
+          -> train the TSNN of camera left (U-Net on geometry images) -> predict -> eval
           -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
 
 Each step writes into OUT and is skipped when its output is already there, so an
@@ -35,8 +35,6 @@ def _step(name: str, progress: bool) -> float:
 
 def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progress: bool = True) -> dict:
     """Run the demo into `out`; returns a summary dict (also written to OUT/summary.json)."""
-    from dataclasses import replace
-
     from .camera import builtin_rig_path, load_rig
     from .dataset import load_dataset
     from .metrics import evaluate
@@ -94,20 +92,18 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
 
     if options.tsnn:
         from .tsnn.predict import predict
-        from .tsnn.train import TrainOptions, train_camera
+        from .tsnn.train import TrainOptions, train
 
         t = _step("training the texture sliding network of camera 'left'", progress)
         model = out / "tsnn_left"
-        train_opts = TrainOptions(seed=options.seed)
-        if options.epochs:
-            train_opts = replace(train_opts, epochs=options.epochs)
+        train_opts = TrainOptions(seed=options.seed, epochs=options.epochs or 30)
         if not (model / "config.json").exists():
-            train_camera(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), "left", model, train_opts,
-                         progress=progress)
+            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
+                  options=train_opts, progress=progress)
         timings["train"] = time.perf_counter() - t
         t = _step("predicting texcoords for the test poses and evaluating", progress)
         pred = out / "tsnn_pred"
-        predict(dataset, [model], pred, poses=dataset.split["test"], progress=progress)
+        predict(dataset, [model], pred, poses=dataset.split["test"], rig=stereo.select(["left"]), progress=progress)
         tc_pred = open_texcoords(pred, dataset.num_vertices)
         summary["tsnn"] = _short(evaluate(dataset, stereo.select(["left"]), tc_pred, progress=progress,
                                           heatmaps=out / "heatmaps" / "tsnn"))
@@ -172,8 +168,8 @@ def _text(summary: dict) -> str:
     if "tsnn" in summary:
         r = summary["tsnn"]
         lines.append(f"TSNN (camera left, {r['num_images']} test poses): {_pair(r)}")
-        lines.append(f"  trained on {r['train_poses']} poses only; the network needs about 1,000 to reach a same-chart "
-                     "ratio of 2 (README, examples/tsnn_poses.py)")
+        lines.append(f"  trained on {r['train_poses']} poses only; accuracy grows with the number of poses "
+                     "(README, examples/tsnn_learning_curve.py)")
     if "views" in summary:
         v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
         lines.append("novel view at the stereo midpoint (same-chart SqrtMSE e-3): " +

@@ -165,7 +165,7 @@ def test_train_json_then_predict(gl, tiny_dataset, slid, tmp_path, capsys):
 
     out = tmp_path / "model"
     result = run_json(capsys, "train", tiny_dataset, "--texcoords", slid, "--camera", "a", "--out", out,
-                      "--epochs", 1, "--resolution", 32, "--device", "cpu", "--quiet")
+                      "--arch", "paper", "--epochs", 1, "--resolution", 32, "--device", "cpu", "--quiet")
     assert result["camera"] == "a" and result["resolution"] == 32
     code, _, err = run(capsys, "predict", tiny_dataset, "--model", out, "--out", tmp_path / "pred", "--poses", "1,5",
                        "--quiet")

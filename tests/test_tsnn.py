@@ -134,7 +134,7 @@ def test_training_beats_zero_predictor_and_checkpoint_roundtrips(field_data, tmp
     from mvtex.tsnn.train import TrainOptions, train_camera
 
     dataset, tc, _ = field_data
-    options = TrainOptions(epochs=30, resolution=32, batch_size=8, width=64, patience=100, device="cpu",
+    options = TrainOptions(arch="paper", epochs=30, resolution=32, batch_size=8, width=64, patience=100, device="cpu",
                            weight_assigned=2.0)
     result = train_camera(dataset, tc, "cam", tmp_path / "model", options, progress=False)
     meta = json.loads((tmp_path / "model" / "config.json").read_text())
@@ -175,7 +175,7 @@ def test_training_is_deterministic_on_cpu(field_data, tmp_path):
     from safetensors.torch import load_file
 
     dataset, tc, _ = field_data
-    options = TrainOptions(epochs=2, resolution=16, batch_size=8, width=32, device="cpu", seed=5)
+    options = TrainOptions(arch="paper", epochs=2, resolution=16, batch_size=8, width=32, device="cpu", seed=5)
     for name in ("a", "b"):
         train_camera(dataset, tc, "cam", tmp_path / name, options, progress=False)
     a, b = load_file(tmp_path / "a" / "model.safetensors"), load_file(tmp_path / "b" / "model.safetensors")
@@ -189,7 +189,7 @@ def test_bad_models_are_refused(field_data, tmp_path):
     from mvtex.tsnn.train import TrainOptions, train_camera
 
     dataset, tc, root = field_data
-    options = TrainOptions(epochs=1, resolution=16, batch_size=8, width=32, device="cpu")
+    options = TrainOptions(arch="paper", epochs=1, resolution=16, batch_size=8, width=32, device="cpu")
     train_camera(dataset, tc, "cam", tmp_path / "m1", options, progress=False)
 
     # A model of another subdivision level cannot share a texcoord set with it.
@@ -213,7 +213,7 @@ def test_bad_models_are_refused(field_data, tmp_path):
     (broken / "config.json").write_text("{not json")
     with pytest.raises(InputError, match="config.json"):
         load_model(broken)
-    meta["architecture"] = {"pose_dim": 3, "resolution": 64, "width": 32, "min_width": 8, "depth": 4}
+    meta["architecture"] = {"arch": "paper", "pose_dim": 3, "resolution": 64, "width": 32, "min_width": 8, "depth": 4}
     (broken / "config.json").write_text(json.dumps(meta))
     with pytest.raises(InputError, match="model.safetensors"):
         load_model(broken)
@@ -244,7 +244,7 @@ def test_regularisation_options_train_and_roundtrip(field_data, tmp_path):
     for bad in (dict(pose_noise=-0.1), dict(dropout=1.0), dict(dropout=-0.5)):
         with pytest.raises(ValueError):
             train_camera(dataset, tc, "cam", tmp_path / "bad", TrainOptions(epochs=1, **bad), progress=False)
-    options = TrainOptions(epochs=2, resolution=16, batch_size=8, width=32, device="cpu", pose_noise=0.2,
+    options = TrainOptions(arch="paper", epochs=2, resolution=16, batch_size=8, width=32, device="cpu", pose_noise=0.2,
                            dropout=0.25)
     train_camera(dataset, tc, "cam", tmp_path / "m", options, progress=False)
     model = load_model(tmp_path / "m")
@@ -259,3 +259,205 @@ def test_regularisation_options_train_and_roundtrip(field_data, tmp_path):
     with torch.no_grad():
         y1, y2 = model.network(torch.from_numpy(x)), model.network(torch.from_numpy(x))
     assert not torch.equal(y1, y2)
+
+
+# ----------------------------------------------------------------------------- geometry U-Net
+
+
+def curved_dataset(root, k: int = 24, shift: float = 0.0):
+    """The two-chart mesh bent into a pose-dependent arc (front at z=0, back at z=-0.1)."""
+    from mvtex.dataset import load_dataset, save_dataset
+
+    faces, uv, pos = two_chart_mesh()
+    poses = np.random.default_rng(4).uniform(-1, 1, (k, 3)).astype(np.float32)
+    x = pos[:, 0] - 0.2
+    inferred = np.stack([pos + np.c_[np.zeros(len(pos)), 0.05 * p[1] * x, 0.3 * p[0] * x ** 2 + shift]
+                         for p in poses]).astype(np.float32)
+    save_dataset(root, faces=faces, uv=uv, gt=inferred, inferred=inferred, poses=poses, rest=pos, name="arc")
+    return load_dataset(root)
+
+
+def test_geometry_images_match_exact_point_in_triangle(gl, tmp_path):
+    """Position and normal channels at texel centres against an exact point-in-triangle search
+    (every triangle tested, barycentrics solved in float64) on the dataset mesh."""
+    from mvtex.mesh import barycentric_2d
+    from mvtex.tsnn.atlas import AtlasSampler
+    from mvtex.tsnn.geometry import geometry_images
+
+    ds = curved_dataset(tmp_path / "d", k=3)
+    sub = subdivide(ds.faces, len(ds.uv), 1)
+    uv1 = apply_parent(ds.uv, sub.parent)
+    r = 32
+    images = geometry_images(ds, [0, 2], AtlasSampler(sub.faces, uv1, r), sub.parent)
+    assert images.shape == (2, 9, r, r)
+    centres = (np.arange(r) + 0.5) / r
+    tri_uv = ds.uv[ds.faces].astype(np.float64)
+    checked = 0
+    for row in range(r):
+        for col in range(r):
+            point = np.array([[centres[col], centres[row]]])
+            b = barycentric_2d(np.repeat(point, len(ds.faces), 0), tri_uv)
+            inside = np.nonzero((b > 1e-6).all(1))[0]  # strictly inside: no tie on edges
+            if len(inside) != 1:
+                continue
+            f = ds.faces[inside[0]]
+            for k, pose in enumerate([0, 2]):
+                expected = b[inside[0]] @ np.asarray(ds.inferred[pose], np.float64)[f]
+                np.testing.assert_allclose(images[k, 0:3, row, col], expected, atol=2e-6)
+            checked += 1
+    assert checked > 200
+    # Normals of the undeformed flat pose face +z (cross product of the CCW uv grid).
+    flat = curved_dataset(tmp_path / "flat", k=3)
+    object.__setattr__(flat, "inferred", np.repeat(np.asarray(flat.rest, np.float32)[None], 3, 0))
+    images = geometry_images(flat, [0], AtlasSampler(ds.faces, ds.uv, r), np.stack([np.arange(len(ds.uv))] * 2, 1))
+    covered = AtlasSampler(ds.faces, ds.uv, r).layout.covered
+    np.testing.assert_allclose(images[0, 3:6][:, covered].T, np.tile([0, 0, 1], (covered.sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(images[0, 6:9][:, covered], 0, atol=1e-6)  # no strain, no curvature
+
+
+def camera_field(pose: np.ndarray, uv: np.ndarray, cam_x: float) -> np.ndarray:
+    """A displacement field that depends on the pose (through the shape: pose[0] bends the
+    arc, pose[1] tilts it) and on the camera's x position."""
+    u, v = uv[:, 0].astype(np.float64), uv[:, 1].astype(np.float64)
+    du = 0.01 * (pose[0] * np.sin(4 * np.pi * u) + cam_x * v)
+    dv = 0.01 * pose[1] * np.cos(3 * np.pi * v) * (0.5 + 0.5 * u)
+    return np.stack([du, dv], axis=1).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def rig_data(tmp_path_factory, gl):
+    """The arc dataset, a 3-camera rig and a subdiv-0 texcoord set of all three cameras."""
+    from mvtex.camera import Rig, look_at
+    from mvtex.texcoords import open_texcoords, save_texcoords
+
+    root = tmp_path_factory.mktemp("rig")
+    ds = curved_dataset(root / "data", k=40)
+    xs = {"a": -0.6, "b": 0.0, "c": 0.6}
+    rig = Rig(tuple(look_at(n, (x, 0.2, 1.5), (0.2, 0.2, 0.0), width=64, height=48, focal=60) for n, x in xs.items()))
+    d = {n: np.stack([camera_field(p, ds.uv, x) for p in ds.poses]) for n, x in xs.items()}
+    save_texcoords(root / "tc", faces=ds.faces, uv=ds.uv, parent=np.stack([np.arange(len(ds.uv))] * 2, 1),
+                   source="synthetic", subdiv=0, poses=list(range(len(ds.poses))), displacement=d,
+                   assigned={n: np.ones(v.shape[:2], bool) for n, v in d.items()})
+    return ds, rig, open_texcoords(root / "tc", ds.num_vertices), root
+
+
+def test_camera_conditioned_model_serves_a_camera_it_never_saw(rig_data, tmp_path):
+    from mvtex.camera import Rig, look_at
+    from mvtex.texcoords import open_texcoords
+    from mvtex.tsnn.predict import load_model, predict
+    from mvtex.tsnn.train import TrainOptions, train
+
+    ds, rig, tc, _ = rig_data
+    options = TrainOptions(epochs=2, resolution=16, widths=(8, 16), batch_size=8, device="cpu")
+    with pytest.raises(ValueError, match="per camera"):
+        train(ds, tc, tmp_path / "p", rig=rig, options=TrainOptions(arch="paper", epochs=1))
+    with pytest.raises(ValueError, match="rig"):
+        train(ds, tc, tmp_path / "p", options=options)
+    result = train(ds, tc, tmp_path / "m", rig=rig, options=options, progress=False)
+    assert result["cameras"] == ["a", "b", "c"] and result["camera"] is None
+    model = load_model(tmp_path / "m")
+    assert model.conditioned and sorted(model.cameras) == ["a", "b", "c"]
+    meta = json.loads((tmp_path / "m" / "config.json").read_text())
+    np.testing.assert_allclose(meta["cameras"]["b"], rig["b"].cam_from_world)
+
+    novel = Rig((look_at("novel", (0.3, 0.5, 1.2), (0.2, 0.2, 0.0), width=64, height=48, focal=60),))
+    test = ds.split["test"]
+    out = predict(ds, [tmp_path / "m"], tmp_path / "pred", poses=test, rig=novel, progress=False)
+    pred = open_texcoords(out, ds.num_vertices)
+    assert pred.cameras == ["novel"]
+    d = np.stack([pred.displacement("novel", p) for p in test])
+    assert np.all(np.isfinite(d)) and np.abs(d).max() < 1.0
+    # Without a rig the model predicts the cameras it was trained on; the view is an input,
+    # so different cameras get different predictions.
+    out = predict(ds, [tmp_path / "m"], tmp_path / "own", poses=test, progress=False)
+    own = open_texcoords(out, ds.num_vertices)
+    assert own.cameras == ["a", "b", "c"]
+    assert not np.array_equal(own.displacement("a", test[0]), own.displacement("c", test[0]))
+
+
+def test_unet_learns_and_predicts_deterministically(rig_data, tmp_path):
+    """A per-camera U-Net beats the zero predictor on held-out poses of a closed-form field;
+    training twice and predicting twice give bit-identical results on the CPU."""
+    from safetensors.torch import load_file
+
+    from mvtex.tsnn.predict import load_model, predict_displacements
+    from mvtex.tsnn.train import TrainOptions, train
+
+    ds, rig, tc, _ = rig_data
+    options = TrainOptions(epochs=40, resolution=16, widths=(8, 16), batch_size=4, device="cpu",
+                           patience=100, seed=2)
+    result = train(ds, tc, tmp_path / "m1", camera="b", options=options, progress=False)
+    assert result["losses"]["test"]["loss"] < 0.7 * result["losses"]["test"]["zero_loss"]
+    train(ds, tc, tmp_path / "m2", camera="b", options=options, progress=False)
+    a, b = load_file(tmp_path / "m1" / "model.safetensors"), load_file(tmp_path / "m2" / "model.safetensors")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+    from mvtex.tsnn.atlas import AtlasSampler
+    from mvtex.tsnn.geometry import geometry_images
+
+    test = ds.split["test"]
+    model = load_model(tmp_path / "m1")
+    assert not model.conditioned and model.needs_geometry
+    geo = geometry_images(ds, test, AtlasSampler(ds.faces, ds.uv, 16), np.stack([np.arange(len(ds.uv))] * 2, 1))
+    x = np.array(ds.poses[test], np.float32)
+    first = predict_displacements(model, x, ds.uv, geometry=geo)
+    again = predict_displacements(load_model(tmp_path / "m1"), x, ds.uv, geometry=geo)
+    assert np.array_equal(first, again)
+    truth = np.stack([camera_field(ds.poses[p], ds.uv, 0.0) for p in test])
+    assert np.mean((first - truth) ** 2) < 0.7 * np.mean(truth ** 2)
+
+
+def test_model_of_one_mesh_refuses_another(rig_data, tmp_path):
+    from mvtex.tsnn.predict import predict
+    from mvtex.tsnn.train import TrainOptions, train
+
+    ds, rig, tc, _ = rig_data
+    train(ds, tc, tmp_path / "m", rig=rig, options=TrainOptions(epochs=1, resolution=16, widths=(8, 16), device="cpu"),
+          progress=False)
+    # Same vertex count and faces, other uv: the fingerprint differs.
+    from mvtex.dataset import load_dataset, save_dataset
+
+    uv = ds.uv.copy()
+    uv[:, 1] = 0.05 + 0.9 * uv[:, 1]
+    save_dataset(tmp_path / "other", faces=ds.faces, uv=uv, gt=np.asarray(ds.gt), inferred=np.asarray(ds.inferred),
+                 poses=np.asarray(ds.poses), name="other")
+    other = load_dataset(tmp_path / "other")
+    with pytest.raises(InputError, match="another mesh"):
+        predict(other, [tmp_path / "m"], tmp_path / "out", poses=[0], progress=False)
+    assert not (tmp_path / "out").exists()
+    # A camera-conditioned model whose camera list is broken names its config.json.
+    import shutil
+
+    from mvtex.tsnn.predict import load_model
+
+    shutil.copytree(tmp_path / "m", tmp_path / "broken")
+    meta = json.loads((tmp_path / "broken" / "config.json").read_text())
+    meta["cameras"]["a"] = [[1.0, 0.0]]
+    (tmp_path / "broken" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="config.json.*cameras"):
+        load_model(tmp_path / "broken")
+
+
+def test_cli_trains_one_network_for_all_cameras_and_predicts_a_rig(rig_data, tmp_path, capsys):
+    from mvtex.camera import Rig, look_at, save_rig
+    from mvtex.cli import main
+    from mvtex.texcoords import open_texcoords
+
+    ds, rig, tc, root = rig_data
+    save_rig(rig, tmp_path / "rig.yaml")
+    args = [str(ds.path), "--texcoords", str(tc.path), "--out", str(tmp_path / "m"), "--epochs", "1",
+            "--resolution", "16", "--device", "cpu", "--quiet"]
+    assert main(["train", *args]) == 2  # no --rig and no TEXCOORDS/rig.yaml
+    assert "rig" in capsys.readouterr().err
+    assert main(["train", *args, "--rig", str(tmp_path / "rig.yaml"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["cameras"] == ["a", "b", "c"] and summary["arch"] == "unet"
+    novel = Rig((look_at("side", (-0.9, 0.3, 1.0), (0.2, 0.2, 0.0), width=64, height=48, focal=60), rig["b"]))
+    save_rig(novel, tmp_path / "novel.yaml")
+    assert main(["predict", str(ds.path), "--model", str(tmp_path / "m"), "--rig", str(tmp_path / "novel.yaml"),
+                 "--out", str(tmp_path / "pred"), "--poses", "test", "--quiet"]) == 0
+    pred = open_texcoords(tmp_path / "pred", ds.num_vertices)
+    assert pred.cameras == ["side", "b"] and pred.poses == ds.split["test"]
+    # The paper architecture cannot condition on a camera: a clear error, exit 2.
+    assert main(["train", *args, "--rig", str(tmp_path / "rig.yaml"), "--arch", "paper"]) == 2
+    assert "per camera" in capsys.readouterr().err

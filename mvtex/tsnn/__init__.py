@@ -1,11 +1,14 @@
-"""Texture sliding networks (TSNN): one network per camera maps a pose vector to a
-displacement image over the UV atlas; per-vertex displacements are read from it by
-bilinear sampling at T_G.
+"""Texture sliding networks (TSNN): a network maps what is known at inference time (the
+pose, the inferred mesh X_N, the camera) to a displacement image over the UV atlas;
+per-vertex displacements are read from it by bilinear sampling at T_G.
 
     atlas     per-vertex values <-> atlas images (rasterize in UV, sample with grid_sample)
-    model     the decoder: pose -> linear -> transposed-convolution stages -> (2, R, R)
-    train     `train_camera`: one camera's network from a texcoord set
-    predict   `predict`: camera networks -> a texcoord set ("source": "tsnn")
+    geometry  geometry images of X_N: positions, normals, strain along u and v, curvature
+    model     `UNet` (default: geometry images [+ the camera's view] + pose -> image) and
+              `TSNN` (the paper's: pose -> linear -> transposed convolutions -> image)
+    train     `train`: one camera's network, or one for every camera conditioned on the view
+    predict   `predict`: networks -> a texcoord set ("source": "tsnn") for their own
+              cameras or for any rig
 
 Importing this package is light; torch loads inside the functions that need it.
 """
@@ -14,8 +17,8 @@ from __future__ import annotations
 
 from typing import Any
 
-# `predict` is deliberately not re-exported: the name is the submodule
-# (`from mvtex.tsnn.predict import predict`).
+# `train` and `predict` are deliberately not re-exported: the names are the submodules
+# (`from mvtex.tsnn.train import train`, `from mvtex.tsnn.predict import predict`).
 __all__ = ["TrainOptions", "train_camera", "load_model", "AtlasSampler"]
 
 

@@ -1,8 +1,12 @@
-"""Trained camera networks -> a texcoord set (DESIGN §4, "source": "tsnn").
+"""Trained networks -> a texcoord set (DESIGN §4, "source": "tsnn").
 
 The texcoord set's mesh is the one the networks were trained on, rebuilt from the dataset
 mesh and the models' subdivision level; every displacement is the network's image read at
 the vertex's T_G (bilinear), and `assigned` is all True (a prediction has no ray).
+
+A one-camera model predicts its camera. A camera-conditioned model predicts the cameras of
+a rig, any camera (its view of the inferred mesh is an input), or without a rig the
+cameras it was trained on.
 """
 
 from __future__ import annotations
@@ -18,7 +22,9 @@ from ..camera import check_camera_name
 from ..errors import InputError
 from ..io import read_json
 from ..texcoords import save_texcoords
-from .train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH, MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint, rebuild_mesh
+from .atlas import sample_atlas, vertex_grid
+from .train import (MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH, MODEL_FORMAT, READABLE_VERSIONS, mesh_fingerprint,
+                    rebuild_mesh)
 
 
 @dataclass
@@ -26,18 +32,31 @@ class LoadedModel:
     """A model directory opened for inference.
 
     Attributes:
-        path: the directory. camera: its camera name. meta: config.json.
-        network: the `TSNN` in eval mode on the CPU.
+        path: the directory. meta: config.json.
+        camera: its camera name; None for a camera-conditioned model.
+        cameras: the training cameras, name -> (3,4) cam_from_world (None for a one-camera
+            model, whose camera is implicit).
+        network: the `TSNN` or `UNet` in eval mode on the CPU.
     """
 
     path: Path
-    camera: str
+    camera: str | None
     meta: dict[str, Any]
     network: Any
+    cameras: dict[str, Any] | None = None
 
     @property
     def subdiv(self) -> int:
         return int(self.meta["mesh"]["subdiv"])
+
+    @property
+    def conditioned(self) -> bool:
+        """True when the network takes the camera as an input (serves any camera)."""
+        return bool(getattr(self.network.config, "view", False))
+
+    @property
+    def needs_geometry(self) -> bool:
+        return hasattr(self.network, "geometry_mean")
 
 
 def _require(meta: dict, file: Path, key: str, kind: type | tuple[type, ...]):
@@ -48,7 +67,7 @@ def _require(meta: dict, file: Path, key: str, kind: type | tuple[type, ...]):
 
 
 def load_model(path: str | os.PathLike) -> LoadedModel:
-    """Open a model directory written by `train_camera`.
+    """Open a model directory written by `mvtex.tsnn.train.train`.
 
     Raises:
         InputError: naming config.json or model.safetensors when either is missing,
@@ -58,7 +77,7 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
-    from .model import TSNN, ModelConfig
+    from .model import build_network
 
     path = Path(path)
     if not path.is_dir():
@@ -67,30 +86,55 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     meta = read_json(file)
     if not isinstance(meta, dict) or meta.get("format") != MODEL_FORMAT:
         raise InputError(file, f'not a TSNN model (format must be "{MODEL_FORMAT}")')
-    if meta.get("version") != MODEL_VERSION:
-        raise InputError(file, f"unsupported version {meta.get('version')!r} (expected {MODEL_VERSION})")
-    camera = _require(meta, file, "camera", str)
-    try:
-        check_camera_name(camera)
-    except ValueError as err:
-        raise InputError(file, str(err)) from None
+    if meta.get("version") not in READABLE_VERSIONS:
+        raise InputError(file, f"unsupported version {meta.get('version')!r} "
+                         f"(readable: {', '.join(map(str, READABLE_VERSIONS))})")
+    camera = meta.get("camera")
+    if not (camera is None or isinstance(camera, str)):
+        raise InputError(file, "malformed 'camera' (a name, or null for a camera-conditioned model)")
+    if camera is not None:
+        try:
+            check_camera_name(camera)
+        except ValueError as err:
+            raise InputError(file, str(err)) from None
     arch = _require(meta, file, "architecture", dict)
     mesh = _require(meta, file, "mesh", dict)
     for key in ("subdiv", "num_base_vertices", "num_vertices"):
         if not isinstance(mesh.get(key), int) or isinstance(mesh.get(key), bool) or mesh[key] < 0:
             raise InputError(file, f"missing or malformed 'mesh.{key}'")
-    # Checked before anything is built from it: each level multiplies the mesh by four.
-    if mesh["subdiv"] > MAX_SUBDIV:
-        raise InputError(file, f"mesh.subdiv is {mesh['subdiv']}, at most {MAX_SUBDIV} is supported")
     if not isinstance(mesh.get("base_mesh_sha256"), str):
         raise InputError(file, "missing or malformed 'mesh.base_mesh_sha256'")
+    if mesh["subdiv"] > MAX_SUBDIV:
+        raise InputError(file, f"mesh.subdiv is {mesh['subdiv']}, at most {MAX_SUBDIV} is supported")
+    # Sizes are checked, and the network built on the "meta" device (no memory), before the
+    # weights file is read: config.json cannot make us allocate more than the file holds.
+    widths = arch.get("widths") if isinstance(arch.get("widths"), (list, tuple)) else ()
+    sizes = [arch.get("resolution"), arch.get("width"), arch.get("min_width"), *widths]
+    if any(isinstance(v, (int, float)) and not isinstance(v, bool) and v > limit
+           for v, limit in zip(sizes, [MAX_RESOLUTION] + [MAX_WIDTH] * (len(sizes) - 1))):
+        raise InputError(file, f"architecture too large (resolution at most {MAX_RESOLUTION}, "
+                         f"channels at most {MAX_WIDTH})")
     try:
-        config = ModelConfig.from_dict(arch)
+        with torch.device("meta"):
+            network = build_network(arch)
     except (TypeError, ValueError, OverflowError) as err:
         raise InputError(file, f"bad 'architecture' ({err})") from None
-    if config.resolution > MAX_RESOLUTION or config.width > MAX_WIDTH or config.min_width > MAX_WIDTH:
-        raise InputError(file, f"architecture too large (resolution {config.resolution}, width {config.width}; "
-                         f"at most {MAX_RESOLUTION} and {MAX_WIDTH})")
+    conditioned = bool(getattr(network.config, "view", False))
+    if conditioned == (camera is not None):
+        raise InputError(file, "'camera' must be null exactly when the architecture is conditioned on the view")
+    cameras = None
+    if conditioned:
+        raw = meta.get("cameras")
+        try:
+            cameras = {str(k): np.asarray(v, dtype=np.float64) for k, v in raw.items()}
+        except (AttributeError, TypeError, ValueError):
+            cameras = None
+        if not cameras or any(v.shape != (3, 4) or not np.all(np.isfinite(v)) for v in cameras.values()):
+            raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices")
+    if hasattr(network, "geometry_mean"):  # the U-Net rebuilds its input images: it needs the atlas
+        dilation = meta.get("atlas", {}).get("dilation") if isinstance(meta.get("atlas"), dict) else None
+        if not isinstance(dilation, int) or isinstance(dilation, bool) or not 0 <= dilation <= 64:
+            raise InputError(file, "missing or malformed 'atlas.dilation'")
     weights = path / "model.safetensors"
     if not weights.is_file():
         raise InputError(weights, "file not found")
@@ -98,10 +142,7 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
         state = load_file(str(weights), device="cpu")
     except (SafetensorError, OSError, ValueError, MemoryError) as err:
         raise InputError(weights, f"not a readable safetensors file ({err})") from None
-    # The architecture is built on the "meta" device (no memory) and compared with the
-    # weights file first, so config.json cannot make us allocate more than the file holds.
-    with torch.device("meta"):
-        expected = TSNN(config).state_dict()
+    expected = network.state_dict()
     missing = sorted(set(expected) - set(state))
     unexpected = sorted(set(state) - set(expected))
     if missing or unexpected:
@@ -113,48 +154,84 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
                          f"config.json needs {tuple(expected[bad[0]].shape)}")
     if not all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point()):
         raise InputError(weights, "NaN or infinite weights")
-    network = TSNN(config)
+    network = build_network(arch)
     network.load_state_dict(state)
     network.eval()
-    return LoadedModel(path=path, camera=camera, meta=meta, network=network)
+    return LoadedModel(path=path, camera=camera, meta=meta, network=network, cameras=cameras)
 
 
-def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, *, batch_size: int = 32,
+def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, *, geometry: np.ndarray | None = None,
+                          cam_from_world: np.ndarray | None = None, batch_size: int = 32,
                           device: str = "cpu") -> np.ndarray:
-    """Per-vertex displacements of one network.
+    """Per-vertex displacements of one network for one camera.
 
     Args:
         model: from `load_model`.
         poses: (K,P) float pose vectors.
         uv: (n',2) T_G of the vertices to read.
+        geometry: (K,G,R,R) geometry images of the poses (`mvtex.tsnn.geometry`); `unet` only.
+        cam_from_world: (3,4) extrinsics of the camera; camera-conditioned models only.
 
     Returns:
         (K,n',2) float32 d.
     """
     import torch
 
-    from .atlas import sample_atlas, vertex_grid
-
     net = model.network.to(device)
     grid = vertex_grid(uv).to(device)
     x = torch.from_numpy(np.array(poses, dtype=np.float32)).to(device)
+    cam = None if cam_from_world is None else torch.tensor(np.asarray(cam_from_world, np.float32), device=device)
     out = np.empty((len(x), len(uv), 2), dtype=np.float32)
     with torch.no_grad():
         for start in range(0, len(x), batch_size):
-            images = net(x[start:start + batch_size])
+            xb = x[start:start + batch_size]
+            if model.needs_geometry:
+                g = torch.from_numpy(geometry[start:start + batch_size]).to(device)
+                images = net(xb, g, None if cam is None else cam.expand(len(xb), -1, -1))
+            else:
+                images = net(xb)
             out[start:start + len(images)] = sample_atlas(images, grid).cpu().numpy()
     return out
 
 
+def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.ndarray | None]]:
+    """(camera name, model, cam_from_world or None) for every camera to predict."""
+    jobs: dict[str, tuple[LoadedModel, np.ndarray | None]] = {}
+
+    def add(name: str, model: LoadedModel, view):
+        if name in jobs:
+            raise InputError(model.path / "config.json", f"camera {name!r} is also predicted by {jobs[name][0].path}")
+        jobs[name] = (model, view)
+
+    for m in loaded:  # one-camera models first: they predict their own camera
+        if not m.conditioned:
+            if rig is None or m.camera in rig.names:
+                add(m.camera, m, None)
+    for m in loaded:
+        if m.conditioned:
+            cams = {c.name: c.cam_from_world for c in rig} if rig is not None else m.cameras
+            for name, view in cams.items():
+                if name not in jobs or jobs[name][0].conditioned:
+                    add(name, m, view)
+    if not jobs:
+        raise InputError(loaded[0].path / "config.json", "predicts none of the rig's cameras "
+                         f"({', '.join(rig.names) if rig is not None else ''})")
+    return [(name, m, view) for name, (m, view) in jobs.items()]
+
+
 def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike, *, poses: Sequence[int],
-            progress: bool = True, device: str = "cpu") -> Path:
-    """Run one network per camera over poses and write a texcoord set.
+            rig=None, progress: bool = True, device: str = "cpu") -> Path:
+    """Run networks over poses and write a texcoord set.
 
     Args:
-        dataset: the `mvtex.dataset.Dataset` (its mesh and pose vectors).
-        models: model directories (one per camera, distinct cameras, same subdivision level).
+        dataset: the `mvtex.dataset.Dataset` (its mesh, inferred meshes and pose vectors).
+        models: model directories (same subdivision level): one-camera models and/or a
+            camera-conditioned one.
         out: texcoord set directory to write (atomically).
         poses: dataset pose indices, in the order of the set's rows.
+        rig: a `mvtex.camera.Rig`: predict its cameras (a one-camera model serves its own
+            camera, a camera-conditioned model every other camera of the rig). None: every
+            model's own camera(s).
         progress: progress bar over cameras on stderr.
         device: where to run the networks.
 
@@ -162,8 +239,9 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
         `out` as a Path.
 
     Raises:
-        InputError: a malformed model, models of different subdivision levels or of the same
-            camera, a model made for another mesh or pose size.
+        InputError: a malformed model, models of different subdivision levels, two models
+            for one camera, a model made for another mesh or pose size, a rig camera no
+            model can predict.
     """
     from tqdm import tqdm
 
@@ -174,30 +252,48 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     loaded = [load_model(m) for m in models]
     first = loaded[0]
     fingerprint = mesh_fingerprint(dataset.faces, dataset.uv)
-    seen: dict[str, Path] = {}
     for m in loaded:
         cfg = m.path / "config.json"
         if m.subdiv != first.subdiv:
             raise InputError(cfg, f"subdivision level {m.subdiv} differs from {first.path} ({first.subdiv}); "
                              "one texcoord set has one mesh: predict models of one level together")
-        if m.camera in seen:
-            raise InputError(cfg, f"camera {m.camera!r} is also predicted by {seen[m.camera]}")
-        seen[m.camera] = m.path
         if m.meta["mesh"]["num_base_vertices"] != dataset.num_vertices or m.meta["mesh"]["base_mesh_sha256"] != fingerprint:
             raise InputError(cfg, f"made for another mesh ({m.meta['mesh']['num_base_vertices']} vertices) than "
                              f"{dataset.path} ({dataset.num_vertices} vertices, or different faces/uv)")
         if m.network.config.pose_dim != dataset.poses.shape[1]:
             raise InputError(cfg, f"expects {m.network.config.pose_dim}-dimensional poses, "
                              f"{dataset.path} has {dataset.poses.shape[1]}")
+    jobs = _jobs(loaded, rig)
+    if rig is not None:
+        unserved = [c for c in rig.names if c not in {name for name, _, _ in jobs}]
+        if unserved:
+            raise InputError(out, f"no model predicts camera(s) {', '.join(unserved)} of the rig: give a model "
+                             "per camera or a camera-conditioned one")
     faces, uv, parent = rebuild_mesh(dataset.faces, dataset.uv, first.subdiv)
     if len(uv) != first.meta["mesh"]["num_vertices"]:
         raise InputError(first.path / "config.json", f"mesh.num_vertices {first.meta['mesh']['num_vertices']} but "
                          f"the dataset mesh subdivided {first.subdiv} time(s) has {len(uv)}")
     x = np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), -1)
+    geometry: dict[tuple[int, int], np.ndarray] = {}  # (resolution, dilation) -> images of the poses
     displacement, assigned = {}, {}
-    for m in tqdm(loaded, desc="predict", unit="camera", disable=not progress):
-        displacement[m.camera] = predict_displacements(m, x, uv, device=device)
-        assigned[m.camera] = np.ones((len(poses), len(uv)), dtype=bool)
+    for name, m, view in tqdm(jobs, desc="predict", unit="camera", disable=not progress):
+        g = None
+        if m.needs_geometry:
+            key = (m.network.config.resolution, int(m.meta["atlas"]["dilation"]))
+            if key not in geometry:
+                geometry[key] = _geometry(dataset, poses, faces, uv, parent, *key, source=m.path)
+            g = geometry[key]
+        displacement[name] = predict_displacements(m, x, uv, geometry=g, cam_from_world=view, device=device)
+        assigned[name] = np.ones((len(poses), len(uv)), dtype=bool)
     return save_texcoords(out, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
                           displacement=displacement, assigned=assigned,
-                          models={m.camera: str(m.path) for m in loaded})
+                          models={name: str(m.path) for name, m, _ in jobs})
+
+
+def _geometry(dataset, poses, faces, uv, parent, resolution: int, dilation: int, source) -> np.ndarray:
+    """Geometry images of the poses' inferred meshes on the models' atlas."""
+    from .atlas import AtlasSampler
+    from .geometry import geometry_images
+
+    sampler = AtlasSampler(faces, uv, resolution, dilation=dilation, source=source)
+    return geometry_images(dataset, poses, sampler, parent)

@@ -1,17 +1,26 @@
-"""Training one texture sliding network (one camera) on a texcoord set.
+"""Training a texture sliding network on a texcoord set: one camera's, or one for every
+camera of the set, conditioned on the camera.
 
 The targets are the texcoord set's per-vertex displacements d (on its possibly subdivided
 mesh); the network's image is read at every vertex's T_G with bilinear sampling and the
-loss is the (optionally weighted) mean squared error of d over vertices and poses
-(DESIGN §5 TSNN). Adam at lr 1e-3, the dataset's train/val/test split restricted to the
-poses of the texcoord set, early stopping on the validation loss.
+loss is the (optionally weighted) mean squared error of d over vertices and samples
+(DESIGN §5 TSNN). A sample is a (pose, camera) pair. Adam at lr 1e-3, the dataset's
+train/val/test split restricted to the poses of the texcoord set, early stopping on the
+validation loss.
+
+Architectures (`TrainOptions.arch`): `unet` (default) reads geometry images of the inferred
+mesh (`mvtex.tsnn.geometry`) and the pose; trained without a camera name it also reads the
+view of every texel from the sample's camera, which is what lets it serve cameras it never
+saw. `paper` is the paper's pose -> fully connected -> transposed convolutions decoder
+(one camera only).
 
 A model directory holds:
 
-    model.safetensors   the state dict (weights, batch-norm statistics, pose normalisation)
-    config.json         {"format": "mvtex-tsnn", "version": 1, "camera", "architecture",
-                         "pose_normalisation", "mesh" (subdiv, vertex counts, base-mesh hash),
-                         "split", "options", "losses", "history", ...}
+    model.safetensors   the state dict (weights, normalisation buffers)
+    config.json         {"format": "mvtex-tsnn", "version": 2, "camera" (null: conditioned
+                         on the camera), "cameras" (name -> cam_from_world of the training
+                         cameras), "architecture", "mesh" (subdiv, vertex counts, base-mesh
+                         hash), "atlas", "split", "options", "losses", "history", ...}
     loss.png            training and validation loss per epoch
 """
 
@@ -23,7 +32,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -32,7 +41,9 @@ from ..io import atomic_path
 from ..mesh import apply_parent, subdivide
 
 MODEL_FORMAT = "mvtex-tsnn"
-MODEL_VERSION = 1
+MODEL_VERSION = 2
+READABLE_VERSIONS = (1, 2)  # version 1: paper architecture, one camera, no "arch" key
+ARCHS = ("unet", "paper")
 
 
 MAX_RESOLUTION = 2048  # atlas image size: 2·R² floats per pose and per batch item
@@ -41,21 +52,27 @@ MAX_SUBDIV = 3
 
 @dataclass(frozen=True)
 class TrainOptions:
-    """Options of `train_camera`.
+    """Options of `train`.
 
     Attributes:
+        arch: "unet" (geometry images of X_N + pose, a U-Net; the only one that conditions
+            on the camera) or "paper" (pose only; one camera). On the built-in garment's test
+            poses the U-Net is the more accurate up to 480 training poses, the paper's
+            decoder at 960 (README, examples/tsnn_learning_curve.py).
+        widths: channels per U-Net level (None: (8, 16, 32, 64)).
         epochs: most passes over the training poses.
         resolution: atlas image size R; None: 64 on CPU, 512 on CUDA. d is smooth over the
             atlas, and on the built-in shirt 64² generalises as well as 128² (test MSE of d
             1.11e-5 vs 1.13e-5) at about 0.6x the training time.
-        batch_size: poses per optimiser step.
+        batch_size: samples ((pose, camera) pairs) per optimiser step (None: 16 for `paper`,
+            8 for `unet`, which learns per step and is cheap per sample).
         lr: Adam learning rate (the paper's 1e-3).
         device: "cpu", "cuda", "cuda:1", ... or "auto" (CUDA when available).
         seed: seeds weight initialisation and batch order.
         patience: stop after this many epochs without a better validation loss.
         weight_assigned: loss weight of vertices whose d came from the ray (unassigned,
             extrapolated vertices weigh 1); above 1 favours what the camera sees.
-        width: channels of the first decoder stage (None: 256 on CPU and CUDA).
+        width: channels of the first decoder stage of `paper` (None: 256 on CPU and CUDA).
         min_width: fewest channels of any decoder stage (None: 8 on CPU, 16 on CUDA).
         lr_min_factor: the learning rate decays along a cosine from lr to lr * this factor
             over `epochs` (1.0: constant).
@@ -68,9 +85,11 @@ class TrainOptions:
             sampling backward has no deterministic kernel, so it is off there by default).
     """
 
+    arch: str = "unet"
+    widths: tuple[int, ...] | None = None
     epochs: int = 60
     resolution: int | None = None
-    batch_size: int = 16
+    batch_size: int | None = None
     lr: float = 1e-3
     device: str = "auto"
     seed: int = 0
@@ -96,7 +115,9 @@ class TrainOptions:
         if gpu and not torch.cuda.is_available():
             raise ValueError(f"device {device!r} requested but CUDA is not available")
         return replace(self, device=device,
-                       resolution=self.resolution or (512 if gpu else 64),
+                       resolution=self.resolution or ((512 if self.arch == "paper" else 256) if gpu else 64),
+                       widths=tuple(self.widths) if self.widths else (8, 16, 32, 64),
+                       batch_size=self.batch_size or (16 if self.arch == "paper" else 8),
                        width=self.width or 256,
                        min_width=self.min_width or (16 if gpu else 8),
                        deterministic=(not gpu) if self.deterministic is None else self.deterministic)
@@ -107,6 +128,8 @@ class TrainOptions:
             raise ValueError(f"resolution must be a power of two in 8..{MAX_RESOLUTION}, got {self.resolution}")
         if self.width is not None and not 1 <= self.width <= MAX_WIDTH:
             raise ValueError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
+        if self.arch not in ARCHS:
+            raise ValueError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -178,72 +201,120 @@ def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, tit
 
 
 class _Data:
-    """Targets of one camera for a list of poses, as tensors on the training device."""
+    """Targets of (pose, camera) samples of one split, as tensors on the training device.
 
-    def __init__(self, dataset, texcoords, camera: str, poses: list[int], weight_assigned: float, device):
+    Attributes:
+        x: (S,P) pose vectors. d: (S,n',2) targets. w: (S,n') loss weights.
+        pose_row: (S,) index of the sample's pose in `poses` (and in `geometry`).
+        camera: (S,) index of the sample's camera in the trainer's camera list.
+        geometry: (K,G,R,R) geometry images of `poses` (unet only) or None.
+    """
+
+    def __init__(self, dataset, texcoords, cameras: list[str], poses: list[int], weight_assigned: float, device,
+                 geometry=None):
         import torch
 
         n = len(texcoords.uv)
-        d = np.stack([texcoords.displacement(camera, p) for p in poses]).astype(np.float32) if poses \
-            else np.zeros((0, n, 2), np.float32)
-        a = np.stack([texcoords.assigned(camera, p) for p in poses]).astype(bool) if poses else np.zeros((0, n), bool)
-        if not np.all(np.isfinite(d)):
-            raise InputError(texcoords.path / camera / "displacement.npy", "NaN or infinite displacements")
+        pairs = [(row, c) for row in range(len(poses)) for c in range(len(cameras))]
+        d = np.zeros((len(pairs), n, 2), np.float32)
+        a = np.zeros((len(pairs), n), bool)
+        for i, (row, c) in enumerate(pairs):
+            d[i] = texcoords.displacement(cameras[c], poses[row])
+            a[i] = texcoords.assigned(cameras[c], poses[row])
+        bad = [cameras[c] for i, (_, c) in enumerate(pairs) if not np.all(np.isfinite(d[i]))]
+        if bad:
+            raise InputError(texcoords.path / bad[0] / "displacement.npy", "NaN or infinite displacements")
         self.poses = poses
         self.d_numpy = d
-        pose_dim = int(dataset.poses.shape[1])
-        self.x = torch.from_numpy(np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), pose_dim)).to(device)
+        rows = np.array([row for row, _ in pairs], dtype=np.int64)
+        pose_vectors = np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), dataset.poses.shape[1])
+        self.x = torch.from_numpy(pose_vectors[rows] if len(pairs) else np.zeros((0, dataset.poses.shape[1]),
+                                                                                     np.float32)).to(device)
+        self.pose_row = torch.from_numpy(rows).to(device)
+        self.camera = torch.from_numpy(np.array([c for _, c in pairs], dtype=np.int64)).to(device)
         self.d = torch.from_numpy(d).to(device)
         self.w = torch.from_numpy(np.where(a, weight_assigned, 1.0).astype(np.float32)).to(device)
+        self.geometry = None if geometry is None else torch.from_numpy(geometry).to(device)
 
     def __len__(self) -> int:
-        return len(self.poses)
+        return len(self.d)
+
+
+class _Forward:
+    """Runs a network on samples of a `_Data`, whatever its architecture."""
+
+    def __init__(self, model, cam_from_world=None):
+        self.model = model
+        self.cam_from_world = cam_from_world  # (C,3,4) tensor of the trainer's cameras, or None
+
+    def __call__(self, data: _Data, idx, poses=None):
+        x = data.x[idx] if poses is None else poses
+        if not hasattr(self.model, "geometry_mean"):  # the paper's decoder: the pose alone
+            return self.model(x)
+        cams = self.cam_from_world[data.camera[idx]] if self.model.config.view else None
+        return self.model(x, data.geometry[data.pose_row[idx]], cams)
 
 
 def _weighted_mse(pred, target, weight):
     return ((pred - target).square().sum(-1) * weight).sum() / weight.sum()
 
 
-def _evaluate(model, sampler, grid, data: _Data, batch_size: int) -> dict[str, float]:
-    """Weighted MSE, unweighted RMSE and the zero predictor's weighted MSE over a pose set."""
+def _evaluate(forward: _Forward, sampler, grid, data: _Data, batch_size: int) -> dict[str, float]:
+    """Weighted MSE, unweighted RMSE and the zero predictor's weighted MSE over a sample set."""
     import torch
 
     if len(data) == 0:
         return {}
-    model.eval()
+    forward.model.eval()
     se_w = w_sum = se = zero_w = 0.0
     with torch.no_grad():
         for start in range(0, len(data), batch_size):
-            sl = slice(start, start + batch_size)
-            pred = sampler.sample(model(data.x[sl]), grid)
-            e = (pred - data.d[sl]).square().sum(-1)
-            se_w += float((e * data.w[sl]).sum())
-            w_sum += float(data.w[sl].sum())
+            idx = torch.arange(start, min(start + batch_size, len(data)), device=data.d.device)
+            pred = sampler.sample(forward(data, idx), grid)
+            e = (pred - data.d[idx]).square().sum(-1)
+            se_w += float((e * data.w[idx]).sum())
+            w_sum += float(data.w[idx].sum())
             se += float(e.sum())
-            zero_w += float((data.d[sl].square().sum(-1) * data.w[sl]).sum())
+            zero_w += float((data.d[idx].square().sum(-1) * data.w[idx]).sum())
     n = len(data) * data.d.shape[1]
     return {"loss": se_w / w_sum, "rmse": math.sqrt(se / n), "zero_loss": zero_w / w_sum}
 
 
 def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, options: TrainOptions = TrainOptions(),
                  progress: bool = True) -> dict[str, Any]:
-    """Train the texture sliding network of one camera and write a model directory.
+    """Train the texture sliding network of one camera (`train` with a camera name)."""
+    return train(dataset, texcoords, out, camera=camera, options=options, progress=progress)
+
+
+def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
+          options: TrainOptions = TrainOptions(), train_poses: Sequence[int] | None = None,
+          cameras: Sequence[str] | None = None, progress: bool = True) -> dict[str, Any]:
+    """Train a texture sliding network and write a model directory.
 
     Args:
         dataset: the `mvtex.dataset.Dataset` the texcoord set was made from (poses, split, mesh).
-        texcoords: an opened `TexcoordSet` holding `camera`.
-        camera: camera name.
+        texcoords: an opened `TexcoordSet`.
         out: model directory to write (replaced atomically).
+        camera: train one camera's network; None: one network on every camera of the set,
+            conditioned on the camera (`unet` only; needs `rig`).
+        rig: a `mvtex.camera.Rig` holding the set's cameras (their extrinsics are the
+            network's view inputs); needed when `camera` is None.
         options: see `TrainOptions`.
+        train_poses: train on these poses of the training split only (learning curves);
+            None: every training pose of the set.
+        cameras: with `camera` None, train on these cameras of the set only (held-out
+            camera experiments); None: all of them.
         progress: show a progress bar with the losses on stderr.
 
     Returns:
-        A JSON-serialisable summary: camera, out, device, epochs_run, best_epoch, seconds,
-        losses {"train"|"val"|"test": {"loss", "rmse", "zero_loss"}}, split sizes.
+        A JSON-serialisable summary: camera, cameras, arch, out, device, epochs_run,
+        best_epoch, seconds, losses {"train"|"val"|"test": {"loss", "rmse", "zero_loss"}},
+        split sizes (poses).
 
     Raises:
-        InputError: a camera or pose missing from the texcoord set, a texcoord mesh that is
-            not the dataset mesh subdivided, overlapping uv charts.
+        InputError: a camera or pose missing from the texcoord set or the rig, a texcoord
+            mesh that is not the dataset mesh subdivided, overlapping uv charts.
+        ValueError: bad options (`paper` without a camera name).
     """
     import torch
 
@@ -253,10 +324,33 @@ def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, option
         options.validate()
     except ValueError as err:
         raise InputError(None, f"training options: {err}") from None
-    if camera not in texcoords.cameras:
-        raise InputError(texcoords.path, f"no camera {camera!r} in this texcoord set (it has {', '.join(texcoords.cameras)})")
-    faces, uv, _ = _check_texcoord_mesh(dataset, texcoords)
+    if camera is not None:
+        if camera not in texcoords.cameras:
+            raise InputError(texcoords.path, f"no camera {camera!r} in this texcoord set "
+                             f"(it has {', '.join(texcoords.cameras)})")
+        cameras = [camera]
+    else:
+        if options.arch == "paper":
+            raise ValueError("the paper architecture maps the pose alone: train it per camera (give a camera name)")
+        if rig is None:
+            raise ValueError("a network for every camera needs the rig the texcoord set was made with")
+        cameras = list(texcoords.cameras) if cameras is None else [str(c) for c in cameras]
+        absent = [c for c in cameras if c not in texcoords.cameras]
+        if absent or not cameras:
+            raise InputError(texcoords.path, f"cameras {', '.join(absent) or '(none)'} are not in this texcoord set "
+                             f"(it has {', '.join(texcoords.cameras)})")
+        missing = [c for c in cameras if c not in rig.names]
+        if missing:
+            raise InputError(texcoords.path, f"cameras {', '.join(missing)} of the texcoord set are not in the rig "
+                             f"(it has {', '.join(rig.names)})")
+    views = {c: rig[c].cam_from_world.tolist() for c in cameras} if rig is not None and camera is None else {}
+    faces, uv, parent = _check_texcoord_mesh(dataset, texcoords)
     split = _split(dataset, texcoords)
+    if train_poses is not None:
+        keep = {int(p) for p in train_poses}
+        split["train"] = [p for p in split["train"] if p in keep]
+        if not split["train"]:
+            raise ValueError("none of train_poses is a training pose of the texcoord set")
     device = torch.device(options.device)
     t0 = time.perf_counter()
 
@@ -265,7 +359,7 @@ def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, option
         torch.use_deterministic_algorithms(bool(options.deterministic))
         with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
             torch.manual_seed(options.seed)
-            result = _train(dataset, texcoords, camera, faces, uv, split, options, device, progress)
+            result = _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options, device, progress)
     finally:
         torch.use_deterministic_algorithms(previous_deterministic)
     model, config, history, best_epoch, losses = result
@@ -273,6 +367,7 @@ def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, option
 
     meta = {
         "format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": camera,
+        "cameras": views or {camera: None},
         "architecture": config.to_dict(),
         "pose_normalisation": {"mean": model.pose_mean.cpu().tolist(), "std": model.pose_std.cpu().tolist()},
         "output_scale": float(model.output_scale),
@@ -293,36 +388,83 @@ def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, option
         "history": history,
     }
     _write_model(out, model, meta)
-    return {"camera": camera, "out": str(out), "device": str(device), "resolution": config.resolution,
-            "epochs_run": meta["epochs_run"], "best_epoch": best_epoch, "seconds": meta["seconds"],
-            "num_poses": {k: len(v) for k, v in split.items()}, "losses": losses}
+    return {"camera": camera, "cameras": cameras, "arch": options.arch, "out": str(out), "device": str(device),
+            "resolution": config.resolution, "epochs_run": meta["epochs_run"], "best_epoch": best_epoch,
+            "seconds": meta["seconds"], "num_poses": {k: len(v) for k, v in split.items()}, "losses": losses}
 
 
-def _train(dataset, texcoords, camera, faces, uv, split, options: TrainOptions, device, progress):
+def _masked_stats(images: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel mean and std of (K,C,R,R) images over the texels of a (R,R) mask."""
+    values = images[:, :, mask].transpose(1, 0, 2).reshape(images.shape[1], -1).astype(np.float64)
+    return values.mean(1), values.std(1)
+
+
+def _build(options: TrainOptions, sampler, train: _Data, views: dict, pose_dim: int, geometry_train):
+    """The network with its normalisation set from the training samples."""
     import torch
-    from tqdm import tqdm
 
-    from .atlas import AtlasSampler
-    from .model import TSNN, ModelConfig
+    from .model import TSNN, ModelConfig, UNet, UNetConfig
 
-    sampler = AtlasSampler(faces, uv, options.resolution, dilation=options.dilation, source=texcoords.path / "mesh.npz")
-    grid = sampler.grid().to(device)
-    data = {k: _Data(dataset, texcoords, camera, split[k], options.weight_assigned, device) for k in split}
-    train = data["train"]
-    monitor = "val" if len(data["val"]) else "train"
-
-    config = ModelConfig(pose_dim=int(train.x.shape[1]), resolution=options.resolution, width=options.width,
-                         min_width=options.min_width, dropout=options.dropout)
-    model = TSNN(config)
     mean_d = train.d_numpy.mean(axis=0)  # (n',2): the pose-independent part of d
     scale = float(np.sqrt(np.mean((train.d_numpy - mean_d) ** 2))) if len(train) > 1 else 0.0
     scale = max(scale, 1e-4)  # uv units; keeps a constant target from dividing by zero
     x_train = train.x.cpu().numpy()
-    model.set_normalisation(x_train.mean(0), x_train.std(0), scale)
+    if options.arch == "paper":
+        config = ModelConfig(pose_dim=pose_dim, resolution=options.resolution, width=options.width,
+                             min_width=options.min_width, dropout=options.dropout)
+        model = TSNN(config)
+        model.set_normalisation(x_train.mean(0), x_train.std(0), scale)
+    else:
+        from .geometry import NUM_CHANNELS
+
+        config = UNetConfig(pose_dim=pose_dim, resolution=options.resolution, geometry_channels=NUM_CHANNELS,
+                            view=bool(views), widths=tuple(options.widths))
+        model = UNet(config)
+        region = sampler.layout.tri_id >= 0  # charts and their dilated rings
+        r = options.resolution
+        centres = (np.arange(r) + 0.5) / r
+        atlas = np.stack([region.astype(np.float32), *np.meshgrid(centres, centres)])  # mask, u (columns), v (rows)
+        g_mean, g_std = _masked_stats(geometry_train, sampler.layout.covered)
+        v_mean = v_std = None
+        if views:
+            cams = torch.tensor([views[c] for c in views], dtype=torch.float32)
+            rng = np.random.default_rng(0)
+            pick = rng.choice(len(train), size=min(len(train), 256), replace=False)
+            rows = train.pose_row.cpu().numpy()[pick]
+            with torch.no_grad():
+                v = UNet.view_features(torch.from_numpy(geometry_train[rows]),
+                                       cams[train.camera.cpu().numpy()[pick]]).numpy()
+            v_mean, v_std = _masked_stats(v, sampler.layout.covered)
+        model.set_normalisation(pose_mean=x_train.mean(0), pose_std=x_train.std(0), geometry_mean=g_mean,
+                                geometry_std=g_std, view_mean=v_mean, view_std=v_std, atlas=atlas,
+                                output_scale=scale)
     with torch.no_grad():
         bias = sampler.to_image(mean_d / scale)  # (R,R,2), row 0 at v = 0
         model.bias.copy_(torch.from_numpy(bias).permute(2, 0, 1)[None])
+    return model, config
+
+
+def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options: TrainOptions, device, progress):
+    import torch
+    from tqdm import tqdm
+
+    from .atlas import AtlasSampler
+
+    sampler = AtlasSampler(faces, uv, options.resolution, dilation=options.dilation, source=texcoords.path / "mesh.npz")
+    grid = sampler.grid().to(device)
+    geometry = {k: None for k in split}
+    if options.arch == "unet":
+        from .geometry import geometry_images
+
+        geometry = {k: geometry_images(dataset, split[k], sampler, parent) for k in split}
+    data = {k: _Data(dataset, texcoords, cameras, split[k], options.weight_assigned, device, geometry[k])
+            for k in split}
+    train = data["train"]
+    monitor = "val" if len(data["val"]) else "train"
+    model, config = _build(options, sampler, train, views, int(dataset.poses.shape[1]), geometry["train"])
     model.to(device)
+    cams = torch.tensor([views[c] for c in cameras], dtype=torch.float32, device=device) if views else None
+    forward = _Forward(model, cams)
 
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=options.epochs,
@@ -330,7 +472,8 @@ def _train(dataset, texcoords, camera, faces, uv, split, options: TrainOptions, 
     generator = torch.Generator().manual_seed(options.seed)
     history: dict[str, list[float]] = {"train": [], "val": []}
     best = (math.inf, 0, None)
-    bar = tqdm(range(1, options.epochs + 1), desc=f"train {camera}", unit="epoch", disable=not progress, leave=True)
+    label = cameras[0] if len(cameras) == 1 and not views else f"{len(cameras)} cameras"
+    bar = tqdm(range(1, options.epochs + 1), desc=f"train {label}", unit="epoch", disable=not progress, leave=True)
     for epoch in bar:
         model.train()
         order = torch.randperm(len(train), generator=generator).to(device)
@@ -346,7 +489,7 @@ def _train(dataset, texcoords, camera, faces, uv, split, options: TrainOptions, 
                 # Jitter in units of each component's training std (the network's normalised input).
                 noise = torch.randn(x.shape, generator=generator).to(device)
                 x = x + options.pose_noise * model.pose_std * noise
-            pred = sampler.sample(model(x), grid)
+            pred = sampler.sample(forward(train, idx, x), grid)
             loss = _weighted_mse(pred, train.d[idx], train.w[idx])
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
@@ -355,7 +498,7 @@ def _train(dataset, texcoords, camera, faces, uv, split, options: TrainOptions, 
         schedule.step()
         history["train"].append(total / max(1, sum(len(order[s:s + options.batch_size]) for s in starts)))
         if monitor == "val":
-            history["val"].append(_evaluate(model, sampler, grid, data["val"], 64)["loss"])
+            history["val"].append(_evaluate(forward, sampler, grid, data["val"], 64)["loss"])
         score = history[monitor][-1]
         if score < best[0]:
             best = (score, epoch, {k: v.detach().clone() for k, v in model.state_dict().items()})
@@ -367,7 +510,7 @@ def _train(dataset, texcoords, camera, faces, uv, split, options: TrainOptions, 
     if best[2] is not None:
         model.load_state_dict(best[2])
     model.eval()
-    losses = {k: _evaluate(model, sampler, grid, v, 64) for k, v in data.items() if len(v)}
+    losses = {k: _evaluate(forward, sampler, grid, v, 64) for k, v in data.items() if len(v)}
     return model.cpu(), config, history, best[1], losses
 
 
@@ -379,7 +522,9 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
     with atomic_path(out) as tmp:
         tmp.mkdir()
         state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-        save_file(state, str(tmp / "model.safetensors"), metadata={"format": MODEL_FORMAT, "camera": meta["camera"]})
+        save_file(state, str(tmp / "model.safetensors"),
+                  metadata={"format": MODEL_FORMAT, "camera": meta["camera"] or ",".join(meta["cameras"])})
         (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
         _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
-                   f"TSNN {meta['camera']} ({meta['architecture']['resolution']}², best epoch {meta['best_epoch']})")
+                   f"TSNN {meta['architecture']['arch']} {meta['camera'] or 'all cameras'} "
+                   f"({meta['architecture']['resolution']}², best epoch {meta['best_epoch']})")

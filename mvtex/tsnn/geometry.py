@@ -1,0 +1,127 @@
+"""What the inferred mesh X_N says, as images over the UV atlas (inputs of the `unet` TSNN).
+
+Per vertex of the dataset mesh and per pose, from the inferred positions alone:
+
+    channel  0-2  position X_N (m, world frame)
+             3-5  unit vertex normal (seam copies share one)
+             6    strain along u: mean of incident edges' len/rest_len - 1, weighted by the
+                  share of each edge along u in the atlas (negative = compressed)
+             7    strain along v, the same with v
+             8    umbrella curvature: (mean of the welded neighbours - x) . normal / h²,
+                  h the mean rest edge length (1/m; positive where the surface bends away
+                  from its normal, i.e. in a valley seen from outside)
+
+Values are extended to a subdivided mesh by midpoints (as positions are) and rasterized in
+UV with `AtlasSampler.to_image`, so a texel holds the barycentric interpolation of its
+triangle's corner values. Per camera the network adds the view (positions and normals in
+camera coordinates) itself from channels 0-5 and the camera's extrinsics
+(`mvtex.tsnn.model.UNet`), so one set of images serves every camera.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..mesh import apply_parent, edge_strain, edges, uniform_laplacian, vertex_normals, weld_groups, welded_adjacency
+
+NUM_CHANNELS = 9
+CHANNEL_NAMES = ("x", "y", "z", "nx", "ny", "nz", "strain_u", "strain_v", "curvature")
+
+
+class MeshGeometry:
+    """Per-vertex geometry features of one mesh topology, for any number of poses.
+
+    Args:
+        faces: (m,3) int dataset faces. uv: (n,2) float T_G.
+        rest: (n,3) rest positions; None: the mean edge lengths of `reference` are the rest.
+        reference: (k,n,3) positions used for the rest lengths and seam welding when `rest`
+            is None (e.g. the training poses' inferred meshes).
+    """
+
+    def __init__(self, faces: np.ndarray, uv: np.ndarray, rest: np.ndarray | None = None,
+                 reference: np.ndarray | None = None):
+        self.faces = np.asarray(faces, dtype=np.int64)
+        uv = np.asarray(uv, dtype=np.float64)
+        self.edges = edges(self.faces)
+        if rest is None:
+            if reference is None:
+                raise ValueError("MeshGeometry needs rest positions or reference poses")
+            reference = np.asarray(reference, dtype=np.float64)
+            self.rest_length = np.linalg.norm(reference[:, self.edges[:, 1]] - reference[:, self.edges[:, 0]],
+                                              axis=-1).mean(0)
+            weld_source = reference[0]
+        else:
+            rest = np.asarray(rest, dtype=np.float64)
+            self.rest_length = np.linalg.norm(rest[self.edges[:, 1]] - rest[self.edges[:, 0]], axis=-1)
+            weld_source = rest
+        self.rest_length = np.maximum(self.rest_length, 1e-12)
+        n = len(uv)
+        self.groups = weld_groups(weld_source)
+        adj = welded_adjacency(self.faces, self.groups)
+        deg = np.asarray(adj.sum(axis=1)).ravel()
+        # The umbrella operator: (mean of neighbours - x) = -(L x) / deg, L = D - A the welded
+        # uniform Laplacian.
+        self.umbrella = (-uniform_laplacian(adj)).multiply(1.0 / np.maximum(deg, 1)[:, None]).tocsr()
+        self.h2 = float(np.mean(self.rest_length)) ** 2
+        # Share of each edge along u and along v in the atlas, pooled per vertex.
+        duv = np.abs(uv[self.edges[:, 1]] - uv[self.edges[:, 0]]) ** 2
+        duv = duv / np.maximum(duv.sum(1, keepdims=True), 1e-300)
+        self.edge_share = duv  # (e,2)
+        self.share_sum = np.zeros((n, 2))
+        for k in range(2):
+            np.add.at(self.share_sum, self.edges[:, k], duv)
+        self.num_vertices = n
+
+    def features(self, positions: np.ndarray) -> np.ndarray:
+        """Per-vertex features of poses.
+
+        Args:
+            positions: (K,n,3) inferred positions X_N.
+
+        Returns:
+            (K,n,9) float32 (channels in the module docstring).
+        """
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 3 or p.shape[1:] != (self.num_vertices, 3):
+            raise ValueError(f"expected (K,{self.num_vertices},3) positions, got {p.shape}")
+        k, n = p.shape[:2]
+        out = np.empty((k, n, NUM_CHANNELS), dtype=np.float32)
+        strain = np.linalg.norm(p[:, self.edges[:, 1]] - p[:, self.edges[:, 0]], axis=-1) / self.rest_length - 1.0
+        for i in range(k):
+            normal = vertex_normals(p[i], self.faces, self.groups)
+            acc = np.zeros((n, 2))
+            weighted = strain[i][:, None] * self.edge_share
+            for end in range(2):
+                np.add.at(acc, self.edges[:, end], weighted)
+            out[i, :, 0:3] = p[i]
+            out[i, :, 3:6] = normal
+            out[i, :, 6:8] = acc / np.maximum(self.share_sum, 1e-12)
+            out[i, :, 8] = np.sum((self.umbrella @ p[i]) * normal, axis=1) / self.h2
+        return out
+
+
+def geometry_images(dataset, poses, sampler, parent: np.ndarray, batch: int = 64) -> np.ndarray:
+    """Geometry images of the inferred meshes of some poses.
+
+    Args:
+        dataset: a `mvtex.dataset.Dataset` (faces, uv, rest, inferred positions).
+        poses: dataset pose indices.
+        sampler: `AtlasSampler` of the (possibly subdivided) texcoord mesh.
+        parent: (n',2) parent map from the dataset mesh to the sampler's mesh.
+        batch: poses rasterized per `to_image` call.
+
+    Returns:
+        (K, 9, R, R) float32, row 0 at v ≈ 0; 0 outside the (dilated) charts.
+    """
+    poses = [int(p) for p in poses]
+    geometry = MeshGeometry(dataset.faces, dataset.uv, dataset.rest,
+                            None if dataset.rest is not None else np.asarray(dataset.inferred[:min(64, dataset.num_poses)]))
+    r = sampler.resolution
+    out = np.empty((len(poses), NUM_CHANNELS, r, r), dtype=np.float32)
+    for start in range(0, len(poses), batch):
+        chunk = poses[start:start + batch]
+        feats = apply_parent(geometry.features(np.asarray(dataset.inferred[chunk])), parent)  # (k,n',9)
+        flat = feats.transpose(1, 0, 2).reshape(len(parent), -1)  # (n', k*9): one rasterization pass
+        images = sampler.to_image(flat).reshape(r, r, len(chunk), NUM_CHANNELS)
+        out[start:start + len(chunk)] = images.transpose(2, 3, 0, 1)
+    return out
