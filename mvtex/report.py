@@ -68,7 +68,7 @@ def table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     def cell(v: Any) -> str:
         if isinstance(v, float):
             return f"{v:.4g}"
-        return html.escape(str(v))
+        return "—" if v is None else html.escape(str(v))
 
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in r) + "</tr>" for r in rows)
@@ -207,15 +207,16 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
                       if (out / "render" / "overview.png").is_file() else "")))
 
     def ts_rows(items):
-        return [[name, r["num_images"], r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
+        return [[name, r["num_images"], r.get("material_inferred_mm"), r.get("material_texcoords_mm"),
+                 r.get("ratio_material"), r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
                  r["same_chart_texcoords_e3"], r["ratio_same_chart"]] for name, r in items]
 
-    header = ["", "images", "inferred e-3", "texcoords e-3", "ratio", "same-chart inferred e-3",
-              "same-chart texcoords e-3", "same-chart ratio"]
+    header = ["", "images", "material inferred mm", "material texcoords mm", "material ratio", "inferred e-3",
+              "texcoords e-3", "ratio", "same-chart inferred e-3", "same-chart texcoords e-3", "same-chart ratio"]
     ts = summary.get("texture_sliding", {})
-    heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS (blue 0, red >= 0.04)")
+    heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS; top uv error (blue 0, red >= 0.04), bottom material error (red >= 20 mm)")
                                          for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
-    sections.append(("Texture sliding (SqrtMSE per image, mean)", table(header, ts_rows(ts.items())) + heat))
+    sections.append(("Texture sliding (material error in mm and SqrtMSE per image, mean)", table(header, ts_rows(ts.items())) + heat))
 
     rec = summary.get("reconstruction")
     if rec:
