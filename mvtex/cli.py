@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
                                 help="one of these; `mvtex COMMAND --help` lists its options")
 
-    p = sub.add_parser("synth", help="write the built-in garment dataset")
+    p = sub.add_parser("synth", help="write a built-in garment dataset (shirt or skirt)")
     p.add_argument("out", type=Path, help="dataset directory to write")
     p.add_argument("--poses", type=int, default=300, help="number of poses (default 300)")
     p.add_argument("--seed", type=int, default=0, help="random seed of poses and folds (default 0)")
@@ -99,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_overwrite(p)
     _add_progress(p)
 
-    p = sub.add_parser("eval", help="per-pixel texture-coordinate error: baseline vs a texcoord set")
+    p = sub.add_parser("eval", help="material error (mm) and per-pixel texture-coordinate error: baseline vs a texcoord set")
     p.add_argument("dataset", type=Path, help="dataset directory")
     p.add_argument("--rig", required=True,
                    help="rig YAML or built-in rig name; its cameras that are in the texcoord set are evaluated")
