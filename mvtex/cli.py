@@ -177,6 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="view", help='name of the --weights view (default "view")')
     p.add_argument("--plot", type=Path, help="also write a PNG of SqrtMSE against the path (needs gt): "
                    "baseline, this method and TS computed directly at each view")
+    _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
 
@@ -488,16 +489,17 @@ def cmd_views(args) -> dict:
 
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
-    tc = open_texcoords(args.texcoords, dataset.num_vertices)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     weights, names = _view_weights(args, rig, rig_path)
     poses = dataset.select(args.poses) if args.poses else None
-    result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses,
-                         options=ViewOptions(method=args.method), rig_source=rig_path, progress=not args.quiet)
+    if args.plot is not None and args.weights is not None:
+        raise InputError(args.plot, "--plot needs the views of --between or --grid")
+    with _output(args, "views"):
+        result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses,
+                             options=ViewOptions(method=args.method), rig_source=rig_path, progress=not args.quiet)
     if args.plot is not None:
         from .viewpath import path_plot
 
-        if args.weights is not None:
-            raise InputError(args.plot, "--plot needs the views of --between or --grid")
         result["measured"] = path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
                                        progress=not args.quiet)
     _emit(args, result, f"wrote {len(names)} view(s) x {len(result['poses'])} pose(s) ({args.method}) to {args.out}")
@@ -512,7 +514,7 @@ def cmd_preview(args) -> dict:
 
     dataset = load_dataset(args.dataset)
     rig, rig_path = _load_rig(args.rig)
-    tc = open_texcoords(args.texcoords, dataset.num_vertices)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     weights = parse_weights(args.weights) if args.weights else None
     if not (args.ipd >= 0 and args.ipd < 10):
         raise InputError(None, f"--ipd must be in [0, 10) meters, got {args.ipd}")

@@ -167,3 +167,18 @@ def test_texcoords_from_another_rig_exit_2(tmp_path, sheet_set, capsys):
                        tmp_path / "v", "--weights", "a=0.5,b=0.5", "--quiet")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "other parameters" in err, err
     assert not (tmp_path / "v").exists()
+
+
+def test_views_never_replace_a_folder_they_did_not_write(tmp_path, sheet_set, capsys):
+    dataset, rig_path, ts = sheet_set
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "keep.txt").write_text("x")
+    argv = ["views", dataset, "--rig", rig_path, "--texcoords", ts, "--weights", "a=0.5,b=0.5", "--quiet"]
+    code, _, err = run(capsys, *argv, "--out", mine)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--overwrite" in err, err
+    assert sorted(p.name for p in mine.iterdir()) == ["keep.txt"]
+    # Its own earlier output is replaced on a rerun.
+    assert run(capsys, *argv, "--out", tmp_path / "v")[0] == 0
+    assert run(capsys, *argv, "--out", tmp_path / "v")[0] == 0
+    assert (tmp_path / "v" / "texcoords.json").is_file()
