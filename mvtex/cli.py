@@ -217,7 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-MAX_RESOLUTION = 4096
+# `mvtex.tsnn.train.MAX_RESOLUTION`, repeated here so that `mvtex --help` does not import the
+# training module (tests/test_tsnn.py holds the two equal).
+MAX_RESOLUTION = 2048
 _DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d{1,3})?)$")
 
 

@@ -461,3 +461,11 @@ def test_cli_trains_one_network_for_all_cameras_and_predicts_a_rig(rig_data, tmp
     # The paper architecture cannot condition on a camera: a clear error, exit 2.
     assert main(["train", *args, "--rig", str(tmp_path / "rig.yaml"), "--arch", "paper"]) == 2
     assert "per camera" in capsys.readouterr().err
+
+
+def test_cli_resolution_limit_is_the_training_limit():
+    """The CLI repeats the training module's limit (to keep `mvtex --help` light); they agree."""
+    import mvtex.cli
+    from mvtex.tsnn.train import MAX_RESOLUTION
+
+    assert mvtex.cli.MAX_RESOLUTION == MAX_RESOLUTION

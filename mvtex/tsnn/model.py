@@ -30,6 +30,15 @@ import torch
 from torch import nn
 
 
+def _architecture_keys(cls, d: dict[str, Any]) -> dict[str, Any]:
+    """An `architecture` dict without its "arch" key; ValueError naming keys `cls` lacks."""
+    d = {k: v for k, v in d.items() if k != "arch"}
+    unknown = set(d) - {f.name for f in fields(cls)}
+    if unknown:
+        raise ValueError(f"unknown architecture keys {sorted(unknown)}")
+    return d
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Architecture of a `TSNN`.
@@ -80,11 +89,7 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ModelConfig":
-        d = {k: v for k, v in d.items() if k != "arch"}
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown architecture keys {sorted(unknown)}")
+        d = _architecture_keys(cls, d)
         config = cls(**{k: (None if d[k] is None else float(d[k]) if k == "dropout" else int(d[k])) for k in d})
         config.validate()
         return config
@@ -180,11 +185,7 @@ class UNetConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "UNetConfig":
-        d = {k: v for k, v in d.items() if k != "arch"}
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown architecture keys {sorted(unknown)}")
+        d = _architecture_keys(cls, d)
         if "widths" in d:
             if not isinstance(d["widths"], (list, tuple)):
                 raise ValueError("widths must be a list of integers")
