@@ -136,9 +136,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rig", help="rig of the texcoord set's cameras (needed without --camera: builtin name or "
                    "rig.yaml; default TEXCOORDS/rig.yaml)")
     p.add_argument("--out", type=Path, required=True, help="model directory to write")
-    p.add_argument("--arch", choices=("unet", "paper"), default="unet",
-                   help="unet: geometry images of the inferred mesh + pose, any camera (default; best up to "
-                   "~500 poses); paper: pose only, per camera (best with ~1,000 poses per camera)")
+    p.add_argument("--arch", choices=("gp", "unet", "paper"),
+                   help="gp: Gaussian processes of the pose on the principal components of d, per camera (default "
+                   "with --camera; the most accurate from 120 to 960 poses); unet: geometry images of the inferred "
+                   "mesh + pose, any camera (default without --camera); paper: the paper's pose-only decoder")
+    p.add_argument("--components", type=int, help="principal components of d modelled by gp (default 16)")
     p.add_argument("--epochs", type=int, help="most training epochs (default 60)")
     p.add_argument("--resolution", type=int,
                    help=f"atlas image size, a power of two in 8..{MAX_RESOLUTION} (default: 512 on GPU, 64 on CPU)")
@@ -434,7 +436,10 @@ def cmd_train(args) -> dict:
     dataset = load_dataset(args.dataset)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     options = TrainOptions(seed=args.seed, arch=args.arch)
-    changes = {k: getattr(args, k) for k in ("epochs", "resolution", "device") if getattr(args, k) is not None}
+    if args.components is not None and not 1 <= args.components <= 256:
+        raise InputError(None, f"--components must be in 1..256 (got {args.components})")
+    changes = {k: getattr(args, k) for k in ("epochs", "resolution", "device", "components")
+               if getattr(args, k) is not None}
     options = replace(options, **changes)
     rig = None
     if args.camera is None:

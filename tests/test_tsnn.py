@@ -384,7 +384,7 @@ def test_unet_learns_and_predicts_deterministically(rig_data, tmp_path):
     from mvtex.tsnn.train import TrainOptions, train
 
     ds, rig, tc, _ = rig_data
-    options = TrainOptions(epochs=40, resolution=16, widths=(8, 16), batch_size=4, device="cpu",
+    options = TrainOptions(arch="unet", epochs=40, resolution=16, widths=(8, 16), batch_size=4, device="cpu",
                            patience=100, seed=2)
     result = train(ds, tc, tmp_path / "m1", camera="b", options=options, progress=False)
     assert result["losses"]["test"]["loss"] < 0.7 * result["losses"]["test"]["zero_loss"]
@@ -469,3 +469,55 @@ def test_cli_resolution_limit_is_the_training_limit():
     from mvtex.tsnn.train import MAX_RESOLUTION
 
     assert mvtex.cli.MAX_RESOLUTION == MAX_RESOLUTION
+
+
+def test_gp_loo_residuals_equal_explicit_refits():
+    """The closed-form leave-one-out residuals against K explicit solves without pose i."""
+    from mvtex.tsnn.gp import _kernel, loo_residuals
+
+    rng = np.random.default_rng(4)
+    z = torch.from_numpy(rng.normal(size=(25, 3)))
+    y = torch.from_numpy(np.sin(z[:, 0].numpy()) + 0.1 * rng.normal(size=25))
+    a = _kernel(z, z, torch.log(torch.tensor([0.8, 1.5, 3.0], dtype=torch.float64)),
+                torch.tensor(0.2, dtype=torch.float64)) + 0.05 * torch.eye(25, dtype=torch.float64)
+    fast = loo_residuals(torch.linalg.inv(a), y).numpy()
+    A, Y = a.numpy(), y.numpy()
+    for i in range(25):
+        rest = np.delete(np.arange(25), i)
+        mean_i = A[i, rest] @ np.linalg.solve(A[np.ix_(rest, rest)], Y[rest])
+        assert fast[i] == pytest.approx(Y[i] - mean_i, rel=1e-9, abs=1e-12)
+
+
+def test_gp_learns_the_field_roundtrips_and_is_deterministic(field_data, tmp_path):
+    """`gp` (the default with a camera name) against the closed-form field on held-out poses."""
+    from safetensors.torch import load_file
+
+    from mvtex.texcoords import open_texcoords
+    from mvtex.tsnn.predict import load_model, predict, predict_displacements
+    from mvtex.tsnn.train import TrainOptions, train_camera
+
+    dataset, tc, _ = field_data
+    result = train_camera(dataset, tc, "cam", tmp_path / "a", TrainOptions(components=8), progress=False)
+    assert result["arch"] == "gp" and (tmp_path / "a" / "relevance.png").stat().st_size > 1000
+    test = dataset.split["test"]
+    model = load_model(tmp_path / "a")
+    pred = predict_displacements(model, dataset.poses[test], tc.uv)
+    truth = np.stack([displacement_field(dataset.poses[p], tc.uv) for p in test])
+    assert np.mean(np.sum((pred - truth) ** 2, -1)) < 0.1 * np.mean(np.sum(truth ** 2, -1))
+    # At a training pose the posterior mean is close to the target (little noise in this field).
+    p0 = dataset.split["train"][0]
+    at_train = predict_displacements(model, dataset.poses[[p0]], tc.uv)[0]
+    assert np.abs(at_train - tc.displacement("cam", p0)).max() < 0.1 * np.abs(tc.displacement("cam", p0)).max()
+    out = predict(dataset, [tmp_path / "a"], tmp_path / "pred", poses=test, progress=False)
+    assert np.array_equal(open_texcoords(out, dataset.num_vertices).displacement("cam", test[0]), pred[0])
+    train_camera(dataset, tc, "cam", tmp_path / "b", TrainOptions(components=8), progress=False)
+    a, b = load_file(tmp_path / "a" / "model.safetensors"), load_file(tmp_path / "b" / "model.safetensors")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_gp_cannot_serve_every_camera(rig_data, tmp_path):
+    from mvtex.tsnn.train import TrainOptions, train
+
+    ds, rig, tc, _ = rig_data
+    with pytest.raises(ValueError, match="per camera"):
+        train(ds, tc, tmp_path / "m", rig=rig, options=TrainOptions(arch="gp"), progress=False)

@@ -320,8 +320,8 @@ class UNet(nn.Module):
 
 
 def build_network(arch: dict[str, Any]) -> nn.Module:
-    """The network an `architecture` dict of config.json describes ("arch": "paper" or "unet";
-    no "arch" key: "paper", as written by the first model version).
+    """The model an `architecture` dict of config.json describes ("arch": "paper", "unet" or
+    "gp"; no "arch" key: "paper", as written by the first model version).
 
     Raises:
         ValueError: unknown arch or keys, or an invalid configuration.
@@ -331,4 +331,8 @@ def build_network(arch: dict[str, Any]) -> nn.Module:
         return TSNN(ModelConfig.from_dict({k: v for k, v in arch.items() if k != "arch"}))
     if kind == "unet":
         return UNet(UNetConfig.from_dict(arch))
-    raise ValueError(f"unknown arch {kind!r} (paper or unet)")
+    if kind == "gp":
+        from .gp import GPConfig, PoseGP
+
+        return PoseGP(GPConfig.from_dict(arch))
+    raise ValueError(f"unknown arch {kind!r} (paper, unet or gp)")

@@ -2,9 +2,10 @@
 
 The texcoord set's mesh is the one the networks were trained on, rebuilt from the dataset
 mesh and the models' subdivision level; every displacement is the network's image read at
-the vertex's T_G (bilinear), and `assigned` is all True (a prediction has no ray).
+the vertex's T_G (bilinear) — or, for `gp`, predicted at the vertex directly — and `assigned`
+is all True (a prediction has no ray).
 
-A one-camera model predicts its camera. A camera-conditioned model predicts the cameras of
+A one-camera model (`paper`, `gp`, or `unet` trained with a camera name) predicts its camera. A camera-conditioned model predicts the cameras of
 a rig, any camera (its view of the inferred mesh is an input), or without a rig the
 cameras it was trained on.
 """
@@ -36,7 +37,7 @@ class LoadedModel:
         camera: its camera name; None for a camera-conditioned model.
         cameras: the training cameras, name -> (3,4) cam_from_world (None for a one-camera
             model, whose camera is implicit).
-        network: the `TSNN` or `UNet` in eval mode on the CPU.
+        network: the `TSNN`, `UNet` or `PoseGP` in eval mode on the CPU.
     """
 
     path: Path
@@ -178,6 +179,12 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
     import torch
 
     net = model.network.to(device)
+    if getattr(net, "per_vertex", False):  # `gp`: d at the vertices, no atlas image
+        if len(uv) != net.config.num_vertices:
+            raise InputError(model.path / "config.json", f"predicts {net.config.num_vertices} vertices, "
+                             f"the mesh has {len(uv)}")
+        with torch.no_grad():
+            return net(torch.from_numpy(np.array(poses, dtype=np.float64)).to(device)).cpu().numpy()
     grid = vertex_grid(uv).to(device)
     x = torch.from_numpy(np.array(poses, dtype=np.float32)).to(device)
     cam = None if cam_from_world is None else torch.tensor(np.asarray(cam_from_world, np.float32), device=device)

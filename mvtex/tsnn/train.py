@@ -8,11 +8,14 @@ loss is the (optionally weighted) mean squared error of d over vertices and samp
 train/val/test split restricted to the poses of the texcoord set, early stopping on the
 validation loss.
 
-Architectures (`TrainOptions.arch`): `unet` (default) reads geometry images of the inferred
-mesh (`mvtex.tsnn.geometry`) and the pose; trained without a camera name it also reads the
-view of every texel from the sample's camera, which is what lets it serve cameras it never
-saw. `paper` is the paper's pose -> fully connected -> transposed convolutions decoder
-(one camera only).
+Architectures (`TrainOptions.arch`): `gp` (the default with a camera name) models the
+principal components of the camera's d as Gaussian processes of the pose
+(`mvtex.tsnn.gp`): the most accurate from a few hundred poses up to the ~1,000 measured.
+`unet` (the default without a camera name) reads geometry images of the inferred mesh
+(`mvtex.tsnn.geometry`) and the pose; trained without a camera name it also reads the view
+of every texel from the sample's camera, which is what lets it serve cameras it never saw.
+`paper` is the paper's pose -> fully connected -> transposed convolutions decoder (one
+camera only).
 
 A model directory holds:
 
@@ -21,7 +24,8 @@ A model directory holds:
                          on the camera), "cameras" (name -> cam_from_world of the training
                          cameras), "architecture", "mesh" (subdiv, vertex counts, base-mesh
                          hash), "atlas", "split", "options", "losses", "history", ...}
-    loss.png            training and validation loss per epoch
+    loss.png            training and validation loss per epoch (networks)
+    relevance.png       which pose coordinates move which principal component of d (gp)
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from ..mesh import apply_parent, subdivide
 MODEL_FORMAT = "mvtex-tsnn"
 MODEL_VERSION = 2
 READABLE_VERSIONS = (1, 2)  # version 1: paper architecture, one camera, no "arch" key
-ARCHS = ("unet", "paper")
+ARCHS = ("gp", "unet", "paper")
 
 
 MAX_RESOLUTION = 2048  # atlas image size: 2·R² floats per pose and per batch item
@@ -55,10 +59,13 @@ class TrainOptions:
     """Options of `train`.
 
     Attributes:
-        arch: "unet" (geometry images of X_N + pose, a U-Net; the only one that conditions
-            on the camera) or "paper" (pose only; one camera). On the built-in garment's test
-            poses the U-Net is the more accurate up to 480 training poses, the paper's
-            decoder at 960 (README, examples/tsnn_learning_curve.py).
+        arch: "gp" (Gaussian processes of the pose on the principal components of d; one
+            camera), "unet" (geometry images of X_N + pose, a U-Net; the only one that
+            conditions on the camera) or "paper" (pose only; one camera). None: "gp" for
+            one camera, "unet" for all cameras. On the built-in garment's test poses `gp` is
+            the most accurate at every size measured, 120 to 960 training poses (README,
+            examples/tsnn_learning_curve.py).
+        components: principal components of d that `gp` models (each its own GP).
         widths: channels per U-Net level (None: (8, 16, 32, 64)).
         epochs: most passes over the training poses.
         resolution: atlas image size R; None: 64 on CPU, 512 on CUDA. d is smooth over the
@@ -85,7 +92,8 @@ class TrainOptions:
             sampling backward has no deterministic kernel, so it is off there by default).
     """
 
-    arch: str = "unet"
+    arch: str | None = None
+    components: int = 16
     widths: tuple[int, ...] | None = None
     epochs: int = 60
     resolution: int | None = None
@@ -128,8 +136,10 @@ class TrainOptions:
             raise ValueError(f"resolution must be a power of two in 8..{MAX_RESOLUTION}, got {self.resolution}")
         if self.width is not None and not 1 <= self.width <= MAX_WIDTH:
             raise ValueError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
-        if self.arch not in ARCHS:
+        if self.arch is not None and self.arch not in ARCHS:
             raise ValueError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
+        if not 1 <= self.components <= 256:
+            raise ValueError(f"components must be in 1..256, got {self.components}")
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -259,18 +269,21 @@ def _weighted_mse(pred, target, weight):
     return ((pred - target).square().sum(-1) * weight).sum() / weight.sum()
 
 
-def _evaluate(forward: _Forward, sampler, grid, data: _Data, batch_size: int) -> dict[str, float]:
-    """Weighted MSE, unweighted RMSE and the zero predictor's weighted MSE over a sample set."""
+def _evaluate(predict, data: _Data, batch_size: int) -> dict[str, float]:
+    """Weighted MSE, unweighted RMSE and the zero predictor's weighted MSE over a sample set.
+
+    Args:
+        predict: (data, idx) -> (len(idx),n',2) per-vertex d of those samples (model in eval mode).
+    """
     import torch
 
     if len(data) == 0:
         return {}
-    forward.model.eval()
     se_w = w_sum = se = zero_w = 0.0
     with torch.no_grad():
         for start in range(0, len(data), batch_size):
             idx = torch.arange(start, min(start + batch_size, len(data)), device=data.d.device)
-            pred = sampler.sample(forward(data, idx), grid)
+            pred = predict(data, idx)
             e = (pred - data.d[idx]).square().sum(-1)
             se_w += float((e * data.w[idx]).sum())
             w_sum += float(data.w[idx].sum())
@@ -319,6 +332,8 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
     import torch
 
     out = Path(out)
+    if options.arch is None:
+        options = replace(options, arch="gp" if camera is not None else "unet")
     try:
         options = options.resolved()
         options.validate()
@@ -330,8 +345,9 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
                              f"(it has {', '.join(texcoords.cameras)})")
         cameras = [camera]
     else:
-        if options.arch == "paper":
-            raise ValueError("the paper architecture maps the pose alone: train it per camera (give a camera name)")
+        if options.arch in ("paper", "gp"):
+            raise ValueError(f"the {options.arch} architecture maps the pose alone: train it per camera "
+                             "(give a camera name)")
         if rig is None:
             raise ValueError("a network for every camera needs the rig the texcoord set was made with")
         cameras = list(texcoords.cameras) if cameras is None else [str(c) for c in cameras]
@@ -351,7 +367,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         split["train"] = [p for p in split["train"] if p in keep]
         if not split["train"]:
             raise ValueError("none of train_poses is a training pose of the texcoord set")
-    device = torch.device(options.device)
+    device = torch.device(options.device if options.arch != "gp" else "cpu")
     t0 = time.perf_counter()
 
     previous_deterministic = torch.are_deterministic_algorithms_enabled()
@@ -359,7 +375,11 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         torch.use_deterministic_algorithms(bool(options.deterministic))
         with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
             torch.manual_seed(options.seed)
-            result = _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options, device, progress)
+            if options.arch == "gp":
+                result = _train_gp(dataset, texcoords, cameras[0], split, options, progress)
+            else:
+                result = _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options, device,
+                                progress)
     finally:
         torch.use_deterministic_algorithms(previous_deterministic)
     model, config, history, best_epoch, losses = result
@@ -389,7 +409,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
     }
     _write_model(out, model, meta)
     return {"camera": camera, "cameras": cameras, "arch": options.arch, "out": str(out), "device": str(device),
-            "resolution": config.resolution, "epochs_run": meta["epochs_run"], "best_epoch": best_epoch,
+            "resolution": getattr(config, "resolution", None), "epochs_run": meta["epochs_run"], "best_epoch": best_epoch,
             "seconds": meta["seconds"], "num_poses": {k: len(v) for k, v in split.items()}, "losses": losses}
 
 
@@ -466,6 +486,9 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
     cams = torch.tensor([views[c] for c in cameras], dtype=torch.float32, device=device) if views else None
     forward = _Forward(model, cams)
 
+    def vertices(data: _Data, idx):
+        return sampler.sample(forward(data, idx), grid)
+
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=options.epochs,
                                                           eta_min=options.lr * options.lr_min_factor)
@@ -498,7 +521,8 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
         schedule.step()
         history["train"].append(total / max(1, sum(len(order[s:s + options.batch_size]) for s in starts)))
         if monitor == "val":
-            history["val"].append(_evaluate(forward, sampler, grid, data["val"], 64)["loss"])
+            model.eval()
+            history["val"].append(_evaluate(vertices, data["val"], 64)["loss"])
         score = history[monitor][-1]
         if score < best[0]:
             best = (score, epoch, {k: v.detach().clone() for k, v in model.state_dict().items()})
@@ -510,8 +534,58 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
     if best[2] is not None:
         model.load_state_dict(best[2])
     model.eval()
-    losses = {k: _evaluate(forward, sampler, grid, v, 64) for k, v in data.items() if len(v)}
+    losses = {k: _evaluate(vertices, v, 64) for k, v in data.items() if len(v)}
     return model.cpu(), config, history, best[1], losses
+
+
+def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, progress):
+    """`gp`: fit the Gaussian processes of one camera (on the CPU, float64); `_train`'s results."""
+    import torch
+    from tqdm import tqdm
+
+    from .gp import MAX_TRAIN, fit_pose_gp
+
+    split = dict(split)
+    if len(split["train"]) > MAX_TRAIN:  # an exact GP is O(K^3): evenly spaced training poses
+        keep = np.linspace(0, len(split["train"]) - 1, MAX_TRAIN).round().astype(int)
+        split["train"] = [split["train"][i] for i in keep]
+    data = {k: _Data(dataset, texcoords, [camera], split[k], options.weight_assigned, "cpu") for k in split}
+    train = data["train"]
+    bar = tqdm(total=min(options.components, max(len(train) - 1, 0)), desc=f"train {camera} (gp)",
+               unit="component", disable=not progress)
+
+    def advance(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    with torch.random.fork_rng():
+        model = fit_pose_gp(train.x.numpy(), train.d_numpy, components=options.components, progress=advance)
+    bar.close()
+
+    def vertices(data: _Data, idx):
+        return model(data.x[idx])
+
+    losses = {k: _evaluate(vertices, v, 256) for k, v in data.items() if len(v)}
+    return model, model.config, {"train": [], "val": []}, 0, losses
+
+
+def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
+    """Heatmap of a `gp` model's inverse lengthscales: component (rows) x pose coordinate."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    c, p = relevance.shape
+    fig = Figure(figsize=(min(12.0, 2.0 + 0.45 * p), min(8.0, 1.6 + 0.3 * c)), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    image = ax.imshow(relevance, cmap="viridis", aspect="auto", interpolation="nearest")
+    ax.set_xlabel("pose coordinate")
+    ax.set_ylabel("principal component of d")
+    ax.set_xticks(range(p))
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(image, ax=ax, label="1 / lengthscale (standardised pose)")
+    fig.tight_layout()
+    fig.savefig(path, format="png")
 
 
 def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
@@ -525,6 +599,11 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
         save_file(state, str(tmp / "model.safetensors"),
                   metadata={"format": MODEL_FORMAT, "camera": meta["camera"] or ",".join(meta["cameras"])})
         (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
-        _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
-                   f"TSNN {meta['architecture']['arch']} {meta['camera'] or 'all cameras'} "
-                   f"({meta['architecture']['resolution']}², best epoch {meta['best_epoch']})")
+        if meta["architecture"]["arch"] == "gp":
+            _relevance_plot(tmp / "relevance.png", model.relevance(),
+                            f"gp {meta['camera']}: relevance of the pose coordinates "
+                            f"({meta['architecture']['num_train']} training poses)")
+        else:
+            _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
+                       f"TSNN {meta['architecture']['arch']} {meta['camera'] or 'all cameras'} "
+                       f"({meta['architecture']['resolution']}², best epoch {meta['best_epoch']})")
