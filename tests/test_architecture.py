@@ -18,7 +18,7 @@ LAYERS = [
     ["geometry", "ply", "raster", "extrapolate", "skirt", "synth"],
     ["colmap", "viz", "sliding", "board"],
     ["locate", "calibrate"],
-    ["recon", "rigs", "slide_jobs", "metrics", "render", "tsnn.atlas", "tsnn.geometry", "tsnn.model", "tsnn.train", "tsnn.predict",
+    ["recon", "rigs", "slide_jobs", "metrics", "render", "tsnn.atlas", "tsnn.geometry", "tsnn.gp", "tsnn.model", "tsnn.train", "tsnn.predict",
      "tsnn", "bench"],
     ["export", "views", "viewpath", "preview", "report"],
     ["demo", "cli", "__main__"],

@@ -24,7 +24,7 @@ It is an `nn.Module` with buffers only, so a model directory stores it like the 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any, Callable
 
 import numpy as np
@@ -68,9 +68,10 @@ class GPConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "GPConfig":
-        from .model import _architecture_keys
-
-        d = _architecture_keys(cls, d)
+        d = {k: v for k, v in d.items() if k != "arch"}
+        unknown = set(d) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown architecture keys {sorted(unknown)}")
         if any(isinstance(v, bool) or not isinstance(v, int) for v in d.values()):
             raise ValueError("gp architecture values must be integers")
         config = cls(**d)
