@@ -30,7 +30,8 @@ def main() -> None:
     from mvtex.camera import builtin_rig_path, load_rig
     from mvtex.dataset import load_dataset
     from mvtex.metrics import evaluate
-    from mvtex.sliding import SlideOptions, slide_dataset
+    from mvtex.sliding import SlideOptions
+    from mvtex.slide_jobs import slide_dataset
     from mvtex.synth import SynthOptions, write_synth
     from mvtex.texcoords import open_texcoords
     from mvtex.tsnn.predict import predict

@@ -1,7 +1,7 @@
 """TSNN learning curve: every method on the same test poses, at growing training sets.
 
     python examples/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30] [--steps 1500]
-           [--methods pca_ridge,paper,unet,unet_all] [--plot docs/tsnn_learning_curve.png]
+           [--methods pca_ridge,gp,paper,unet,unet_all] [--plot docs/tsnn_learning_curve.png]
            [--merge OTHER_WORK ...] [--report-only]
 
 On the built-in garment (`mvtex synth --poses 1200`: 960 training, 120 validation, 120
@@ -11,6 +11,8 @@ camera `left` over the 120 test poses:
     inferred    the baseline: the inferred mesh with T_G
     pca_ridge   PCA of d (camera left) + ridge regression from [1, θ, θ_i θ_j] to the PCA
                 coefficients; components and penalty chosen on the validation poses
+    gp          `mvtex train --arch gp` (the default per camera): Gaussian processes of the pose
+                on the principal components of d, camera left
     paper       the paper's network (pose -> FC -> transposed convolutions), camera left
     unet        geometry images of X_N + pose -> U-Net, camera left
     unet_all    one U-Net for both cameras of the rig, conditioned on the camera
@@ -31,8 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-METHODS = ("pca_ridge", "paper", "unet", "unet_all")
-LABELS = {"inferred": "inferred (baseline)", "pca_ridge": "PCA of d + quadratic ridge", "paper": "paper TSNN (pose only)",
+METHODS = ("pca_ridge", "gp", "paper", "unet", "unet_all")
+LABELS = {"inferred": "inferred (baseline)", "pca_ridge": "PCA of d + quadratic ridge",
+          "gp": "Gaussian processes on PCA of d (gp)", "paper": "paper TSNN (pose only)",
           "unet": "U-Net on geometry images", "unet_all": "U-Net, both cameras, camera-conditioned"}
 
 
@@ -97,7 +100,8 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
     from mvtex.camera import builtin_rig_path, load_rig
     from mvtex.dataset import load_dataset
     from mvtex.metrics import evaluate
-    from mvtex.sliding import SlideOptions, slide_dataset
+    from mvtex.sliding import SlideOptions
+    from mvtex.slide_jobs import slide_dataset
     from mvtex.synth import SynthOptions, write_synth
     from mvtex.texcoords import open_texcoords, save_texcoords
     from mvtex.tsnn.predict import predict
@@ -143,6 +147,12 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
                 save_texcoords(pred_dir, faces=tc.faces, uv=tc.uv, parent=tc.parent, source="pca_ridge",
                                subdiv=tc.subdiv, poses=test, displacement={"left": d_test},
                                assigned={"left": np.ones(d_test.shape[:2], bool)})
+            elif method == "gp":
+                model = work / f"model_{method}_{m}"
+                summary = train(ds, tc, model, camera="left", options=TrainOptions(arch="gp"), train_poses=poses,
+                                progress=False)
+                info = {"train_seconds": summary["seconds"]}
+                predict(ds, [model], pred_dir, poses=test, rig=left, progress=False)
             else:
                 arch = "paper" if method == "paper" else "unet"
                 # The same number of optimiser steps at every size, at least `epochs` epochs.

@@ -82,3 +82,17 @@ def test_paper_scale_runs_small(tmp_path):
     assert (tmp_path / "work" / "stereo_w1" / "texcoords.json").exists()
     with pytest.raises(SystemExit, match="exists"):
         load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
+
+
+@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.py")), ids=lambda p: p.stem)
+def test_every_example_imports_names_that_exist(path):
+    """Every `from mvtex... import name` in an example (at any depth) names something real."""
+    import ast
+    import importlib
+
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "mvtex":
+            module = importlib.import_module(node.module)
+            for alias in node.names:
+                assert hasattr(module, alias.name) or importlib.util.find_spec(f"{node.module}.{alias.name}"), \
+                    f"{path.name}: {node.module} has no {alias.name}"
