@@ -141,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "with --camera; the most accurate from 120 to 960 poses); unet: geometry images of the inferred "
                    "mesh + pose, any camera (default without --camera); paper: the paper's pose-only decoder")
     p.add_argument("--components", type=int, help="principal components of d modelled by gp (default 16)")
-    p.add_argument("--epochs", type=int, help="most training epochs (default 60)")
+    p.add_argument("--epochs", type=int, help="most training epochs of unet and paper (default 60)")
     p.add_argument("--resolution", type=int,
                    help=f"atlas image size, a power of two in 8..{MAX_RESOLUTION} (default: 512 on GPU, 64 on CPU)")
     p.add_argument("--device", default=None, help="cpu, cuda, cuda:0 ... (default: cuda if available)")
@@ -211,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("mvtex-demo"),
                    help="output directory (default mvtex-demo; rerun to resume)")
     p.add_argument("--poses", type=int, default=120, help="poses to synthesize (default 120)")
-    p.add_argument("--epochs", type=int, help="TSNN epochs (default: the training default)")
+    p.add_argument("--epochs", type=int, help="kept for scripts; the demo trains the per-camera default gp, which has no epochs")
     _add_overwrite(p)
     _add_json(p)
     _add_progress(p)

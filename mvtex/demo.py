@@ -1,7 +1,7 @@
 """`mvtex demo`: the whole pipeline on the built-in garment, with pictures to look at.
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
-          -> train the TSNN of camera left (U-Net on geometry images) -> predict -> eval
+          -> train the TSNN of camera left (gp: Gaussian processes of the pose) -> predict -> eval
           -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
 
 Each step writes into OUT and is skipped when its output is already there, so an
@@ -96,6 +96,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
 
         t = _step("training the texture sliding network of camera 'left'", progress)
         model = out / "tsnn_left"
+        # The per-camera default (gp); epochs matter only for the networks (--arch unet|paper).
         train_opts = TrainOptions(seed=options.seed, epochs=options.epochs or 30)
         if not (model / "config.json").exists():
             train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
