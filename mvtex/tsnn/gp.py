@@ -33,6 +33,7 @@ from torch import nn
 
 MAX_TRAIN = 2000  # training poses an exact GP is fitted on (O(K^3) time, O(K^2) memory)
 MAX_COMPONENTS = 256
+HYPER_POSES = 400  # training poses the hyperparameters are fitted on
 _STARTS = ((1.0, 0.1), (4.0, 0.1), (1.0, 0.5))  # (lengthscale, noise std) starts, standardised units
 # Shortest lengthscale, in training standard deviations of the pose coordinate: shorter ones
 # only fit noise (a few hundred poses cannot resolve them in a dozen dimensions).
@@ -132,30 +133,38 @@ def loo_residuals(inverse: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return (inverse @ y) / torch.diagonal(inverse)
 
 
-def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int) -> tuple[torch.Tensor, ...]:
-    """Hyperparameters of one GP by maximum marginal likelihood; y (K,) unit variance.
+def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
+                   hyper: np.ndarray | None = None) -> tuple[torch.Tensor, ...]:
+    """One GP: hyperparameters by maximum marginal likelihood, then its posterior weights.
 
     The likelihood has poor local optima (a lengthscale collapsing onto one pose coordinate
     to explain noise), so L-BFGS starts from `_STARTS` and the lowest negative log
-    likelihood wins; lengthscales are bounded below by exp(`_LOG_L_MIN`). A component whose
-    leave-one-out error is no better than predicting 0 gets α = 0.
+    likelihood wins; lengthscales are bounded below by exp(`_LOG_L_MIN`). The
+    hyperparameters are fitted on the rows `hyper` (all when None), the posterior uses
+    every row. A component whose leave-one-out error is no better than predicting 0 gets
+    α = 0.
+
+    Args:
+        z: (K,P) standardised poses. y: (K,) targets, unit variance.
 
     Returns:
         log_lengthscale (P,), log_signal (), alpha (K,) (in y's units).
     """
-    k, p = z.shape
-    eye = torch.eye(k, dtype=torch.float64)
+    p = z.shape[1]
     floor = 1e-6  # noise variance floor (y has unit variance): keeps the covariance well conditioned
+    zh, yh = (z, y) if hyper is None else (z[hyper], y[hyper])
+    eye = torch.eye(len(zh), dtype=torch.float64)
 
-    def covariance(log_l, log_s, log_n):
-        return _kernel(z, z, log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0)) + (torch.exp(2 * log_n) + floor) * eye
+    def covariance(points, log_l, log_s, log_n):
+        return (_kernel(points, points, log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0))
+                + (torch.exp(2 * log_n) + floor) * torch.eye(len(points), dtype=torch.float64))
 
     def objective(params):
-        chol, info = torch.linalg.cholesky_ex(covariance(*params))
+        chol, info = torch.linalg.cholesky_ex(covariance(zh, *params))
         if int(info):
-            return None, None
-        a = torch.cholesky_solve(y[:, None], chol)[:, 0]
-        return 0.5 * (y @ a) + torch.log(torch.diagonal(chol)).sum(), chol
+            return None
+        a = torch.cholesky_solve(yh[:, None], chol)[:, 0]
+        return 0.5 * (yh @ a) + torch.log(torch.diagonal(chol)).sum()
 
     best = None
     for lengthscale, noise in _STARTS:
@@ -167,7 +176,7 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int) -> tuple[t
 
         def closure():
             optimiser.zero_grad()
-            nll, _ = objective(params)
+            nll = objective(params)
             if nll is None:  # not positive definite here: a large value the line search backs off from
                 nll = sum(q.sum() for q in params) * 0.0 + 1e30
             nll.backward()
@@ -175,12 +184,16 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int) -> tuple[t
 
         optimiser.step(closure)
         with torch.no_grad():
-            nll, chol = objective(params)
+            nll = objective(params)
         if nll is not None and torch.isfinite(nll) and (best is None or float(nll) < best[0]):
-            best = (float(nll), [q.detach() for q in params], chol)
+            best = (float(nll), [q.detach() for q in params])
+    del eye
     if best is None:
         raise ValueError("no Gaussian-process fit: the covariance is singular at every start")
-    _, (log_l, log_s, _), chol = best
+    log_l, log_s, log_n = best[1]
+    chol, info = torch.linalg.cholesky_ex(covariance(z, log_l, log_s, log_n))
+    if int(info):
+        raise ValueError("no Gaussian-process fit: the covariance of all training poses is singular")
     inverse = torch.cholesky_inverse(chol)
     alpha = inverse @ y
     # A component the GP predicts no better than its mean (0) from the other poses is left at 0.
@@ -218,6 +231,9 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 16, iteratio
     config = GPConfig(pose_dim=p, num_vertices=y.shape[1] // 2, num_train=k, components=len(order))
     model = PoseGP(config)
     z = torch.from_numpy((x - mean_x) / std_x)
+    # Hyperparameters from at most HYPER_POSES evenly spaced poses (O(K^3) per likelihood
+    # evaluation); the posterior conditions on all of them.
+    hyper = None if k <= HYPER_POSES else np.unique(np.linspace(0, k - 1, HYPER_POSES).round().astype(int))
     with torch.no_grad():
         model.pose_mean.copy_(torch.from_numpy(mean_x))
         model.pose_std.copy_(torch.from_numpy(std_x))
@@ -226,7 +242,7 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 16, iteratio
         model.mean.copy_(torch.from_numpy(mean_d))
     for c in range(len(order)):
         scale = float(coef[:, c].std()) or 1.0
-        log_l, log_s, alpha = _fit_component(z, torch.from_numpy(coef[:, c] / scale), iterations)
+        log_l, log_s, alpha = _fit_component(z, torch.from_numpy(coef[:, c] / scale), iterations, hyper)
         with torch.no_grad():
             model.log_lengthscale[c] = log_l
             model.log_signal[c] = log_s + math.log(scale)  # kernel in coefficient units...
