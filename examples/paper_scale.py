@@ -13,9 +13,11 @@ timing meaningless). Prints a Markdown table (each row also goes to stderr as so
 is measured): throughput in (pose, camera) jobs/s including process start-up, peak
 resident memory of the whole process tree (the command and its workers, summed, sampled
 every 0.1 s; for a Dask row also this script, which holds the scheduler, and the cluster's
-worker processes) and the projected time for 10,000 poses x 12 cameras at the measured
-rate, with the machine, its load average and the commands. Resident memory is sampled
-with psutil (installed with mvtex[dist]).
+worker processes), the peak of its anonymous part (resident memory minus file-backed and
+shared pages: what memory-mapped files and shared libraries do not account for) and the
+projected time for 10,000 poses x 12 cameras at the measured rate, with the machine, its
+load average and the commands. Resident memory is sampled with psutil (installed with
+mvtex[dist]).
 """
 
 from __future__ import annotations
@@ -34,29 +36,33 @@ import psutil
 PROJECTED_JOBS = 10_000 * 12
 
 
-def run_measured(argv: list[str], whole_script: bool = False) -> tuple[float, float]:
+def run_measured(argv: list[str], whole_script: bool = False) -> tuple[float, float, float]:
     """Run a command; return (wall seconds, peak summed RSS of it and its descendants in
-    GiB; with whole_script, of this process and all its descendants instead)."""
+    GiB, peak summed anonymous RSS in GiB); with whole_script, of this process and all its
+    descendants instead. Anonymous = RSS minus shared (file-backed and shared-memory) pages,
+    NaN where psutil does not report shared pages."""
     start = time.perf_counter()
     proc = subprocess.Popen(argv)
     root = psutil.Process(os.getpid() if whole_script else proc.pid)
-    peak = 0
+    peak = peak_anon = 0
     while proc.poll() is None:
-        total = 0
+        total = anon = 0
         try:
             for p in [root, *root.children(recursive=True)]:
                 try:
-                    total += p.memory_info().rss
+                    info = p.memory_info()
+                    total += info.rss
+                    anon += info.rss - getattr(info, "shared", float("nan"))
                 except psutil.NoSuchProcess:
                     pass
         except psutil.NoSuchProcess:
             pass
-        peak = max(peak, total)
+        peak, peak_anon = max(peak, total), max(peak_anon, anon)
         time.sleep(0.1)
     seconds = time.perf_counter() - start
     if proc.returncode != 0:
         raise SystemExit(f"command failed with exit code {proc.returncode}: {shlex.join(argv)}")
-    return seconds, peak / 2**30
+    return seconds, peak / 2**30, peak_anon / 2**30
 
 
 def machine() -> str:
@@ -70,14 +76,16 @@ def machine() -> str:
     return f"{model}, {os.cpu_count()} logical cores, load average {load:.1f} at the end"
 
 
-def slide_row(rig: str, workers: str, poses: int, seconds: float, jobs: int, peak: float) -> str:
+def slide_row(rig: str, workers: str, poses: int, seconds: float, jobs: int, peak: tuple[float, float]) -> str:
     rate = jobs / seconds
     projected = PROJECTED_JOBS / rate / 3600
-    return f"| slide `{rig}`, poses 0:{poses} | {workers} | {seconds:.1f} s | {rate:.1f} | {peak:.2f} | {projected:.1f} h |"
+    return (f"| slide `{rig}`, poses 0:{poses} | {workers} | {seconds:.1f} s | {rate:.1f} | {peak[0]:.2f} | "
+            f"{peak[1]:.2f} | {projected:.1f} h |")
 
 
 def main(work: Path, poses: int = 10_000, trapezoid_poses: int = 4,
          workers: tuple[str, ...] = ("1", "2", "dask:2")) -> str:
+    workers = tuple(str(w) for w in workers)
     mvtex = [sys.executable, "-m", "mvtex"]
     data = work / "data"
     runs = [("synth", None, None, [*mvtex, "synth", str(data), "--poses", str(poses)], 0, 0)]
@@ -97,8 +105,8 @@ def main(work: Path, poses: int = 10_000, trapezoid_poses: int = 4,
     for kind, rig, w, argv, count, jobs in runs:
         if kind == "synth":
             print("$", shlex.join(argv), file=sys.stderr, flush=True)
-            seconds, peak = run_measured(argv)
-            rows.append(f"| synth {poses} poses | – | {seconds:.1f} s | – | {peak:.2f} | – |")
+            seconds, *peak = run_measured(argv)
+            rows.append(f"| synth {poses} poses | – | {seconds:.1f} s | – | {peak[0]:.2f} | {peak[1]:.2f} | – |")
         elif w.startswith("dask:"):
             from dask.distributed import LocalCluster
 
@@ -106,16 +114,16 @@ def main(work: Path, poses: int = 10_000, trapezoid_poses: int = 4,
             with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
                 argv = [*argv, "--scheduler", cluster.scheduler_address]
                 print("$", shlex.join(argv), file=sys.stderr, flush=True)
-                seconds, peak = run_measured(argv, whole_script=True)
+                seconds, *peak = run_measured(argv, whole_script=True)
             rows.append(slide_row(rig, f"Dask LocalCluster, {n} processes", count, seconds, jobs, peak))
         else:
             print("$", shlex.join(argv), file=sys.stderr, flush=True)
-            seconds, peak = run_measured(argv)
+            seconds, *peak = run_measured(argv)
             rows.append(slide_row(rig, w, count, seconds, jobs, peak))
         loads.append(os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan"))
         print(rows[-1], f"(load average {loads[-1]:.1f})", file=sys.stderr, flush=True)
-    header = ("| run | workers | wall time | jobs/s | peak RSS of the process tree (GiB) | "
-              "10,000 poses × 12 cameras at this rate |\n|---|---|---|---|---|---|")
+    header = ("| run | workers | wall time | jobs/s | peak RSS of the process tree (GiB) | of which anonymous (GiB) "
+              "| 10,000 poses × 12 cameras at this rate |\n|---|---|---|---|---|---|---|")
     command = shlex.join(["python", "examples/paper_scale.py", str(work), "--poses", str(poses),
                           "--trapezoid-poses", str(trapezoid_poses), "--workers", ",".join(workers)])
     return (f"Machine: {machine()}; 1-minute load average after each run: {', '.join(f'{x:.1f}' for x in loads)}"
