@@ -444,7 +444,7 @@ def _basis_subset(num: int, cap: int) -> np.ndarray:
     return np.arange(count, dtype=np.int64) * num // count
 
 
-def fit_predictor(gt_train, poses_train: np.ndarray, n_components: int = 6, ridge: float = 1e-2,
+def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: int = 6, ridge: float = 1e-2,
                   max_basis_shapes: int = MAX_BASIS_SHAPES) -> PosePredictor:
     """Fit PCA (few components) of the shapes and ridge regression from pose to coefficients.
 
