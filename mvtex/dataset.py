@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import InputError
-from .io import atomic_path, load_npy, load_npz, read_header, read_json
+from .io import atomic_path, load_npy, load_npz, read_header, read_json, read_rows
 
 FORMAT = "mvtex-dataset"
 VERSION = 1
@@ -166,10 +166,11 @@ def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = No
         raise InputError(source, f"vertex count {array.shape[1]} does not match mesh.npz ({n})")
     if k is not None and array.shape[0] != k:
         raise InputError(source, f"pose count {array.shape[0]} does not match ({k})")
-    # Chunked so a large memory-mapped array is never loaded whole.
+    # Chunked so a large memory-mapped array is never loaded whole (nor left resident).
     for start in range(0, array.shape[0], 64):
-        if not np.all(np.isfinite(array[start:start + 64])):
-            bad = start + int(np.argmax(~np.isfinite(array[start:start + 64]).all(axis=(1, 2))))
+        block = read_rows(array, start, start + 64)
+        if not np.all(np.isfinite(block)):
+            bad = start + int(np.argmax(~np.isfinite(block).all(axis=(1, 2))))
             raise InputError(source, f"NaN or infinite positions (pose {bad})")
 
 

@@ -17,6 +17,7 @@ import contextlib
 import contextvars
 import hashlib
 import json
+import mmap
 import os
 import shutil
 import tempfile
@@ -228,22 +229,44 @@ def _locked(path: Path, command: str) -> Iterator[None]:
         os.close(fd)
 
 
+def read_rows(array: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """Rows start:stop of an array, as a new in-memory array.
+
+    An array memory-mapped by `load_npy` is read through its file, not its map: pages
+    read through a map stay in the process's resident memory for as long as the map lives,
+    so one pass over a memory-mapped 10,000-pose dataset would add its whole size. Any
+    other array (in memory, a slice of a map, Fortran order) is sliced and copied.
+    """
+    start, stop, _ = slice(start, stop).indices(len(array))
+    out = np.empty((max(0, stop - start), *array.shape[1:]), dtype=array.dtype)
+    whole_map = isinstance(array, np.memmap) and isinstance(array.base, mmap.mmap) and array.filename
+    if not (whole_map and array.flags.c_contiguous and out.size):
+        out[...] = array[start:stop]
+        return out
+    row_bytes = out.nbytes // len(out)
+    with open(array.filename, "rb") as file:
+        file.seek(array.offset + start * row_bytes)
+        if file.readinto(memoryview(out).cast("B")) != out.nbytes:
+            raise InputError(array.filename, "shorter than its .npy header says")
+    return out
+
+
 def fingerprint(*arrays: np.ndarray, block_bytes: int = 1 << 24) -> str:
     """A content hash (BLAKE2b, 16 hex digits) of arrays' shapes, dtypes and bytes.
 
-    Reads memory-mapped arrays in blocks of `block_bytes`, so a large dataset is hashed
-    without being loaded whole.
+    Reads memory-mapped arrays in blocks of `block_bytes` through `read_rows`, so a large
+    dataset is hashed without being loaded whole or left resident.
     """
     h = hashlib.blake2b(digest_size=8)
     for a in arrays:
-        a = np.asarray(a)
+        a = a if isinstance(a, np.memmap) else np.asarray(a)
         h.update(f"{a.shape}{a.dtype.str}".encode())
         if a.ndim == 0 or a.size == 0:
-            h.update(a.tobytes())
+            h.update(np.asarray(a).tobytes())
             continue
         rows = max(1, block_bytes // max(1, a[0].nbytes))
         for start in range(0, len(a), rows):
-            h.update(np.ascontiguousarray(a[start:start + rows]).data)
+            h.update(np.ascontiguousarray(read_rows(a, start, start + rows)).data)
     return h.hexdigest()
 
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from .camera import Rig
 from .errors import InputError
+from .io import read_rows
 from .sliding import SlideOptions, SlideTopology, build_topology, slide_pose
 
 if TYPE_CHECKING:
@@ -114,8 +115,11 @@ def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
     a_out = np.empty((len(rows), len(topo.uv)), bool)
     for i, row in enumerate(rows):
         k = poses[row]
-        d_out[i], a_out[i] = slide_pose(ds.gt[k], ds.inferred[k], ds.faces, ds.uv, cam, topo.subdivision,
-                                        spec.options, topology=topo, ctx=state.ctx)
+        # Read through the files (`read_rows`): rows read through the dataset's maps would stay
+        # resident, and a long run would end up holding the whole dataset.
+        d_out[i], a_out[i] = slide_pose(read_rows(ds.gt, k, k + 1)[0], read_rows(ds.inferred, k, k + 1)[0],
+                                        ds.faces, ds.uv, cam, topo.subdivision, spec.options, topology=topo,
+                                        ctx=state.ctx)
     return camera, rows, d_out, a_out
 
 
@@ -206,14 +210,23 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             np.save(tmp / cam / "done.npy", np.zeros(len(poses), bool), allow_pickle=False)
         os.replace(tmp, partial)
 
-    disp = {c: open_memmap(partial / c / "displacement.npy", mode="r+") for c in rig.names}
-    asg = {c: open_memmap(partial / c / "assigned.npy", mode="r+") for c in rig.names}
+    def write_rows(cam: str, rows: list[int], d: np.ndarray, a: np.ndarray) -> None:
+        # Through maps opened for this write only: pages written through a map stay in the
+        # process's resident memory while it is open, which would grow with the run.
+        for name, values in (("displacement.npy", d), ("assigned.npy", a)):
+            mapped = open_memmap(partial / cam / name, mode="r+")
+            mapped[rows] = values
+            mapped.flush()
+            del mapped
+
     # A missing done mask (a run stopped while finishing) means: redo that camera.
     done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool)
             if (partial / c / "done.npy").is_file() else np.zeros(len(poses), bool) for c in rig.names}
     for c in rig.names:
-        if disp[c].shape != (len(poses), n_sub, 2) or asg[c].shape != (len(poses), n_sub) or done[c].shape != (len(poses),):
+        disp, asg = (load_npy(partial / c / name) for name in ("displacement.npy", "assigned.npy"))
+        if disp.shape != (len(poses), n_sub, 2) or asg.shape != (len(poses), n_sub) or done[c].shape != (len(poses),):
             raise InputError(partial / c, "unfinished result has unexpected array shapes; delete it and rerun")
+        del disp, asg
     tasks = []
     for c in rig.names:
         todo = np.flatnonzero(~done[c]).tolist()
@@ -239,10 +252,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     total = len(poses) * len(rig)
     dirty: set = set()
 
-    def flush() -> None:
+    def flush() -> None:  # the rows are on disk already (`write_rows`); now mark them done
         for c in dirty:
-            disp[c].flush()
-            asg[c].flush()
             save_npy(partial / c / "done.npy", done[c])
         dirty.clear()
 
@@ -253,8 +264,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     try:
         for cam, rows, d, a in map_unordered(_slide_chunk, [(spec, c, rows, poses) for c, rows in tasks],
                                              workers=workers, scheduler=scheduler):
-            disp[cam][rows] = d
-            asg[cam][rows] = a
+            write_rows(cam, rows, d, a)
             done[cam][rows] = True
             dirty.add(cam)
             bar.update(len(rows))
@@ -265,7 +275,6 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         _set_state(None)
         if own_ctx is not None:
             own_ctx.release()
-    del disp, asg
     missing = [c for c in rig.names if not done[c].all()]
     if missing:  # a backend that lost tasks: never rename an incomplete set into place
         raise RuntimeError(f"{partial}: {int((~done[missing[0]]).sum())} poses of camera {missing[0]!r} were not "

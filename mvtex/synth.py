@@ -19,7 +19,8 @@ A ground-truth pose is built in two layers:
   offset along the base surface's normal.
 
 The *inferred* meshes come from a predictor fitted on the training poses (PCA of the
-ground-truth shapes, ridge regression from the pose to the PCA coefficients).
+ground-truth shapes, of at most `MAX_BASIS_SHAPES` evenly spaced ones; ridge regression
+from the pose to the PCA coefficients over all of them).
 `synthesize` writes nothing; `mvtex.dataset.save_dataset` owns the file format, and
 `write_synth` writes the same files while streaming the shapes to disk.
 """
@@ -39,6 +40,7 @@ from .mesh import edge_strain, edges, grid_faces
 
 __all__ = [
     "GARMENTS",
+    "MAX_BASIS_SHAPES",
     "POSE_DIM",
     "PosePredictor",
     "SynthOptions",
@@ -60,6 +62,7 @@ _U0_FRONT, _U0_BACK, _CHART_WIDTH = 0.02, 0.52, 0.46  # chart placement in u
 _TABLE_S, _TABLE_AMP = 241, 17  # fold profile tables: samples along s, amplitude levels
 GARMENTS = ("shirt", "skirt")
 _CHUNK = 256  # poses per block when streaming shapes to and from disk
+MAX_BASIS_SHAPES = 1000  # most training shapes the predictor's PCA basis is computed from
 
 
 @dataclass(frozen=True)
@@ -434,51 +437,94 @@ class PosePredictor:
         return flat.reshape(len(poses), -1, 3)[:, self.expand].astype(np.float32)
 
 
-def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: int = 6,
-                  ridge: float = 1e-2) -> PosePredictor:
+def _basis_subset(num: int, cap: int) -> np.ndarray:
+    """Indices of at most `cap` of `num` shapes, evenly spaced and sorted: all of them
+    (0, 1, ..., num - 1) when num <= cap, else floor(i * num / cap) for i < cap."""
+    count = min(num, cap)
+    return np.arange(count, dtype=np.int64) * num // count
+
+
+def fit_predictor(gt_train: np.ndarray, poses_train: np.ndarray, n_components: int = 6, ridge: float = 1e-2,
+                  max_basis_shapes: int = MAX_BASIS_SHAPES) -> PosePredictor:
     """Fit PCA (few components) of the shapes and ridge regression from pose to coefficients.
 
     With few components and a model linear in the pose, the fit cannot follow folds
     whose position and depth depend nonlinearly on the pose: its meshes are smooth and
     off in tangential material position, like a learned cloth predictor's.
 
+    Memory does not grow with the number of training shapes K. The PCA basis is computed
+    from at most `max_basis_shapes` of them (evenly spaced in training order, so
+    deterministic; all of them when K <= max_basis_shapes, and then the result is the
+    plain PCA of all shapes) through their small Gram matrix. The mean shape and the ridge
+    regression use ALL K shapes: they are read `_CHUNK` at a time, projected onto the
+    basis, and only the (P + 1) x (P + 1) and (P + 1) x k normal equations are summed, so
+    no (K, 3t) float64 array exists. A few components of shapes this smooth are pinned
+    down by a thousand samples; the regression, whose error is what the inferred meshes
+    show, still sees every pose.
+
     Args:
-        gt_train: (K, n, 3) training shapes.
+        gt_train: (K, n, 3) training shapes: an array, or anything with `.shape` that
+            returns arrays for `gt_train[a:b]` and `gt_train[index_array]` (a memory map;
+            it is read in blocks, never whole).
         poses_train: (K, P) their poses.
-        n_components: PCA components kept (at most K - 1 are used).
+        n_components: PCA components kept (at most min(K, max_basis_shapes) - 1 are used).
         ridge: penalty on the pose weights (not on the bias).
+        max_basis_shapes: most training shapes the PCA basis is computed from (>= 2).
     """
-    # Kept in its own (float32) type until the distinct tracks are gathered: every step
-    # before that is a comparison or an ordering, exact in either type.
-    gt = np.asarray(gt_train)
+    gt = gt_train if hasattr(gt_train, "shape") and hasattr(gt_train, "__getitem__") else np.asarray(gt_train)
     poses = np.asarray(poses_train, dtype=np.float64)
-    if gt.ndim != 3 or gt.shape[2] != 3 or poses.ndim != 2 or len(poses) != len(gt) or len(gt) < 1:
-        raise ValueError(f"expected gt_train (K, n, 3) and poses_train (K, P), got {gt.shape} and {poses.shape}")
-    num = len(gt)
+    shape = tuple(gt.shape)
+    if len(shape) != 3 or shape[2] != 3 or poses.ndim != 2 or len(poses) != shape[0] or shape[0] < 1:
+        raise ValueError(f"expected gt_train (K, n, 3) and poses_train (K, P), got {shape} and {poses.shape}")
+    if max_basis_shapes < 2:
+        raise ValueError(f"max_basis_shapes must be at least 2, got {max_basis_shapes}")
+    num = shape[0]
+    blocks = [(lo, min(lo + _CHUNK, num)) for lo in range(0, num, _CHUNK)]
     # Tie vertices that coincide in every training shape; candidates come from the first.
-    _, first, expand = np.unique(gt[0], axis=0, return_index=True, return_inverse=True)
+    # Kept in the shapes' own (float32) type until the distinct tracks are gathered: every
+    # step before that is a comparison or an ordering, exact in either type.
+    _, first, expand = np.unique(np.asarray(gt[0:1])[0], axis=0, return_index=True, return_inverse=True)
     expand = expand.reshape(-1)
-    differs = np.zeros(gt.shape[1], bool)
-    for lo in range(0, num, _CHUNK):  # no second (K, n, 3) array
-        differs |= np.any(gt[lo:lo + _CHUNK, first[expand]] != gt[lo:lo + _CHUNK], axis=(0, 2))
+    differs = np.zeros(shape[1], bool)
+    for lo, hi in blocks:
+        block = np.asarray(gt[lo:hi])
+        differs |= np.any(block[:, first[expand]] != block, axis=(0, 2))
     untied = np.flatnonzero(differs)
     first = np.concatenate([first, untied])
     expand[untied] = len(first) - len(untied) + np.arange(len(untied))
-    shapes = gt[:, first].reshape(num, -1).astype(np.float64)
-    del gt
-    mean = shapes.mean(axis=0)
-    shapes -= mean  # in place: the same values as shapes - mean, one array fewer
-    centred = shapes
-    # PCA through the small (K, K) Gram matrix: K << 3n, much faster than an SVD of the data.
+
+    def tracks(rows: np.ndarray) -> np.ndarray:
+        """(r, 3t) float64 distinct tracks of (r, n, 3) shapes."""
+        return rows[:, first].reshape(len(rows), -1).astype(np.float64)
+
+    subset = _basis_subset(num, max_basis_shapes)
+    everything = len(subset) == num
+    centred = tracks(np.asarray(gt[0:num] if everything else gt[subset]))
+    subset_mean = centred.mean(axis=0)
+    centred -= subset_mean  # in place: the same values as centred - mean, one array fewer
+    # PCA through the small (S, S) Gram matrix: S << 3t, much faster than an SVD of the data.
     eigval, eigvec = np.linalg.eigh(centred @ centred.T)
-    keep = np.argsort(eigval)[::-1][: max(0, min(n_components, num - 1))]
+    keep = np.argsort(eigval)[::-1][: max(0, min(n_components, len(subset) - 1))]
     keep = keep[eigval[keep] > 1e-12 * max(eigval.max(), 1e-300)]
     components = (eigvec[:, keep].T @ centred) / np.sqrt(eigval[keep])[:, None]
-    coeffs = centred @ components.T
     features = np.hstack([poses, np.ones((num, 1))])
     penalty = ridge * np.eye(features.shape[1])
     penalty[-1, -1] = 0.0
-    weights = np.linalg.solve(features.T @ features + penalty, features.T @ coeffs)
+    if everything:  # one block: the centred shapes are all in memory already
+        mean = subset_mean
+        normal, rhs = features.T @ features, features.T @ (centred @ components.T)
+    else:
+        del centred
+        mean = np.zeros_like(subset_mean)
+        for lo, hi in blocks:
+            mean += tracks(np.asarray(gt[lo:hi])).sum(axis=0)
+        mean /= num
+        normal, rhs = np.zeros((features.shape[1],) * 2), np.zeros((features.shape[1], len(keep)))
+        for lo, hi in blocks:
+            coeffs = (tracks(np.asarray(gt[lo:hi])) - mean) @ components.T
+            normal += features[lo:hi].T @ features[lo:hi]
+            rhs += features[lo:hi].T @ coeffs
+    weights = np.linalg.solve(normal + penalty, rhs)
     return PosePredictor(mean, components, weights, expand)
 
 
@@ -511,6 +557,18 @@ def _check_options(options: SynthOptions) -> None:
         raise ValueError(f"need pca_components >= 1 and ridge >= 0, got {options.pca_components} and {options.ridge}")
 
 
+class _Rows:
+    """The rows `index` of a (K, n, 3) array or `_RowFile`, read only when indexed: the
+    predictor fit reads the training shapes block by block through it."""
+
+    def __init__(self, base, index: np.ndarray):
+        self.base, self.index = base, index
+        self.shape = (len(index), *base.shape[1:])
+
+    def __getitem__(self, key) -> np.ndarray:
+        return np.asarray(self.base[self.index[key]])
+
+
 def _generate(options: SynthOptions, gt_out: np.ndarray, inferred_out: np.ndarray) -> tuple:
     """Fill gt_out and inferred_out ((K, n, 3) float32, in memory or `_RowFile`) pose by
     pose and block by block, and compute the statistics. The shapes are computed per pose
@@ -530,7 +588,8 @@ def _generate(options: SynthOptions, gt_out: np.ndarray, inferred_out: np.ndarra
         wavelengths += [w for d, w, _ in info if d >= 5e-3]
         peaks.append(max(p for _, _, p in info))
     split = default_split(options.num_poses, options.seed)
-    predictor = fit_predictor(gt_out[split["train"]], poses[split["train"]], options.pca_components, options.ridge)
+    train = np.asarray(split["train"], dtype=np.int64)
+    predictor = fit_predictor(_Rows(gt_out, train), poses[train], options.pca_components, options.ridge)
     edge_list = edges(faces)
     # Per-pose sums (K,) float64: the means over poses and edges / vertices need no (K, e)
     # array, so memory does not grow with K.
@@ -623,7 +682,8 @@ class _RowFile:
 def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> dict:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
     streaming: the shapes go to gt.npy / inferred.npy block by block as they are made, so
-    memory does not hold all poses (the predictor fit still holds the training shapes).
+    memory does not hold all poses, and the predictor fit reads the training shapes in
+    blocks too (`fit_predictor`): peak memory does not grow with `num_poses`.
     The files are byte for byte those `mvtex.dataset.save_dataset` writes for
     `synthesize(options)` (tests/test_synth.py checks it).
 

@@ -149,3 +149,42 @@ def test_save_is_atomic_on_bad_input(tmp_path):
         save_dataset(tmp_path / "ds", faces=faces, uv=uv, gt=gt, inferred=gt[:, :-1], poses=np.zeros((2, 1)))
     assert not (tmp_path / "ds").exists()
     assert list(tmp_path.iterdir()) == []
+
+
+def _mapped_rss_kb(path) -> int:
+    """Resident kB of this process's mappings of `path` (/proc/self/smaps)."""
+    total, inside = 0, False
+    for line in open("/proc/self/smaps"):
+        fields = line.split()
+        if "-" in fields[0] and len(fields) >= 5:  # a mapping's header line
+            inside = len(fields) >= 6 and fields[-1] == str(path)
+        elif inside and fields[0] == "Rss:":
+            total += int(fields[1])
+    return total
+
+
+def test_read_rows_reads_maps_through_the_file(tmp_path):
+    from mvtex.io import fingerprint, load_npy, read_rows
+
+    values = np.random.default_rng(0).normal(size=(300, 50, 3)).astype(np.float32)
+    np.save(tmp_path / "a.npy", values)
+    np.save(tmp_path / "f.npy", np.asfortranarray(values))
+    mapped, fortran = load_npy(tmp_path / "a.npy"), load_npy(tmp_path / "f.npy")
+    for start, stop in ((0, 300), (2, 5), (295, 400), (6, 3), (-4, -1)):
+        for source in (mapped, values, mapped[10:], fortran):
+            rows = read_rows(source, start, stop)
+            np.testing.assert_array_equal(rows, np.asarray(source)[start:stop])
+            assert type(rows) is np.ndarray and not np.shares_memory(rows, source)
+    assert fingerprint(mapped, fortran) == fingerprint(values, np.asfortranarray(values))
+    if not __import__("os").path.exists("/proc/self/smaps"):
+        return
+    # Nothing of a file read by read_rows becomes resident through its map; a plain read
+    # through the map does.
+    path = (tmp_path / "b.npy").resolve()
+    np.save(path, values)
+    mapped = load_npy(path)
+    np.testing.assert_array_equal(read_rows(mapped, 0, len(mapped)), values)
+    assert fingerprint(mapped) == fingerprint(values)
+    assert _mapped_rss_kb(path) == 0
+    np.testing.assert_array_equal(np.array(mapped), values)
+    assert _mapped_rss_kb(path) >= values.nbytes // 1024 // 2
