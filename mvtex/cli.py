@@ -140,7 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="gp: Gaussian processes of the pose on the principal components of d, per camera (default "
                    "with --camera; the most accurate from 120 to 960 poses); unet: geometry images of the inferred "
                    "mesh + pose, any camera (default without --camera); paper: the paper's pose-only decoder")
-    p.add_argument("--components", type=int, help="principal components of d modelled by gp (default 16)")
+    p.add_argument("--components", type=int, help="principal components of d modelled by gp (default 32)")
     p.add_argument("--epochs", type=int, help="most training epochs of unet and paper (default 60)")
     p.add_argument("--resolution", type=int,
                    help=f"atlas image size, a power of two in 8..{MAX_RESOLUTION} (default: 512 on GPU, 64 on CPU)")

@@ -33,7 +33,8 @@ from torch import nn
 
 MAX_TRAIN = 2000  # training poses an exact GP is fitted on (O(K^3) time, O(K^2) memory)
 MAX_COMPONENTS = 256
-HYPER_POSES = 400  # training poses the hyperparameters are fitted on
+HYPER_POSES = 400  # training poses the hyperparameters are fitted on, before refining on all
+_REFINE_ITERATIONS = 10
 _STARTS = ((1.0, 0.1), (4.0, 0.1), (1.0, 0.5))  # (lengthscale, noise std) starts, standardised units
 # Shortest lengthscale, in training standard deviations of the pose coordinate: shorter ones
 # only fit noise (a few hundred poses cannot resolve them in a dozen dimensions).
@@ -153,7 +154,6 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
     p = z.shape[1]
     floor = 1e-6  # noise variance floor (y has unit variance): keeps the covariance well conditioned
     zh, yh = (z, y) if hyper is None else (z[hyper], y[hyper])
-    eye = torch.eye(len(zh), dtype=torch.float64)
 
     def covariance(points, log_l, log_s, log_n):
         return (_kernel(points, points, log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0))
@@ -166,11 +166,11 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
         a = torch.cholesky_solve(yh[:, None], chol)[:, 0]
         return 0.5 * (yh @ a) + torch.log(torch.diagonal(chol)).sum()
 
-    best = None
-    for lengthscale, noise in _STARTS:
-        params = [torch.full((p,), math.log(lengthscale), dtype=torch.float64, requires_grad=True),
-                  torch.zeros((), dtype=torch.float64, requires_grad=True),
-                  torch.tensor(math.log(noise), dtype=torch.float64, requires_grad=True)]
+    best = fallback = None
+    starts = [[torch.full((p,), math.log(lengthscale), dtype=torch.float64), torch.zeros((), dtype=torch.float64),
+               torch.tensor(math.log(noise), dtype=torch.float64)] for lengthscale, noise in _STARTS]
+    while starts:
+        params = [q.clone().requires_grad_(True) for q in starts.pop(0)]
         optimiser = torch.optim.LBFGS(params, lr=0.5, max_iter=iterations, history_size=20,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-7, tolerance_change=1e-10)
 
@@ -187,10 +187,13 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
             nll = objective(params)
         if nll is not None and torch.isfinite(nll) and (best is None or float(nll) < best[0]):
             best = (float(nll), [q.detach() for q in params])
-    del eye
-    if best is None:
+        if not starts and hyper is not None and best is not None:
+            # Refine the subset's best on every pose: a few iterations from a good start.
+            zh, yh, hyper, iterations = z, y, None, _REFINE_ITERATIONS
+            starts, fallback, best = [best[1]], best[1], None
+    if best is None and fallback is None:
         raise ValueError("no Gaussian-process fit: the covariance is singular at every start")
-    log_l, log_s, log_n = best[1]
+    log_l, log_s, log_n = best[1] if best is not None else fallback
     chol, info = torch.linalg.cholesky_ex(covariance(z, log_l, log_s, log_n))
     if int(info):
         raise ValueError("no Gaussian-process fit: the covariance of all training poses is singular")
@@ -202,7 +205,7 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
     return log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0), alpha
 
 
-def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 16, iterations: int = 60,
+def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iterations: int = 60,
                 progress: Callable[[int, int], None] | None = None) -> PoseGP:
     """Fit a `PoseGP` to training displacements.
 

@@ -93,7 +93,7 @@ class TrainOptions:
     """
 
     arch: str | None = None
-    components: int = 16
+    components: int = 32
     widths: tuple[int, ...] | None = None
     epochs: int = 60
     resolution: int | None = None
