@@ -544,11 +544,30 @@ def reference_set(tmp_path_factory, slow_dataset, front_rig, gl):
     return base
 
 
+@pytest.fixture(scope="module")
+def long_run(tmp_path_factory, sheet, front_rig, gl):
+    """150 poses of the sheet and their one-process texcoord set: a two-worker run of it
+    lasts long enough after its first chunks to be interrupted on a loaded machine."""
+    from conftest import wave
+    from mvtex.dataset import save_dataset
+
+    faces, uv, rest = sheet
+    phases = np.linspace(0, 6, 150)
+    base = tmp_path_factory.mktemp("long")
+    save_dataset(base / "sheet", faces=faces, uv=uv, gt=np.stack([wave(rest, 0.015, p) for p in phases]),
+                 inferred=np.stack([wave(rest, 0.004, p) for p in phases]), poses=phases[:, None], rest=rest)
+    save_rig(front_rig, base / "rig.yaml")
+    assert main(["slide", str(base / "sheet"), "--rig", str(base / "rig.yaml"), "--out", str(base / "tc"),
+                 "--subdiv", "0", "--workers", "1", "--quiet"]) == 0
+    return base
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
-def test_kill_and_resume_with_workers_is_bit_identical(sig, tmp_path, slow_dataset, reference_set):
+def test_kill_and_resume_with_workers_is_bit_identical(sig, tmp_path, long_run):
     out = tmp_path / "tc"
-    argv = MVTEX + ["slide", str(slow_dataset), "--rig", str(reference_set / "rig.yaml"), "--out", str(out),
+    reference_set = long_run
+    argv = MVTEX + ["slide", str(long_run / "sheet"), "--rig", str(long_run / "rig.yaml"), "--out", str(out),
                     "--subdiv", "0", "--workers", "2", "--quiet"]
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE)
     _wait_for_progress(tmp_path / "tc.partial", proc)
@@ -562,7 +581,7 @@ def test_kill_and_resume_with_workers_is_bit_identical(sig, tmp_path, slow_datas
     assert not [w for w in workers if _alive(w)], "orphaned workers"
     assert not out.exists()
     done = sum(int(np.load(tmp_path / "tc.partial" / c / "done.npy").sum()) for c in ("a", "b"))
-    assert 2 <= done < 80
+    assert 2 <= done < 300
     rerun = subprocess.run(argv, capture_output=True, text=True)
     assert rerun.returncode == 0, rerun.stderr
     assert tree(out) == tree(reference_set / "tc") | {MARKER: (out / MARKER).read_bytes()}
