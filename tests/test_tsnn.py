@@ -479,7 +479,8 @@ def test_gp_loo_residuals_equal_explicit_refits():
     z = torch.from_numpy(rng.normal(size=(25, 3)))
     y = torch.from_numpy(np.sin(z[:, 0].numpy()) + 0.1 * rng.normal(size=25))
     a = _kernel(z, z, torch.log(torch.tensor([0.8, 1.5, 3.0], dtype=torch.float64)),
-                torch.tensor(0.2, dtype=torch.float64)) + 0.05 * torch.eye(25, dtype=torch.float64)
+                torch.tensor(0.2, dtype=torch.float64), torch.tensor(-1.0, dtype=torch.float64)) \
+        + 0.05 * torch.eye(25, dtype=torch.float64)
     fast = loo_residuals(torch.linalg.inv(a), y).numpy()
     A, Y = a.numpy(), y.numpy()
     for i in range(25):
@@ -521,3 +522,19 @@ def test_gp_cannot_serve_every_camera(rig_data, tmp_path):
     ds, rig, tc, _ = rig_data
     with pytest.raises(ValueError, match="per camera"):
         train(ds, tc, tmp_path / "m", rig=rig, options=TrainOptions(arch="gp"), progress=False)
+
+
+def test_gp_kernel_is_ard_plus_additive_squared_exponential():
+    """The kernel against the formula written out element by element."""
+    from mvtex.tsnn.gp import _kernel
+
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=(4, 3)), rng.normal(size=(6, 3))
+    ell, s, t = np.array([0.5, 2.0, 1.2]), 0.3, -0.7
+    k = _kernel(torch.from_numpy(a), torch.from_numpy(b), torch.from_numpy(np.log(ell)),
+                torch.tensor(s, dtype=torch.float64), torch.tensor(t, dtype=torch.float64)).numpy()
+    for i in range(4):
+        for j in range(6):
+            r = (a[i] - b[j]) / ell
+            expected = np.exp(2 * s) * np.exp(-0.5 * r @ r) + np.exp(2 * t) * np.exp(-0.5 * r ** 2).sum()
+            assert k[i, j] == pytest.approx(expected, rel=1e-12)

@@ -7,11 +7,16 @@ on. So:
 
     d(θ) = mean + Σ_c f_c(θ) · basis_c          basis: the first C principal components of
                                                 the training displacements (K, 2n')
-    f_c  ~ GP(0, s_c² exp(-½ Σ_i ((θ_i - θ'_i) / ℓ_ci)²)) + noise σ_c²   on standardised θ
+    f_c  ~ GP(0, k_c) + noise σ_c²                                      on standardised θ
+    k_c(θ, θ') = s_c² exp(-½ Σ_i r_i²) + t_c² Σ_i exp(-½ r_i²),   r_i = (θ_i - θ'_i) / ℓ_ci
 
-Every component has its own automatic-relevance lengthscales ℓ_c (one per pose
-coordinate), signal and noise variance, chosen by maximising the log marginal likelihood
-(L-BFGS, deterministic on the CPU); prediction is the posterior mean k_c(θ, Θ) α_c with
+The first term is the usual squared-exponential kernel with automatic-relevance
+lengthscales; the second, additive term (a sum of one-dimensional squared exponentials)
+carries what each pose coordinate does on its own, which a few hundred poses in a dozen
+dimensions pin down far better than the interactions (on the built-in shirt, same-chart
+ratio at 240 training poses 2.09 -> 2.26). Every component has its own lengthscales ℓ_c,
+s_c, t_c and noise, chosen by maximising the log marginal likelihood (L-BFGS,
+deterministic on the CPU); prediction is the posterior mean k_c(θ, Θ) α_c with
 α_c = (K_c + σ_c² I)⁻¹ y_c. Nothing is learned per texel, so it needs no atlas: it reads
 and writes d at the vertices. The exact GP costs O(K³) in the number of training poses, so
 at most `MAX_TRAIN` (evenly spaced) training poses are used; beyond that the networks have
@@ -35,7 +40,9 @@ MAX_TRAIN = 2000  # training poses an exact GP is fitted on (O(K^3) time, O(K^2)
 MAX_COMPONENTS = 256
 HYPER_POSES = 400  # training poses the hyperparameters are fitted on, before refining on all
 _REFINE_ITERATIONS = 10
-_STARTS = ((1.0, 0.1), (4.0, 0.1), (1.0, 0.5))  # (lengthscale, noise std) starts, standardised units
+_REFINE_ELEMENTS = 2e7  # refinement poses K' with K'^2 P below this (the additive kernel's autograd memory)
+# (lengthscale, noise std, log std of the additive part) starts, standardised units
+_STARTS = ((1.0, 0.1, -2.0), (4.0, 0.1, -2.0), (1.0, 0.5, 0.0))
 # Shortest lengthscale, in training standard deviations of the pose coordinate: shorter ones
 # only fit noise (a few hundred poses cannot resolve them in a dozen dimensions).
 _LOG_L_MIN = math.log(0.3)
@@ -85,7 +92,7 @@ class PoseGP(nn.Module):
     """Posterior mean of per-component GPs: pose (B,P) -> d (B,n',2), float32.
 
     Buffers (float64): pose_mean/pose_std (P,), inputs (K,P) standardised training poses,
-    log_lengthscale (C,P), log_signal (C,), alpha (K,C), basis (C,2n'), mean (2n',);
+    log_lengthscale (C,P), log_signal (C,), log_additive (C,), alpha (K,C), basis (C,2n'), mean (2n',);
     output_scale (1.0, for the model directory's record).
     """
 
@@ -102,6 +109,7 @@ class PoseGP(nn.Module):
         self.register_buffer("inputs", torch.zeros(k, p, **f64))
         self.register_buffer("log_lengthscale", torch.zeros(c, p, **f64))
         self.register_buffer("log_signal", torch.zeros(c, **f64))
+        self.register_buffer("log_additive", torch.zeros(c, **f64))
         self.register_buffer("alpha", torch.zeros(k, c, **f64))
         self.register_buffer("basis", torch.zeros(c, 2 * n, **f64))
         self.register_buffer("mean", torch.zeros(2 * n, **f64))
@@ -111,7 +119,7 @@ class PoseGP(nn.Module):
         z = (poses.to(torch.float64) - self.pose_mean) / self.pose_std
         coef = torch.empty(len(z), self.config.components, dtype=torch.float64, device=z.device)
         for c in range(self.config.components):
-            k = _kernel(z, self.inputs, self.log_lengthscale[c], self.log_signal[c])
+            k = _kernel(z, self.inputs, self.log_lengthscale[c], self.log_signal[c], self.log_additive[c])
             coef[:, c] = k @ self.alpha[:, c]
         d = self.mean + coef @ self.basis
         return d.reshape(len(z), -1, 2).to(torch.float32)
@@ -121,11 +129,17 @@ class PoseGP(nn.Module):
         return torch.exp(-self.log_lengthscale).cpu().numpy()
 
 
-def _kernel(a: torch.Tensor, b: torch.Tensor, log_lengthscale: torch.Tensor, log_signal: torch.Tensor) -> torch.Tensor:
-    """Squared-exponential ARD kernel matrix (len(a), len(b))."""
+def _kernel(a: torch.Tensor, b: torch.Tensor, log_lengthscale: torch.Tensor, log_signal: torch.Tensor,
+            log_additive: torch.Tensor) -> torch.Tensor:
+    """Kernel matrix (len(a), len(b)): a squared-exponential ARD kernel plus an additive one
+    (a sum over pose coordinates of one-dimensional squared exponentials, same lengthscales)."""
     scale = torch.exp(-log_lengthscale)
-    sq = torch.cdist(a * scale, b * scale).square()
-    return torch.exp(2 * log_signal - 0.5 * sq)
+    a, b = a * scale, b * scale
+    k = torch.exp(2 * log_signal - 0.5 * torch.cdist(a, b).square())
+    additive = torch.zeros_like(k)
+    for i in range(a.shape[1]):  # one (n, m) matrix at a time, not an (n, m, P) array
+        additive = additive + torch.exp(-0.5 * (a[:, i, None] - b[None, :, i]).square())
+    return k + torch.exp(2 * log_additive) * additive
 
 
 def loo_residuals(inverse: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -149,14 +163,14 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
         z: (K,P) standardised poses. y: (K,) targets, unit variance.
 
     Returns:
-        log_lengthscale (P,), log_signal (), alpha (K,) (in y's units).
+        log_lengthscale (P,), log_signal (), log_additive (), alpha (K,) (in y's units).
     """
     p = z.shape[1]
     floor = 1e-6  # noise variance floor (y has unit variance): keeps the covariance well conditioned
     zh, yh = (z, y) if hyper is None else (z[hyper], y[hyper])
 
-    def covariance(points, log_l, log_s, log_n):
-        return (_kernel(points, points, log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0))
+    def covariance(points, log_l, log_s, log_n, log_a):
+        return (_kernel(points, points, log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0), log_a.clamp(-8.0, 3.0))
                 + (torch.exp(2 * log_n) + floor) * torch.eye(len(points), dtype=torch.float64))
 
     def objective(params):
@@ -168,7 +182,8 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
 
     best = fallback = None
     starts = [[torch.full((p,), math.log(lengthscale), dtype=torch.float64), torch.zeros((), dtype=torch.float64),
-               torch.tensor(math.log(noise), dtype=torch.float64)] for lengthscale, noise in _STARTS]
+               torch.tensor(math.log(noise), dtype=torch.float64), torch.tensor(additive, dtype=torch.float64)]
+              for lengthscale, noise, additive in _STARTS]
     while starts:
         params = [q.clone().requires_grad_(True) for q in starts.pop(0)]
         optimiser = torch.optim.LBFGS(params, lr=0.5, max_iter=iterations, history_size=20,
@@ -188,13 +203,15 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
         if nll is not None and torch.isfinite(nll) and (best is None or float(nll) < best[0]):
             best = (float(nll), [q.detach() for q in params])
         if not starts and hyper is not None and best is not None:
-            # Refine the subset's best on every pose: a few iterations from a good start.
-            zh, yh, hyper, iterations = z, y, None, _REFINE_ITERATIONS
+            # Refine the subset's best on more poses (all, up to a memory budget): a few
+            # iterations from a good start.
+            refine = _evenly(len(z), max(len(hyper), int(math.sqrt(_REFINE_ELEMENTS / p))))
+            zh, yh, hyper, iterations = z[refine], y[refine], None, _REFINE_ITERATIONS
             starts, fallback, best = [best[1]], best[1], None
     if best is None and fallback is None:
         raise ValueError("no Gaussian-process fit: the covariance is singular at every start")
-    log_l, log_s, log_n = best[1] if best is not None else fallback
-    chol, info = torch.linalg.cholesky_ex(covariance(z, log_l, log_s, log_n))
+    log_l, log_s, log_n, log_a = best[1] if best is not None else fallback
+    chol, info = torch.linalg.cholesky_ex(covariance(z, log_l, log_s, log_n, log_a))
     if int(info):
         raise ValueError("no Gaussian-process fit: the covariance of all training poses is singular")
     inverse = torch.cholesky_inverse(chol)
@@ -202,7 +219,12 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
     # A component the GP predicts no better than its mean (0) from the other poses is left at 0.
     if not float(loo_residuals(inverse, y).square().mean()) < float(y.square().mean()):
         alpha = torch.zeros_like(alpha)
-    return log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0), alpha
+    return log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0), log_a.clamp(-8.0, 3.0), alpha
+
+
+def _evenly(k: int, count: int) -> np.ndarray:
+    """`count` evenly spaced indices of range(k) (all of them when count >= k)."""
+    return np.arange(k) if count >= k else np.unique(np.linspace(0, k - 1, count).round().astype(int))
 
 
 def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iterations: int = 60,
@@ -236,7 +258,7 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iteratio
     z = torch.from_numpy((x - mean_x) / std_x)
     # Hyperparameters from at most HYPER_POSES evenly spaced poses (O(K^3) per likelihood
     # evaluation); the posterior conditions on all of them.
-    hyper = None if k <= HYPER_POSES else np.unique(np.linspace(0, k - 1, HYPER_POSES).round().astype(int))
+    hyper = None if k <= HYPER_POSES else _evenly(k, HYPER_POSES)
     with torch.no_grad():
         model.pose_mean.copy_(torch.from_numpy(mean_x))
         model.pose_std.copy_(torch.from_numpy(std_x))
@@ -245,10 +267,11 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iteratio
         model.mean.copy_(torch.from_numpy(mean_d))
     for c in range(len(order)):
         scale = float(coef[:, c].std()) or 1.0
-        log_l, log_s, alpha = _fit_component(z, torch.from_numpy(coef[:, c] / scale), iterations, hyper)
+        log_l, log_s, log_a, alpha = _fit_component(z, torch.from_numpy(coef[:, c] / scale), iterations, hyper)
         with torch.no_grad():
             model.log_lengthscale[c] = log_l
             model.log_signal[c] = log_s + math.log(scale)  # kernel in coefficient units...
+            model.log_additive[c] = log_a + math.log(scale)
             model.alpha[:, c] = alpha / scale  # ...and α / scale: k α = scale² k̃ α̃ / scale = scale k̃ α̃
         if progress is not None:
             progress(c + 1, len(order))
