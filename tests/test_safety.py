@@ -569,7 +569,10 @@ def test_kill_and_resume_with_workers_is_bit_identical(sig, tmp_path, long_run):
     reference_set = long_run
     argv = MVTEX + ["slide", str(long_run / "sheet"), "--rig", str(long_run / "rig.yaml"), "--out", str(out),
                     "--subdiv", "0", "--workers", "2", "--quiet"]
-    proc = subprocess.Popen(argv, stderr=subprocess.PIPE)
+    # A shell's background jobs start with SIGINT ignored, and Python then keeps ignoring it:
+    # give the command the default disposition an interactive user's has.
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     _wait_for_progress(tmp_path / "tc.partial", proc)
     workers = _children(proc.pid)
     proc.send_signal(sig)
