@@ -32,6 +32,7 @@ def main() -> None:
 
     from mvtex.camera import load_rig, resolve_rig
     from mvtex.dataset import load_dataset
+    from mvtex.mesh import face_normals
     from mvtex.metrics import MaterialMap, material_error_image
     from mvtex.raster import GLContext, rasterize
     from mvtex.texcoords import open_texcoords
@@ -45,6 +46,7 @@ def main() -> None:
         for k in tc.poses:
             gt = np.asarray(ds.gt[k], np.float64)
             inferred = np.asarray(ds.inferred[k], np.float64)
+            normals = face_normals(gt, ds.faces, normalize=False)
             for cam in rig:
                 if cam.name not in tc.cameras:
                     continue
@@ -52,10 +54,9 @@ def main() -> None:
                 slid, _ = material_error_image(ctx, gt, ds.faces, ds.rest, tc.positions(inferred), tc.faces,
                                                tc.texcoords(cam.name, k), cam, material)
                 r = rasterize(ctx, gt, ds.faces, cam)
-                f = ds.faces[r.tri_id[r.mask]]
-                normal = np.cross(gt[f[:, 1]] - gt[f[:, 0]], gt[f[:, 2]] - gt[f[:, 0]])
-                inside = np.zeros(r.mask.shape, bool)
-                inside[r.mask] = np.einsum("ij,ij->i", normal, gt[f[:, 0]] - cam.center) > 0
+                tri = r.tri_id[r.mask]
+                inside = np.zeros(r.mask.shape, bool)  # the pixel's gt triangle faces away from the camera
+                inside[r.mask] = np.einsum("ij,ij->i", normals[tri], gt[ds.faces[tri, 0]] - cam.center) > 0
                 rows.append((k, cam.name, base, slid, inside))
 
     def rmse(images, outside_only):

@@ -523,43 +523,41 @@ def _alive(pid: int) -> bool:
 @pytest.fixture(scope="module")
 def slow_dataset(tmp_path_factory, sheet):
     """40 poses of the sheet: enough jobs to interrupt a run in the middle."""
+    return _wave_sheet(tmp_path_factory.mktemp("slow") / "sheet", sheet, 40)
+
+
+def _wave_sheet(path: Path, sheet, num_poses: int) -> Path:
+    """A dataset of the sheet waving through `num_poses` phases (gt 15 mm, inferred 4 mm waves)."""
     from conftest import wave
     from mvtex.dataset import save_dataset
 
     faces, uv, rest = sheet
-    phases = np.linspace(0, 6, 40)
-    path = tmp_path_factory.mktemp("slow") / "sheet"
+    phases = np.linspace(0, 6, num_poses)
     save_dataset(path, faces=faces, uv=uv, gt=np.stack([wave(rest, 0.015, p) for p in phases]),
                  inferred=np.stack([wave(rest, 0.004, p) for p in phases]),
                  poses=phases[:, None], rest=rest)
     return path
 
 
-@pytest.fixture(scope="module")
-def reference_set(tmp_path_factory, slow_dataset, front_rig, gl):
-    base = tmp_path_factory.mktemp("ref")
+def _one_process_set(base: Path, dataset: Path, front_rig) -> Path:
+    """BASE/rig.yaml and BASE/tc, the dataset slid by one process at subdivision 0."""
     save_rig(front_rig, base / "rig.yaml")
-    assert main(["slide", str(slow_dataset), "--rig", str(base / "rig.yaml"), "--out", str(base / "tc"),
+    assert main(["slide", str(dataset), "--rig", str(base / "rig.yaml"), "--out", str(base / "tc"),
                  "--subdiv", "0", "--workers", "1", "--quiet"]) == 0
     return base
+
+
+@pytest.fixture(scope="module")
+def reference_set(tmp_path_factory, slow_dataset, front_rig, gl):
+    return _one_process_set(tmp_path_factory.mktemp("ref"), slow_dataset, front_rig)
 
 
 @pytest.fixture(scope="module")
 def long_run(tmp_path_factory, sheet, front_rig, gl):
     """150 poses of the sheet and their one-process texcoord set: a two-worker run of it
     lasts long enough after its first chunks to be interrupted on a loaded machine."""
-    from conftest import wave
-    from mvtex.dataset import save_dataset
-
-    faces, uv, rest = sheet
-    phases = np.linspace(0, 6, 150)
     base = tmp_path_factory.mktemp("long")
-    save_dataset(base / "sheet", faces=faces, uv=uv, gt=np.stack([wave(rest, 0.015, p) for p in phases]),
-                 inferred=np.stack([wave(rest, 0.004, p) for p in phases]), poses=phases[:, None], rest=rest)
-    save_rig(front_rig, base / "rig.yaml")
-    assert main(["slide", str(base / "sheet"), "--rig", str(base / "rig.yaml"), "--out", str(base / "tc"),
-                 "--subdiv", "0", "--workers", "1", "--quiet"]) == 0
-    return base
+    return _one_process_set(base, _wave_sheet(base / "sheet", sheet, 150), front_rig)
 
 
 @pytest.mark.slow

@@ -205,7 +205,7 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
         if not starts and hyper is not None and best is not None:
             # Refine the subset's best on more poses (all, up to a memory budget): a few
             # iterations from a good start.
-            refine = _evenly(len(z), max(len(hyper), int(math.sqrt(_REFINE_ELEMENTS / p))))
+            refine = evenly_spaced(len(z), max(len(hyper), int(math.sqrt(_REFINE_ELEMENTS / p))))
             zh, yh, hyper, iterations = z[refine], y[refine], None, _REFINE_ITERATIONS
             starts, fallback, best = [best[1]], best[1], None
     if best is None and fallback is None:
@@ -222,7 +222,7 @@ def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
     return log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0), log_a.clamp(-8.0, 3.0), alpha
 
 
-def _evenly(k: int, count: int) -> np.ndarray:
+def evenly_spaced(k: int, count: int) -> np.ndarray:
     """`count` evenly spaced indices of range(k) (all of them when count >= k)."""
     return np.arange(k) if count >= k else np.unique(np.linspace(0, k - 1, count).round().astype(int))
 
@@ -258,7 +258,7 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iteratio
     z = torch.from_numpy((x - mean_x) / std_x)
     # Hyperparameters from at most HYPER_POSES evenly spaced poses (O(K^3) per likelihood
     # evaluation); the posterior conditions on all of them.
-    hyper = None if k <= HYPER_POSES else _evenly(k, HYPER_POSES)
+    hyper = None if k <= HYPER_POSES else evenly_spaced(k, HYPER_POSES)
     with torch.no_grad():
         model.pose_mean.copy_(torch.from_numpy(mean_x))
         model.pose_std.copy_(torch.from_numpy(std_x))

@@ -540,26 +540,22 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
 
 def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, progress):
     """`gp`: fit the Gaussian processes of one camera (on the CPU, float64); `_train`'s results."""
-    import torch
     from tqdm import tqdm
 
-    from .gp import MAX_TRAIN, fit_pose_gp
+    from .gp import MAX_TRAIN, evenly_spaced, fit_pose_gp
 
     split = dict(split)
-    if len(split["train"]) > MAX_TRAIN:  # an exact GP is O(K^3): evenly spaced training poses
-        keep = np.linspace(0, len(split["train"]) - 1, MAX_TRAIN).round().astype(int)
-        split["train"] = [split["train"][i] for i in keep]
+    # An exact GP is O(K^3): at most MAX_TRAIN evenly spaced training poses.
+    split["train"] = [split["train"][i] for i in evenly_spaced(len(split["train"]), MAX_TRAIN)]
     data = {k: _Data(dataset, texcoords, [camera], split[k], options.weight_assigned, "cpu") for k in split}
     train = data["train"]
-    bar = tqdm(total=min(options.components, max(len(train) - 1, 0)), desc=f"train {camera} (gp)",
-               unit="component", disable=not progress)
+    bar = tqdm(desc=f"train {camera} (gp)", unit="component", disable=not progress)
 
     def advance(done: int, total: int) -> None:
         bar.total = total
         bar.update(done - bar.n)
 
-    with torch.random.fork_rng():
-        model = fit_pose_gp(train.x.numpy(), train.d_numpy, components=options.components, progress=advance)
+    model = fit_pose_gp(train.x.numpy(), train.d_numpy, components=options.components, progress=advance)
     bar.close()
 
     def vertices(data: _Data, idx):
