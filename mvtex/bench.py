@@ -22,7 +22,7 @@ import numpy as np
 
 from .camera import Camera, Rig
 from .sliding import (Hits, SlideOptions, SlideTopology, build_topology, displacement_from_hits, find_hits_raster,
-                      intersect_pairs, seen_from_inside)
+                      intersect_pairs)
 
 if TYPE_CHECKING:
     from .raster import GLContext
@@ -46,6 +46,8 @@ def _first_hits(intersector, origins: np.ndarray, dirs: np.ndarray, num_faces: i
 def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray, topo: SlideTopology,
                      camera: Camera, options: SlideOptions) -> Hits:
     """Same contract as `sliding.find_hits_raster`, by ray casting with Embree."""
+    from .hitsearch import seen_from_inside as compiled_seen_from_inside
+
     n = len(X)
     origin = camera.center
     W, H = camera.width, camera.height
@@ -88,7 +90,8 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     bary[idx] = np.stack([1 - b1 - b2, b1, b2], axis=1)
     back[idx] = facing > 0
     return Hits(visible=visible, tri=tri_hit, bary=bary, back=back,
-                from_inside=seen_from_inside(X, topo.faces, origin))
+                from_inside=compiled_seen_from_inside(np.ascontiguousarray(X, dtype=np.float64), topo.faces,
+                                                      np.ascontiguousarray(origin, dtype=np.float64)))
 
 
 def _job(ctx: GLContext, path: str, gt, inferred, faces, uv, topo, camera, options):

@@ -353,13 +353,16 @@ def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: 
 
 
 def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray,
-                     topo: SlideTopology, camera: Camera, options: SlideOptions) -> Hits:
+                     topo: SlideTopology, camera: Camera, options: SlideOptions, *, compiled: bool = True) -> Hits:
     """Visibility and first gt hits by rasterization + exact candidate intersection.
 
     Args:
         ctx: the GL context.
         gt, inferred: (n,3) float64 base positions. faces: (m,3) base faces.
         X: (n',3) float64 subdivided inferred positions.
+        compiled: search the candidates with the compiled kernels of `mvtex.hitsearch`
+            (the default); False runs the NumPy formulation (`_window_pairs`,
+            `intersect_pairs`, `choose_hits`), which gives the same answer, slower.
     """
     from .raster import rasterize_pair
 
@@ -384,13 +387,22 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     # vertex). Candidate occluders: the base inferred triangles drawn around its projection
     # (the same surface as their subdivided children).
     dirs = X[cand] - origin
-    ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, topo.face_neighbours, modulo=m)
-    keys = cand[ray] * len(faces) + tri
-    pos = np.minimum(np.searchsorted(topo.host_keys, keys), len(topo.host_keys) - 1)
-    other = topo.host_keys[pos] != keys
-    ray, tri = ray[other], tri[other]
-    t_occ = intersect_pairs(origin, dirs[ray], inferred, faces, tri)[0]
-    _, t_first = _first_per_ray(ray, t_occ, len(cand))
+    if compiled:
+        from .hitsearch import first_hits, nearest_occluder
+        from .hitsearch import seen_from_inside as compiled_seen_from_inside
+
+        faces64 = np.ascontiguousarray(faces, dtype=np.int64)
+        origin64 = np.ascontiguousarray(origin, dtype=np.float64)
+        t_first = nearest_occluder(origin64, dirs, pixels[cand], sub_ids, options.radius, topo.face_neighbours, m,
+                                   topo.host_keys, cand, np.ascontiguousarray(inferred, dtype=np.float64), faces64)
+    else:
+        ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, topo.face_neighbours, modulo=m)
+        keys = cand[ray] * len(faces) + tri
+        pos = np.minimum(np.searchsorted(topo.host_keys, keys), len(topo.host_keys) - 1)
+        other = topo.host_keys[pos] != keys
+        ray, tri = ray[other], tri[other]
+        t_occ = intersect_pairs(origin, dirs[ray], inferred, faces, tri)[0]
+        _, t_first = _first_per_ray(ray, t_occ, len(cand))
     front = t_first >= 1 - options.depth_tolerance
     cand, dirs = cand[front], dirs[front]
     visible = np.zeros(n, bool)
@@ -398,11 +410,18 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     tri_hit = np.full(n, -1, np.int64)
     bary = np.zeros((n, 3))
     back = np.zeros(n, bool)
-    ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, topo.face_neighbours)
-    tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt, faces, ray, tri, topo.chart[cand],
-                                                        topo.gt_chart, topo.uv[cand], topo.uv[:len(gt)])
-    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back,
-                from_inside=seen_from_inside(X, topo.faces, origin))
+    if compiled:
+        tri_hit[cand], bary[cand], back[cand] = first_hits(
+            origin64, dirs, pixels[cand], gt_ids, options.radius, topo.face_neighbours,
+            np.ascontiguousarray(gt, dtype=np.float64), faces64, topo.chart[cand], topo.gt_chart, topo.uv[cand],
+            np.ascontiguousarray(topo.uv[:len(gt)]))
+        from_inside = compiled_seen_from_inside(np.ascontiguousarray(X, dtype=np.float64), topo.faces, origin64)
+    else:
+        ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, topo.face_neighbours)
+        tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt, faces, ray, tri, topo.chart[cand],
+                                                            topo.gt_chart, topo.uv[cand], topo.uv[:len(gt)])
+        from_inside = seen_from_inside(X, topo.faces, origin)
+    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back, from_inside=from_inside)
 
 
 def displacement_from_hits(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: np.ndarray, topo: SlideTopology,

@@ -15,7 +15,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "mvtex"
 LAYERS = [
     ["errors", "io", "resources", "parallel", "mesh"],
     ["camera", "dataset", "texcoords"],
-    ["geometry", "ply", "raster", "extrapolate", "skirt", "synth"],
+    ["geometry", "ply", "raster", "extrapolate", "hitsearch", "skirt", "synth"],
     ["colmap", "viz", "sliding", "board"],
     ["locate", "calibrate"],
     ["recon", "rigs", "slide_jobs", "metrics", "render", "tsnn.atlas", "tsnn.geometry", "tsnn.gp", "tsnn.model", "tsnn.train", "tsnn.predict",
