@@ -447,18 +447,18 @@ def displacement_from_hits(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: 
     # apart on the cloth than the edge's ends. Distances are measured in the reference
     # (rest) shape, which is T_N vs T_G within a chart but stays right across UV seams,
     # where uv jumps although the material is adjacent.
-    e = topo.edges
-    both = assigned[e[:, 0]] & assigned[e[:, 1]]
-    ee = e[both]
-    m_n = np.zeros((n, 3))
-    m_n[found] = np.einsum("kj,kjc->kc", hits.bary[found], topo.reference[f])
-    dmn = np.linalg.norm(m_n[ee[:, 0]] - m_n[ee[:, 1]], axis=1)
-    dmg = topo.edge_reference_length[both]
-    broken = ee[dmn > options.break_ratio * dmg] if options.break_ratio is not None else ee[:0]
-    if len(broken):
-        norm = np.linalg.norm(d, axis=1)
-        worse = np.where(norm[broken[:, 0]] >= norm[broken[:, 1]], broken[:, 0], broken[:, 1])
-        assigned[worse] = False
+    if options.break_ratio is not None:
+        e = topo.edges
+        both = assigned[e[:, 0]] & assigned[e[:, 1]]
+        ee = e[both]
+        m_n = np.zeros((n, 3))
+        m_n[found] = np.einsum("kj,kjc->kc", hits.bary[found], topo.reference[f])
+        dmn = np.linalg.norm(m_n[ee[:, 0]] - m_n[ee[:, 1]], axis=1)
+        broken = ee[dmn > options.break_ratio * topo.edge_reference_length[both]]
+        if len(broken):
+            norm = np.linalg.norm(d, axis=1)
+            worse = np.where(norm[broken[:, 0]] >= norm[broken[:, 1]], broken[:, 0], broken[:, 1])
+            assigned[worse] = False
     if options.max_displacement is not None:
         assigned &= np.linalg.norm(d, axis=1) <= options.max_displacement
     d[~assigned] = 0.0
