@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
@@ -325,14 +326,16 @@ class _EvalState:
             self.ctx.release()
 
 
-_EVAL_STATE: list = []  # this process's one _EvalState (workers evaluate one set at a time)
+# Each thread's one _EvalState (one set at a time): per thread, because a Dask worker runs
+# tasks in several threads and a GL context is used by the thread that made it.
+_EVAL_STATE = threading.local()
 
 
 def _set_eval_state(state: _EvalState | None) -> None:
-    while _EVAL_STATE:
-        _EVAL_STATE.pop().release()
-    if state is not None:
-        _EVAL_STATE.append(state)
+    old = getattr(_EVAL_STATE, "current", None)
+    _EVAL_STATE.current = state
+    if old is not None:
+        old.release()
 
 
 def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool, key: tuple[str, str]) -> _EvalState:
@@ -345,15 +348,17 @@ def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool, key: tuple[str, str
 
 
 def _eval_state(spec: _EvalSpec) -> _EvalState:
-    if not _EVAL_STATE or _EVAL_STATE[0].key != spec.key:
+    state = getattr(_EVAL_STATE, "current", None)
+    if state is None or state.key != spec.key:
         from .dataset import load_dataset
         from .raster import GLContext
         from .texcoords import open_texcoords
 
         ds = load_dataset(spec.dataset, validate=False)
         tc = open_texcoords(spec.texcoords, ds.num_vertices)
-        _set_eval_state(_open_eval_state(ds, tc, GLContext(), True, spec.key))
-    return _EVAL_STATE[0]
+        state = _open_eval_state(ds, tc, GLContext(), True, spec.key)
+        _set_eval_state(state)
+    return state
 
 
 def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:

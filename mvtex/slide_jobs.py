@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 import sys
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -72,8 +73,10 @@ class _WorkerState:
     owns_ctx: bool
 
 
-# This process's state for the run it currently serves (a worker serves one run at a time).
-_WORKER: dict[str, _WorkerState] = {}
+# Each thread's state for the run it currently serves (one run at a time). Per thread, not
+# per process: a Dask worker runs several tasks at once in threads (`dask worker` starts one
+# per core by default), and a GL context is used by the thread that made it, one at a time.
+_WORKER = threading.local()
 
 
 def single_thread_gl() -> None:
@@ -84,15 +87,14 @@ def single_thread_gl() -> None:
 
 
 def _set_state(state: _WorkerState | None) -> None:
-    old = _WORKER.pop("current", None)
+    old = getattr(_WORKER, "current", None)
+    _WORKER.current = state
     if old is not None and old.owns_ctx and (state is None or old.ctx is not state.ctx):
         old.ctx.release()
-    if state is not None:
-        _WORKER["current"] = state
 
 
 def _state(spec: _Spec) -> _WorkerState:
-    state = _WORKER.get("current")
+    state = getattr(_WORKER, "current", None)
     if state is None or state.key != spec.key:
         from .dataset import load_dataset, reference_shape
         from .raster import GLContext

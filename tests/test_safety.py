@@ -614,6 +614,26 @@ def test_dask_local_cluster_slide_equals_one_process(tmp_path, reference_set, sl
     assert tree(tmp_path / "tc") == ref
 
 
+def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path, reference_set, slow_dataset):
+    """`dask worker` runs several tasks at once in threads of one process: each thread
+    needs its own GL context and state (a shared one crashed or mixed results)."""
+    distributed = pytest.importorskip("dask.distributed")
+    from mvtex.metrics import evaluate
+    from mvtex.slide_jobs import slide_dataset
+    from mvtex.sliding import SlideOptions
+
+    rig = reference_set / "rig.yaml"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=4, processes=True, dashboard_address=None) as cluster:
+        slide_dataset(slow_dataset, rig, tmp_path / "tc", poses=list(range(40)), options=SlideOptions(subdiv=0),
+                      scheduler=cluster.scheduler_address, progress=False)
+        threaded = evaluate(slow_dataset, rig, tmp_path / "tc", poses=list(range(0, 40, 2)),
+                            scheduler=cluster.scheduler_address, progress=False)
+    ref = tree(reference_set / "tc")
+    ref.pop(MARKER)
+    assert tree(tmp_path / "tc") == ref
+    assert threaded == evaluate(slow_dataset, rig, reference_set / "tc", poses=list(range(0, 40, 2)), progress=False)
+
+
 def _square(x: int) -> int:
     return x * x
 
