@@ -352,8 +352,10 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
     if state is None or state.key != spec.key:
         from .dataset import load_dataset
         from .raster import GLContext
+        from .slide_jobs import single_thread_gl
         from .texcoords import open_texcoords
 
+        single_thread_gl()  # only workers open their state here (a local run sets it up front)
         ds = load_dataset(spec.dataset, validate=False)
         tc = open_texcoords(spec.texcoords, ds.num_vertices)
         state = _open_eval_state(ds, tc, GLContext(), True, spec.key)

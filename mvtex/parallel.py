@@ -41,6 +41,20 @@ def map_unordered(fn: Callable[..., Any], tasks: Sequence[tuple], *, workers: in
         yield from _processes(fn, tasks, workers, max_in_flight or 4 * workers)
 
 
+def in_dask_worker() -> bool:
+    """True in a task running on a Dask worker (dask.distributed loaded and `get_worker` answers)."""
+    import sys
+
+    distributed = sys.modules.get("distributed")
+    if distributed is None:
+        return False
+    try:
+        distributed.get_worker()
+    except ValueError:
+        return False
+    return True
+
+
 def _processes(fn, tasks: list, workers: int, max_in_flight: int) -> Iterator[Any]:
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait

@@ -24,6 +24,7 @@ import numpy as np
 from .camera import Rig
 from .errors import InputError
 from .io import read_rows
+from .parallel import in_dask_worker
 from .sliding import SlideOptions, SlideTopology, build_topology, slide_pose
 
 if TYPE_CHECKING:
@@ -80,9 +81,10 @@ _WORKER = threading.local()
 
 
 def single_thread_gl() -> None:
-    """In a worker process, before its GL context is created: let llvmpipe rasterize in the
-    calling thread (fewer CPU cycles per draw); with one process per core its own
-    rasterizer threads would only compete with the other processes."""
+    """In a worker (a local worker process or a Dask worker), before its GL context is
+    created: let llvmpipe rasterize in the calling thread (fewer CPU cycles per draw). The
+    workers' processes and threads already fill the cores, so llvmpipe's own rasterizer
+    threads would only compete with them. An LP_NUM_THREADS set by the user is kept."""
     os.environ.setdefault("LP_NUM_THREADS", "0")
 
 
@@ -99,7 +101,7 @@ def _state(spec: _Spec) -> _WorkerState:
         from .dataset import load_dataset, reference_shape
         from .raster import GLContext
 
-        if spec.worker:
+        if spec.worker or in_dask_worker():
             single_thread_gl()
         ds = load_dataset(spec.dataset, validate=False)
         topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
