@@ -140,6 +140,7 @@ class FillSystem:
         self.laplacian = laplacian_matrix(pos_w, faces_w, self.kind)
         self.label = csgraph.connected_components(self.laplacian, directed=False)[1]
         self._rank: np.ndarray | None = None
+        self._order: np.ndarray | None = None
         self._csc = self.laplacian.tocsc()
         self._csc.sort_indices()
 
@@ -158,6 +159,13 @@ class FillSystem:
         out = sp.csc_matrix((cols.data[keep], rows[keep], indptr), shape=(len(vertices), len(vertices)))
         out.sort_indices()
         return out
+
+    @property
+    def order(self) -> np.ndarray:
+        """(num_welded,) int64 welded vertices in elimination order (`rank` inverted)."""
+        if self._order is None:
+            self._order = np.argsort(self.rank, kind="stable")
+        return self._order
 
     @property
     def rank(self) -> np.ndarray:
@@ -245,16 +253,17 @@ def _harmonic(system: FillSystem, known: np.ndarray, vals: np.ndarray) -> np.nda
     lost = ~has[system.label]
     vals[lost] = 0.0
     known = known | lost
-    u = np.flatnonzero(~known)
-    if len(u) == 0:
+    if known.all():
         return vals
     # Unknowns in the system's precomputed elimination order (see `FillSystem.rank`).
-    u = u[np.argsort(system.rank[u], kind="stable")]
+    order = system.order
+    u = order[~known[order]]
     L_uu = system.principal_submatrix(u)
     # Only known values enter the right-hand side: the unknown entries are 0 here, and a
-    # product with 0 adds nothing to a row sum.
+    # product with 0 adds nothing to a row sum (each row is summed in the same order as in
+    # L[u] @ vals, so taking rows u of the whole product gives the same bits, faster).
     vals[u] = 0.0
-    rhs = -(L[u] @ vals)
+    rhs = -(L @ vals)[u]
     # Every unknown's component touches a known vertex, so L_uu is nonsingular and
     # symmetric positive definite (a principal submatrix of a connected Laplacian): no
     # pivoting, and the rows are already in a fill-reducing order, so SuperLU keeps it.
