@@ -34,7 +34,16 @@ from numba import njit
 _BARY_EPS = 1e-9  # the same as sliding._BARY_EPS
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+def _compiled(fn):
+    """numba-compile `fn` (no GIL, NumPy's division semantics), cached on disk where numba
+    finds a writable place for its cache, compiled in every process where it finds none."""
+    try:
+        return njit(cache=True, nogil=True, error_model="numpy")(fn)
+    except RuntimeError:  # numba's "cannot cache function ...: no locator available"
+        return njit(nogil=True, error_model="numpy")(fn)
+
+
+@_compiled
 def _window(tri_id, col, row, radius, neighbours, modulo, buf):
     """Distinct ids >= 0, ascending, of the (2r+1)² window at (row, col) (clipped to the
     image) taken modulo `modulo` (> 0) and closed under `neighbours`, into buf[:count]."""
@@ -71,7 +80,7 @@ def _window(tri_id, col, row, radius, neighbours, modulo, buf):
     return count
 
 
-@njit(cache=True, nogil=True)
+@_compiled
 def _contains(buf, count, f):
     for i in range(count):
         if buf[i] == f:
@@ -79,7 +88,7 @@ def _contains(buf, count, f):
     return False
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_compiled
 def _intersect(ox, oy, oz, dx, dy, dz, positions, faces, f):
     """`sliding.intersect_pairs` for one (ray, triangle): (t or inf, b1, b2, facing)."""
     a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
@@ -102,7 +111,7 @@ def _intersect(ox, oy, oz, dx, dy, dz, positions, faces, f):
     return (t if hit else np.inf), b1, b2, -det
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_compiled
 def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, host_keys, vertices,
                      positions, faces):
     """Per ray k: the smallest t > 0 at which dirs[k] (from `origin`) hits a base face of
@@ -146,7 +155,7 @@ def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, h
     return out
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_compiled
 def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, faces, vert_chart, face_chart,
                vert_uv, face_uv):
     """Per ray k: the nearest hit of dirs[k] on the faces of the window around pixels[k]
@@ -212,7 +221,7 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
     return tri, bary, back
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_compiled
 def seen_from_inside(positions, faces, origin):
     """(n,) bool: the area-weighted vertex normal of `positions` ((n,3) float64; `faces`
     (m,3) int64, CCW from outside) points away from `origin` ((3,) float64)."""
