@@ -52,6 +52,7 @@ WEIGHT_TOLERANCE = 1e-6
 # A point counts as seen by an array camera when it is no deeper than the farthest
 # reconstructed surface around its projection, with this relative slack (4 mm at 2 m).
 _VISIBILITY_TOLERANCE = 2e-3
+_WRITE_BLOCK = 32  # poses computed between two writes of the output arrays
 
 
 @dataclass(frozen=True)
@@ -565,24 +566,34 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
         write_header(tmp, faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,
                      source=f"views-{options.method}", subdiv=texcoords.subdiv, poses=poses, cameras=list(names),
                      **record)
-        disp, asg = {}, {}
         for name in names:
             (tmp / name).mkdir()
-            disp[name] = open_memmap(tmp / name / "displacement.npy", mode="w+", dtype=np.float32,
-                                     shape=(len(poses), n_sub, 2))
-            asg[name] = open_memmap(tmp / name / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), n_sub))
+            open_memmap(tmp / name / "displacement.npy", mode="w+", dtype=np.float32, shape=(len(poses), n_sub, 2)).flush()
+            open_memmap(tmp / name / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), n_sub)).flush()
+
+        def write(start: int, disp: dict, asg: dict) -> None:
+            # Through maps opened for this block only: pages written through a map stay in
+            # the process's resident memory while it is open, which would grow with the run.
+            for name in names:
+                for file, values in (("displacement.npy", disp[name]), ("assigned.npy", asg[name])):
+                    mapped = open_memmap(tmp / name / file, mode="r+")
+                    mapped[start:start + len(values)] = values
+                    mapped.flush()
+                    del mapped
+
         bar = tqdm(total=len(poses) * len(names), desc=f"views ({options.method})", unit="view",
                    disable=not progress, file=sys.stderr)
-        for row, pose in enumerate(poses):
-            state = synth.prepare(pose)
-            for cam, w in zip(cameras, weights):
-                disp[cam.name][row], asg[cam.name][row] = synth.view(state, cam, w)
-                bar.update(1)
+        for start in range(0, len(poses), _WRITE_BLOCK):
+            block = poses[start:start + _WRITE_BLOCK]
+            disp = {name: np.empty((len(block), n_sub, 2), np.float32) for name in names}
+            asg = {name: np.empty((len(block), n_sub), bool) for name in names}
+            for row, pose in enumerate(block):
+                state = synth.prepare(pose)
+                for cam, w in zip(cameras, weights):
+                    disp[cam.name][row], asg[cam.name][row] = synth.view(state, cam, w)
+                    bar.update(1)
+            write(start, disp, asg)
         bar.close()
-        for name in names:
-            disp[name].flush()
-            asg[name].flush()
-        del disp, asg
         save_rig(Rig(tuple(cameras)), tmp / "rig.yaml")
     return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,
             "cameras": {c.name: c.center.tolist() for c in cameras}}
