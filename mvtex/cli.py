@@ -195,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="reconstruct", choices=("blend", "reconstruct"),
                    help="how each eye's texcoords are computed (as in views; default reconstruct)")
     p.add_argument("--path", action="store_true", help="also write path.gif: the viewpoint moving across the array")
+    _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
 
@@ -525,9 +526,10 @@ def cmd_preview(args) -> dict:
     weights = parse_weights(args.weights) if args.weights else None
     if not (args.ipd >= 0 and args.ipd < 10):
         raise InputError(None, f"--ipd must be in [0, 10) meters, got {args.ipd}")
-    result = stereo_preview(dataset, rig, tc, args.pose, args.out, weights=weights,
-                            options=PreviewOptions(ipd=args.ipd, method=args.method, path=args.path),
-                            rig_source=rig_path, progress=not args.quiet)
+    with _output(args, "preview"):
+        result = stereo_preview(dataset, rig, tc, args.pose, args.out, weights=weights,
+                                options=PreviewOptions(ipd=args.ipd, method=args.method, path=args.path),
+                                rig_source=rig_path, progress=not args.quiet, overwrite=args.overwrite)
     eyes = result["eyes"]
     _emit(args, result, f"pose {result['pose']}: SSIM inferred -> texcoords: left {eyes['left']['ssim']['inferred']:.3f}"
           f" -> {eyes['left']['ssim']['texcoords']:.3f}, right {eyes['right']['ssim']['inferred']:.3f} -> "

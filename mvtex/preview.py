@@ -162,20 +162,22 @@ def _path_weights(names: list[str], per_segment: int) -> list[dict[str, float]]:
 
 def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike, *,
                    weights: Mapping[str, float] | None = None, options: PreviewOptions = PreviewOptions(),
-                   rig_source: str | os.PathLike | None = None, progress: bool = True) -> dict:
+                   rig_source: str | os.PathLike | None = None, progress: bool = True,
+                   overwrite: bool = False) -> dict:
     """`mvtex preview`: the stereo pair of one pose (see the module docstring).
 
     Args:
         dataset: `Dataset` (gt is read for the reference renders and the scores).
         rig: the array. texcoords: the array's `TexcoordSet`.
         pose: dataset pose index (one of the set's poses).
-        out: output directory; an existing one must be an earlier preview (it is replaced).
+        out: output directory; an existing one must be an earlier preview (it is replaced),
+            or empty, unless `overwrite` (`mvtex.io.check_output`).
         weights: the viewpoint (array camera -> weight); default equal over the array.
 
     Returns:
         The preview.json object.
     """
-    from .io import atomic_path, save_png, write_json
+    from .io import atomic_path, check_output, save_png, write_json
     from .viz import grid_image, side_by_side
     from .views import check_texcoords_rig, check_weights, interpolate_camera
 
@@ -184,9 +186,7 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         raise InputError(dataset.path, f"pose {pose} is outside [0, {dataset.num_poses})")
     texcoords.row(pose)
     check_texcoords_rig(texcoords, rig, rig_source)
-    out = Path(out)
-    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "preview.json").is_file())):
-        raise InputError(out, "exists and is not an mvtex preview folder; choose another --out")
+    out = check_output(out, "preview", overwrite=overwrite)
     array = [c for c in rig.names if c in texcoords.cameras]
     if weights is None:
         weights = {c: 1.0 / len(array) for c in array}

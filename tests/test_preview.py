@@ -98,8 +98,15 @@ def test_preview_bad_input(tmp_path, sheet_set, capsys):
     (taken / "mine.txt").write_text("not mvtex's")
     code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out", taken,
                        "--quiet")
-    assert code == 2 and "not an mvtex preview" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "mvtex did not write" in err and len(err.strip().splitlines()) == 1
     assert (taken / "mine.txt").read_text() == "not mvtex's"
+    # One run at a time per output folder.
+    from mvtex.io import claim_output
+
+    with claim_output(tmp_path / "busy", "preview"):
+        code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out",
+                           tmp_path / "busy", "--quiet")
+    assert code == 2 and "in use by pid" in err and len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 2, "--out",
                        tmp_path / "p", "--quiet")
     assert code == 2 and "pose 2" in err and len(err.strip().splitlines()) == 1
