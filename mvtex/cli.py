@@ -179,6 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="view", help='name of the --weights view (default "view")')
     p.add_argument("--plot", type=Path, help="also write a PNG of SqrtMSE against the path (needs gt): "
                    "baseline, this method and TS computed directly at each view")
+    _add_workers(p, "default 1")
     _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
@@ -502,9 +503,11 @@ def cmd_views(args) -> dict:
     poses = dataset.select(args.poses) if args.poses else None
     if args.plot is not None and args.weights is not None:
         raise InputError(args.plot, "--plot needs the views of --between or --grid")
+    _check_workers(args)
     with _output(args, "views"):
         result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses,
-                             options=ViewOptions(method=args.method), rig_source=rig_path, progress=not args.quiet)
+                             options=ViewOptions(method=args.method), rig_source=rig_path, progress=not args.quiet,
+                             workers=args.workers or 1, scheduler=args.scheduler)
     if args.plot is not None:
         from .viewpath import path_plot
 

@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
+import uuid
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -518,9 +520,64 @@ def check_texcoords_rig(texcoords, rig: Rig, rig_source: str | os.PathLike | Non
 
 # -- the command ------------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class _ViewSpec:
+    """What a worker needs to compute views (picklable): paths, not open files."""
+
+    dataset: str
+    rig: Rig
+    texcoords: str
+    options: ViewOptions
+    rig_source: str | None
+    cameras: tuple
+    weights: tuple
+    key: str  # one run: a worker keeps its synthesizer between the run's tasks
+
+
+# Each thread's synthesizer for the run it currently serves (a Dask worker may run tasks in
+# several threads; a GL context is used by the thread that made it).
+_VIEW_STATE = threading.local()
+
+
+def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
+    current = getattr(_VIEW_STATE, "current", None)
+    if current is None or current[0] != spec.key:
+        from .dataset import load_dataset
+        from .slide_jobs import single_thread_gl
+        from .texcoords import open_texcoords
+
+        if current is not None:
+            current[1].release()
+        _VIEW_STATE.current = None
+        single_thread_gl()
+        ds = load_dataset(spec.dataset, validate=False)
+        tc = open_texcoords(spec.texcoords, ds.num_vertices)
+        _VIEW_STATE.current = (spec.key, ViewSynthesizer(ds, spec.rig, tc, spec.options, spec.rig_source))
+    return _VIEW_STATE.current[1]
+
+
+def _views_of_poses(synth: "ViewSynthesizer", cameras: Sequence[Camera], weights: Sequence[Mapping[str, float]],
+                    poses: Sequence[int]) -> tuple[dict, dict]:
+    """Every view of `poses`: ({name: (p,n',2) float32}, {name: (p,n') bool})."""
+    n_sub = len(synth.texcoords.uv)
+    disp = {c.name: np.empty((len(poses), n_sub, 2), np.float32) for c in cameras}
+    asg = {c.name: np.empty((len(poses), n_sub), bool) for c in cameras}
+    for row, pose in enumerate(poses):
+        state = synth.prepare(pose)
+        for cam, w in zip(cameras, weights):
+            disp[cam.name][row], asg[cam.name][row] = synth.view(state, cam, w)
+    return disp, asg
+
+
+def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
+    """In a worker: the views of one block of poses; returns (start, disp, asg)."""
+    return (start, *_views_of_poses(_view_state(spec), spec.cameras, spec.weights, poses))
+
+
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
-                rig_source: str | os.PathLike | None = None, progress: bool = True) -> dict:
+                rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
+                scheduler: str | None = None) -> dict:
     """`mvtex views`: a texcoord set whose cameras are novel views of an array.
 
     Args:
@@ -530,6 +587,9 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
         weights: one weight map per view (array camera -> weight). names: the views' names.
         poses: dataset pose indices (default: the set's poses).
         options: ViewOptions.
+        workers: local worker processes (1: this process), see `mvtex.parallel.map_unordered`.
+        scheduler: Dask scheduler address (overrides `workers`). Workers compute blocks of
+            `_WRITE_BLOCK` poses; the result does not depend on where they ran.
 
     Returns:
         {"out", "method", "views": {name: weights}, "poses": [...], "cameras": {name: centre}}.
@@ -583,16 +643,25 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
 
         bar = tqdm(total=len(poses) * len(names), desc=f"views ({options.method})", unit="view",
                    disable=not progress, file=sys.stderr)
-        for start in range(0, len(poses), _WRITE_BLOCK):
-            block = poses[start:start + _WRITE_BLOCK]
-            disp = {name: np.empty((len(block), n_sub, 2), np.float32) for name in names}
-            asg = {name: np.empty((len(block), n_sub), bool) for name in names}
-            for row, pose in enumerate(block):
-                state = synth.prepare(pose)
-                for cam, w in zip(cameras, weights):
-                    disp[cam.name][row], asg[cam.name][row] = synth.view(state, cam, w)
-                    bar.update(1)
-            write(start, disp, asg)
+        if workers <= 1 and not scheduler:
+            for start in range(0, len(poses), _WRITE_BLOCK):
+                block = poses[start:start + _WRITE_BLOCK]
+                write(start, *_views_of_poses(synth, cameras, weights, block))
+                bar.update(len(block) * len(names))
+        else:
+            from .parallel import map_unordered
+
+            # Blocks small enough that every worker gets several.
+            size = max(1, min(_WRITE_BLOCK, -(-len(poses) // (4 * max(workers, 2)))))
+            starts = range(0, len(poses), size)
+            spec = _ViewSpec(dataset=str(Path(dataset.path).resolve()), rig=rig,
+                             texcoords=str(Path(texcoords.path).resolve()), options=options,
+                             rig_source=None if rig_source is None else str(rig_source), cameras=tuple(cameras),
+                             weights=tuple(dict(w) for w in weights), key=uuid.uuid4().hex)
+            tasks = [(spec, start, poses[start:start + size]) for start in starts]
+            for start, disp, asg in map_unordered(_view_block, tasks, workers=workers, scheduler=scheduler):
+                write(start, disp, asg)
+                bar.update(len(next(iter(asg.values()))) * len(names))
         bar.close()
         save_rig(Rig(tuple(cameras)), tmp / "rig.yaml")
     return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,

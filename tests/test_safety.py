@@ -616,7 +616,8 @@ def test_dask_local_cluster_slide_equals_one_process(tmp_path, reference_set, sl
 
 def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path, reference_set, slow_dataset):
     """`dask worker` runs several tasks at once in threads of one process: each thread
-    needs its own GL context and state (a shared one crashed or mixed results)."""
+    needs its own GL context and state (a shared one crashed or mixed results). Slide,
+    eval and views."""
     distributed = pytest.importorskip("dask.distributed")
     from mvtex.metrics import evaluate
     from mvtex.slide_jobs import slide_dataset
@@ -628,6 +629,11 @@ def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path
                       scheduler=cluster.scheduler_address, progress=False)
         threaded = evaluate(slow_dataset, rig, tmp_path / "tc", poses=list(range(0, 40, 2)),
                             scheduler=cluster.scheduler_address, progress=False)
+        views = ["views", slow_dataset, "--rig", rig, "--texcoords", tmp_path / "tc", "--between", "a,b", "--steps", 3,
+                 "--method", "blend", "--poses", "0:12", "--quiet"]
+        assert main([str(a) for a in views + ["--out", tmp_path / "v", "--scheduler", cluster.scheduler_address]]) == 0
+    assert main([str(a) for a in views + ["--out", tmp_path / "v1"]]) == 0
+    assert tree(tmp_path / "v") == tree(tmp_path / "v1")
     ref = tree(reference_set / "tc")
     ref.pop(MARKER)
     assert tree(tmp_path / "tc") == ref

@@ -109,6 +109,19 @@ def test_weight_one_reproduces_the_camera(tmp_path, sheet_set, capsys, method, m
         assert np.array_equal(out.assigned("same_as_b", k), src.assigned("b", k))
 
 
+@pytest.mark.parametrize("method", ["blend", "reconstruct"])
+def test_views_on_worker_processes_equal_one_process(tmp_path, sheet_set, capsys, method):
+    dataset, rig_path, ts = sheet_set
+    trees = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"v{workers}"
+        code, _, err = run(capsys, "views", dataset, "--rig", rig_path, "--texcoords", ts, "--out", out,
+                           "--between", "a,b", "--steps", 3, "--method", method, "--workers", workers, "--quiet")
+        assert code == 0, err
+        trees.append({p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()})
+    assert len(trees[0]) > 4 and trees[0] == trees[1]
+
+
 def test_blend_of_identical_sets_is_identity():
     rng = np.random.default_rng(1)
     d = rng.normal(0, 0.01, (500, 2)).astype(np.float32)
