@@ -132,7 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", type=Path, help="dataset directory")
     p.add_argument("--texcoords", type=Path, required=True, help="texcoord set with the training targets")
     p.add_argument("--camera", help="train this camera's network (default: one network for every camera of "
-                   "--texcoords, conditioned on the camera)")
+                   "--texcoords, conditioned on the camera); A,B,...: one model per camera, OUT/<camera>, "
+                   "trained side by side with --workers or --scheduler")
     p.add_argument("--rig", help="rig of the texcoord set's cameras (needed without --camera: builtin name or "
                    "rig.yaml; default TEXCOORDS/rig.yaml)")
     p.add_argument("--out", type=Path, required=True, help="model directory to write")
@@ -146,6 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"atlas image size, a power of two in 8..{MAX_RESOLUTION} (default: 512 on GPU, 64 on CPU)")
     p.add_argument("--device", default=None, help="cpu, cuda, cuda:0 ... (default: cuda if available)")
     p.add_argument("--seed", type=int, default=0, help="seed of initialisation and batch order (default 0)")
+    _add_workers(p, "default 1; with several --camera names")
     _add_overwrite(p)
     _add_json(p)
     _add_progress(p)
@@ -443,6 +445,25 @@ def cmd_train(args) -> dict:
     changes = {k: getattr(args, k) for k in ("epochs", "resolution", "device", "components")
                if getattr(args, k) is not None}
     options = replace(options, **changes)
+    _check_workers(args)
+    cameras = _cameras(args.camera) if args.camera is not None else None
+    if args.camera is not None and not cameras:
+        raise InputError(None, f"--camera needs a camera name or a comma-separated list (got {args.camera!r})")
+    if (args.workers is not None or args.scheduler is not None) and (cameras is None or len(cameras) < 2):
+        raise InputError(None, "--workers and --scheduler train several cameras side by side: "
+                         "give --camera A,B,...")
+    if cameras is not None and len(cameras) > 1:
+        from .tsnn.train import train_cameras
+
+        with _output(args, "train", in_place=True):
+            try:
+                result = train_cameras(dataset, tc, cameras, args.out, options, workers=args.workers or 1,
+                                       scheduler=args.scheduler, progress=not args.quiet)
+            except ValueError as err:
+                raise InputError(None, str(err)) from None
+        _emit(args, result, f"wrote {len(cameras)} models ({result['arch']}) to {args.out}/<camera>: "
+              f"{', '.join(cameras)}")
+        return result
     rig = None
     if args.camera is None:
         if args.rig is None and not (args.texcoords / "rig.yaml").is_file():
@@ -451,8 +472,8 @@ def cmd_train(args) -> dict:
         rig, _ = _load_rig(args.rig or str(args.texcoords / "rig.yaml"))
     with _output(args, "train"):
         try:
-            result = train(dataset, tc, args.out, camera=args.camera, rig=rig, options=options,
-                           progress=not args.quiet)
+            result = train(dataset, tc, args.out, camera=cameras[0] if cameras else None, rig=rig,
+                           options=options, progress=not args.quiet)
         except ValueError as err:
             raise InputError(None, str(err)) from None
     _emit(args, result, f"wrote {args.out} ({result['arch']}, {', '.join(result['cameras'])})")

@@ -524,6 +524,37 @@ def test_gp_cannot_serve_every_camera(rig_data, tmp_path):
         train(ds, tc, tmp_path / "m", rig=rig, options=TrainOptions(arch="gp"), progress=False)
 
 
+def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_path, capsys):
+    """`train --camera a,c --workers 2`: OUT/a and OUT/c are the models `--camera a` and
+    `--camera c` write, bit for bit (gp is deterministic), and predict takes them."""
+    from mvtex.cli import main
+    from mvtex.texcoords import open_texcoords
+
+    ds, rig, tc, root = rig_data
+    base = [str(ds.path), "--texcoords", str(tc.path), "--arch", "gp", "--components", "4", "--quiet"]
+    assert main(["train", *base, "--camera", "a,c", "--workers", "2", "--out", str(tmp_path / "both"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["cameras"] == ["a", "c"] and set(summary["models"]) == {"a", "c"}
+    for cam in ("a", "c"):
+        assert main(["train", *base, "--camera", cam, "--out", str(tmp_path / cam)]) == 0
+        assert (tmp_path / "both" / cam / "model.safetensors").read_bytes() == \
+            (tmp_path / cam / "model.safetensors").read_bytes()
+        configs = [json.loads((d / "config.json").read_text()) for d in (tmp_path / "both" / cam, tmp_path / cam)]
+        for config in configs:
+            config.pop("seconds")  # wall-clock time
+        assert configs[0] == configs[1]
+    assert main(["predict", str(ds.path), "--model", str(tmp_path / "both" / "a"), "--model",
+                 str(tmp_path / "both" / "c"), "--out", str(tmp_path / "pred"), "--poses", "test", "--quiet"]) == 0
+    assert open_texcoords(tmp_path / "pred", ds.num_vertices).cameras == ["a", "c"]
+    capsys.readouterr()
+    # --workers without several cameras, and a camera the set does not have: exit 2, one line.
+    assert main(["train", *base, "--camera", "a", "--workers", "2", "--out", str(tmp_path / "x")]) == 2
+    assert "several cameras" in capsys.readouterr().err
+    assert main(["train", *base, "--camera", "a,zz", "--out", str(tmp_path / "y")]) == 2
+    err = capsys.readouterr().err
+    assert "zz" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "y" / "a").exists()
+
+
 def test_gp_kernel_is_ard_plus_additive_squared_exponential():
     """The kernel against the formula written out element by element."""
     from mvtex.tsnn.gp import _kernel

@@ -33,6 +33,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -297,6 +298,61 @@ def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, option
                  progress: bool = True) -> dict[str, Any]:
     """Train the texture sliding network of one camera (`train` with a camera name)."""
     return train(dataset, texcoords, out, camera=camera, options=options, progress=progress)
+
+
+def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
+    """In a worker: one camera's model from paths (torch on one thread: the workers already
+    fill the cores)."""
+    import torch
+
+    from ..dataset import load_dataset
+    from ..texcoords import open_texcoords
+
+    torch.set_num_threads(1)
+    ds = load_dataset(dataset, validate=False)
+    return train(ds, open_texcoords(texcoords, ds.num_vertices), out, camera=camera, options=options, progress=False)
+
+
+def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.PathLike,
+                  options: TrainOptions = TrainOptions(), *, workers: int = 1, scheduler: str | None = None,
+                  progress: bool = True) -> dict[str, Any]:
+    """One model per camera, OUT/<camera>/ (each a model directory as `train` writes it),
+    trained side by side on local processes or a Dask cluster (`mvtex.parallel`).
+
+    Each model is `train` with that camera, written atomically (a rerun trains every camera
+    again); on workers torch runs one thread per process (the workers fill the cores), which
+    can change a network's last bits against a multi-threaded run, not a `gp` model's
+    (tested bit for bit).
+
+    Returns:
+        {"out", "cameras", "arch", "models": {camera: the `train` summary}}.
+    """
+    from ..parallel import map_unordered
+
+    out = Path(out)
+    cameras = list(cameras)
+    missing = [c for c in cameras if c not in texcoords.cameras]
+    if missing:
+        raise InputError(texcoords.path, f"no camera {missing[0]!r} in this texcoord set "
+                         f"(it has {', '.join(texcoords.cameras)})")
+    if len(set(cameras)) != len(cameras):
+        raise InputError(None, f"cameras listed twice: {cameras}")
+    tasks = [(str(Path(dataset.path).resolve()), str(Path(texcoords.path).resolve()), c, str(out / c), options)
+             for c in cameras]
+    models: dict[str, Any] = {}
+    if workers <= 1 and not scheduler:
+        for c in cameras:
+            models[c] = train(dataset, texcoords, out / c, camera=c, options=options, progress=progress)
+    else:
+        from tqdm import tqdm
+
+        with tqdm(total=len(cameras), desc="train", unit="camera", disable=not progress, file=sys.stderr) as bar:
+            for summary in map_unordered(_train_camera_task, tasks, workers=workers, scheduler=scheduler):
+                models[summary["camera"]] = summary
+                bar.update(1)
+    arch = {m["arch"] for m in models.values()}
+    return {"out": str(out), "cameras": cameras, "arch": arch.pop() if len(arch) == 1 else sorted(arch),
+            "models": {c: models[c] for c in cameras}}
 
 
 def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
@@ -592,8 +648,9 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
     with atomic_path(out) as tmp:
         tmp.mkdir()
         state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-        save_file(state, str(tmp / "model.safetensors"),
-                  metadata={"format": MODEL_FORMAT, "camera": meta["camera"] or ",".join(meta["cameras"])})
+        # One metadata entry: safetensors writes its metadata map in hash order, which varies
+        # from process to process, and a model's bytes should not (the cameras are in config.json).
+        save_file(state, str(tmp / "model.safetensors"), metadata={"format": MODEL_FORMAT})
         (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
         if meta["architecture"]["arch"] == "gp":
             _relevance_plot(tmp / "relevance.png", model.relevance(),
