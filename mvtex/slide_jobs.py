@@ -23,7 +23,7 @@ import numpy as np
 
 from .camera import Rig
 from .errors import InputError
-from .io import read_rows
+from .io import read_rows, write_npy_rows
 from .parallel import in_dask_worker
 from .sliding import SlideOptions, SlideTopology, build_topology, slide_pose
 
@@ -215,13 +215,10 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         os.replace(tmp, partial)
 
     def write_rows(cam: str, rows: list[int], d: np.ndarray, a: np.ndarray) -> None:
-        # Through maps opened for this write only: pages written through a map stay in the
-        # process's resident memory while it is open, which would grow with the run.
+        # Through the files (on disk before the rows are marked done), not maps: pages
+        # written through a map stay resident while it is open, which would grow with the run.
         for name, values in (("displacement.npy", d), ("assigned.npy", a)):
-            mapped = open_memmap(partial / cam / name, mode="r+")
-            mapped[rows] = values
-            mapped.flush()
-            del mapped
+            write_npy_rows(partial / cam / name, rows, values)
 
     # A missing done mask (a run stopped while finishing) means: redo that camera.
     done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool)

@@ -598,7 +598,7 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     from tqdm import tqdm
 
     from .camera import save_rig
-    from .io import atomic_path
+    from .io import atomic_path, write_npy_rows
     from .texcoords import write_header
 
     if len(weights) != len(names) or not names:
@@ -632,14 +632,11 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             open_memmap(tmp / name / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), n_sub)).flush()
 
         def write(start: int, disp: dict, asg: dict) -> None:
-            # Through maps opened for this block only: pages written through a map stay in
-            # the process's resident memory while it is open, which would grow with the run.
+            # Through the files, not maps: pages written through a map stay in the process's
+            # resident memory while it is open, which would grow with the run.
             for name in names:
                 for file, values in (("displacement.npy", disp[name]), ("assigned.npy", asg[name])):
-                    mapped = open_memmap(tmp / name / file, mode="r+")
-                    mapped[start:start + len(values)] = values
-                    mapped.flush()
-                    del mapped
+                    write_npy_rows(tmp / name / file, range(start, start + len(values)), values)
 
         bar = tqdm(total=len(poses) * len(names), desc=f"views ({options.method})", unit="view",
                    disable=not progress, file=sys.stderr)

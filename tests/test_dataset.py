@@ -188,3 +188,27 @@ def test_read_rows_reads_maps_through_the_file(tmp_path):
     assert _mapped_rss_kb(path) == 0
     np.testing.assert_array_equal(np.array(mapped), values)
     assert _mapped_rss_kb(path) >= values.nbytes // 1024 // 2
+
+
+def test_write_npy_rows_writes_through_the_file(tmp_path):
+    from numpy.lib.format import open_memmap
+
+    from mvtex.io import write_npy_rows
+
+    rng = np.random.default_rng(1)
+    for dtype, shape in ((np.float32, (40, 7, 2)), (np.bool_, (40, 7))):
+        path = tmp_path / f"{np.dtype(dtype).name}.npy"
+        open_memmap(path, mode="w+", dtype=dtype, shape=shape).flush()
+        expected = np.zeros(shape, dtype)
+        # Runs of consecutive rows, gaps, a single row, the last row, rows out of order.
+        for rows in ([0, 1, 2], [5, 9, 10, 11, 20], [39], [30, 29]):
+            values = rng.normal(size=(len(rows), *shape[1:])).astype(dtype) if dtype is np.float32 \
+                else rng.random((len(rows), *shape[1:])) < 0.5
+            write_npy_rows(path, rows, values)
+            expected[rows] = values
+        np.testing.assert_array_equal(np.load(path), expected)
+        with pytest.raises(ValueError, match="outside"):
+            write_npy_rows(path, [40], expected[:1])
+        with pytest.raises(ValueError, match="do not fit"):
+            write_npy_rows(path, [0], expected[:1].astype(np.float64))
+        np.testing.assert_array_equal(np.load(path), expected)
