@@ -224,8 +224,9 @@ def test_damaged_model_directories(tiny_dataset, path, value, weights):
 @given(option=st.sampled_from([("triangulate", "--max-reprojection-px"), ("triangulate", "--max-surface-distance"),
                                ("triangulate", "--pose"), ("slide", "--max-displacement"), ("slide", "--workers"),
                                ("slide", "--poses"), ("slide", "--subdiv"), ("train", "--epochs"),
-                               ("train", "--resolution"), ("train", "--device"), ("eval", "--workers"),
-                               ("eval", "--poses"), ("synth", "--poses")]),
+                               ("train", "--resolution"), ("train", "--device"), ("train", "--camera"),
+                               ("train", "--workers"), ("eval", "--workers"), ("eval", "--poses"),
+                               ("views", "--workers"), ("synth", "--poses")]),
        value=st.one_of(number_text, hostile_text))
 def test_option_values(tiny_dataset, rig_yaml, texcoord_set, option, value):
     """Every option value is either refused in one line or accepted; the run then stops at
@@ -238,6 +239,7 @@ def test_option_values(tiny_dataset, rig_yaml, texcoord_set, option, value):
         base = {"triangulate": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--pose", "0"],
                 "slide": ["--rig", root / "rig.yaml"], "train": ["--texcoords", root / "tc", "--camera", "a"],
                 "eval": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--heatmaps", out / "h"],
+                "views": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--between", "a,b", "--steps", "2"],
                 "synth": []}[command]
         target = [out] if command == "synth" else [root / "sheet"]
         tail = [] if command in ("eval", "synth") else ["--out", out]
