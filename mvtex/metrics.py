@@ -366,7 +366,7 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
 def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:
     """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b,
     same_t, material_b, material_t) each (NaN material without a rest shape)."""
-    from .io import save_png
+    from .io import read_rows, save_png
     from .viz import colorbar, heatmap, side_by_side
 
     state = _eval_state(spec)
@@ -375,8 +375,9 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
     out = []
     for index, k, name in jobs:
         cam = spec.rig[name]
-        gt = np.asarray(ds.gt[k], np.float64)
-        inferred = np.asarray(ds.inferred[k], np.float64)
+        # Through the files (`read_rows`): rows read through the dataset's maps stay resident.
+        gt = read_rows(ds.gt, k, k + 1)[0].astype(np.float64)
+        inferred = read_rows(ds.inferred, k, k + 1)[0].astype(np.float64)
         uv_g, raster_g = texcoord_image(ctx, gt, ds.faces, ds.uv, cam)
         uv_b, raster_b = texcoord_image(ctx, inferred, ds.faces, ds.uv, cam)
         uv_t, raster_t = texcoord_image(ctx, tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam)

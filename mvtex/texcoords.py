@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import InputError
-from .io import atomic_path, load_npy, load_npz, read_header
+from .io import atomic_path, load_npy, load_npz, read_header, read_rows
 from .mesh import apply_extension, extension_matrix
 
 FORMAT = "mvtex-texcoords"
@@ -91,13 +91,17 @@ class TexcoordSet:
             self._cache[camera] = (d, a)
         return self._cache[camera]
 
+    # Rows are read through the files (`read_rows`), not the maps: pages read through a map
+    # stay resident while it lives, so a pass over a 10,000-pose set would hold all of it.
     def displacement(self, camera: str, pose: int) -> np.ndarray:
-        """d = T_N - T_G, (n',2) float32, for a dataset pose index."""
-        return np.asarray(self._arrays(camera)[0][self.row(pose)])
+        """d = T_N - T_G, (n',2) float32, for a dataset pose index (a copy)."""
+        row = self.row(pose)
+        return read_rows(self._arrays(camera)[0], row, row + 1)[0]
 
     def assigned(self, camera: str, pose: int) -> np.ndarray:
-        """(n',) bool: True where d came from the ray."""
-        return np.asarray(self._arrays(camera)[1][self.row(pose)])
+        """(n',) bool: True where d came from the ray (a copy)."""
+        row = self.row(pose)
+        return read_rows(self._arrays(camera)[1], row, row + 1)[0]
 
     def texcoords(self, camera: str, pose: int) -> np.ndarray:
         """T_N = T_G + d, (n',2) float32."""
@@ -114,7 +118,7 @@ def _check_displacements(d: np.ndarray, source: Path) -> None:
     """Every value finite and |d| <= MAX_DISPLACEMENT, read in blocks (d may be memory-mapped)."""
     rows = max(1, (1 << 24) // max(1, d[0].nbytes)) if len(d) else 1
     for start in range(0, len(d), rows):
-        block = np.asarray(d[start:start + rows], dtype=np.float64)
+        block = read_rows(d, start, start + rows).astype(np.float64)
         finite = np.isfinite(block).all(axis=(1, 2))
         if not finite.all():
             raise InputError(source, f"NaN or infinite displacement (row {start + int(np.argmin(finite))})")

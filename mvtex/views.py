@@ -47,6 +47,7 @@ import numpy as np
 
 from .camera import Camera, Rig
 from .errors import InputError
+from .io import read_rows
 
 METHODS = ("blend", "reconstruct")
 COMBINES = ("reproject", "hit", "all")
@@ -336,7 +337,7 @@ class ViewSynthesizer:
         state = PoseContext(pose=int(pose),
                           displacement={c: np.asarray(tc.displacement(c, pose)) for c in self.array},
                           assigned={c: np.asarray(tc.assigned(c, pose)) for c in self.array},
-                          inferred=np.asarray(self.dataset.inferred[pose], np.float64))
+                          inferred=read_rows(self.dataset.inferred, pose, pose + 1)[0].astype(np.float64))
         if self.options.method == "reconstruct":
             from .recon import reconstruct
 

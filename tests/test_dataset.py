@@ -212,3 +212,28 @@ def test_write_npy_rows_writes_through_the_file(tmp_path):
         with pytest.raises(ValueError, match="do not fit"):
             write_npy_rows(path, [0], expected[:1].astype(np.float64))
         np.testing.assert_array_equal(np.load(path), expected)
+
+
+def test_texcoord_rows_are_read_through_the_file(tmp_path):
+    """Opening a texcoord set (which checks every displacement) and reading all its rows
+    leaves nothing of its files resident through the maps, and returns copies."""
+    from mvtex.texcoords import open_texcoords, save_texcoords
+
+    rng = np.random.default_rng(2)
+    n, k = 500, 40
+    uv = rng.random((n, 2)).astype(np.float32)
+    d = {"a": (rng.normal(size=(k, n, 2)) * 1e-3).astype(np.float32)}
+    asg = {"a": rng.random((k, n)) < 0.5}
+    faces = np.array([[0, 1, 2]])
+    save_texcoords(tmp_path / "tc", faces=faces, uv=uv, parent=np.stack([np.arange(n)] * 2, 1), source="synthetic",
+                   subdiv=0, poses=list(range(k)), displacement=d, assigned=asg)
+    tc = open_texcoords(tmp_path / "tc")
+    for pose in range(k):
+        row = tc.displacement("a", pose)
+        np.testing.assert_array_equal(row, d["a"][pose])
+        np.testing.assert_array_equal(tc.assigned("a", pose), asg["a"][pose])
+        assert row.base is None or not isinstance(row.base, np.memmap)
+    if not __import__("os").path.exists("/proc/self/smaps"):
+        return
+    for name in ("displacement.npy", "assigned.npy"):
+        assert _mapped_rss_kb((tmp_path / "tc" / "a" / name).resolve()) == 0
