@@ -555,6 +555,39 @@ def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_p
     assert "zz" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "y" / "a").exists()
 
 
+def test_predict_in_blocks_equals_one_pass(rig_data, tmp_path, monkeypatch):
+    """predict writes block by block of poses; with blocks of 3 poses the set holds what one
+    pass of the model over all poses gives (gp, per vertex; unet, through the atlas and the
+    geometry images of each block)."""
+    import mvtex.tsnn.predict as P
+    from mvtex.texcoords import open_texcoords
+    from mvtex.tsnn.train import TrainOptions, train
+
+    ds, rig, tc, _ = rig_data
+    train(ds, tc, tmp_path / "gp", camera="a", options=TrainOptions(arch="gp", components=4), progress=False)
+    train(ds, tc, tmp_path / "unet", rig=rig, options=TrainOptions(arch="unet", epochs=1, resolution=16,
+                                                                   device="cpu"), progress=False)
+    poses = list(range(ds.num_poses))
+    monkeypatch.setattr(P, "_BLOCK", 3)
+    P.predict(ds, [tmp_path / "gp", tmp_path / "unet"], tmp_path / "pred", poses=poses, rig=rig, progress=False)
+    out = open_texcoords(tmp_path / "pred", ds.num_vertices)
+    x = np.asarray(ds.poses[poses], np.float32)
+    gp = P.load_model(tmp_path / "gp")
+    expected = {"a": P.predict_displacements(gp, x, out.uv)}
+    unet = P.load_model(tmp_path / "unet")
+    from mvtex.tsnn.atlas import AtlasSampler
+    from mvtex.tsnn.geometry import geometry_images
+
+    sampler = AtlasSampler(out.faces, out.uv, 16, dilation=int(unet.meta["atlas"]["dilation"]))
+    g = geometry_images(ds, poses, sampler, out.parent)
+    for cam in ("b", "c"):
+        expected[cam] = P.predict_displacements(unet, x, out.uv, geometry=g, cam_from_world=rig[cam].cam_from_world)
+    for cam, d in expected.items():
+        got = np.stack([out.displacement(cam, k) for k in poses])
+        np.testing.assert_allclose(got, d, atol=1e-6, rtol=0)
+        assert all(out.assigned(cam, k).all() for k in poses)
+
+
 def test_gp_kernel_is_ard_plus_additive_squared_exponential():
     """The kernel against the formula written out element by element."""
     from mvtex.tsnn.gp import _kernel

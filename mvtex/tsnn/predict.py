@@ -18,14 +18,18 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.lib.format import open_memmap
 
 from ..camera import check_camera_name
 from ..errors import InputError
-from ..io import read_json
-from ..texcoords import save_texcoords
+from ..io import atomic_path, read_json, write_npy_rows
+from ..texcoords import write_header
 from .atlas import sample_atlas, vertex_grid
+from .geometry import geometry_images
 from .train import (MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH, MODEL_FORMAT, READABLE_VERSIONS, mesh_fingerprint,
                     rebuild_mesh)
+
+_BLOCK = 256  # poses predicted (and written) at a time
 
 
 @dataclass
@@ -281,26 +285,38 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
         raise InputError(first.path / "config.json", f"mesh.num_vertices {first.meta['mesh']['num_vertices']} but "
                          f"the dataset mesh subdivided {first.subdiv} time(s) has {len(uv)}")
     x = np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), -1)
-    geometry: dict[tuple[int, int], np.ndarray] = {}  # (resolution, dilation) -> images of the poses
-    displacement, assigned = {}, {}
-    for name, m, view in tqdm(jobs, desc="predict", unit="camera", disable=not progress):
-        g = None
-        if m.needs_geometry:
-            key = (m.network.config.resolution, int(m.meta["atlas"]["dilation"]))
-            if key not in geometry:
-                geometry[key] = _geometry(dataset, poses, faces, uv, parent, *key, source=m.path)
-            g = geometry[key]
-        displacement[name] = predict_displacements(m, x, uv, geometry=g, cam_from_world=view, device=device)
-        assigned[name] = np.ones((len(poses), len(uv)), dtype=bool)
-    return save_texcoords(out, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
-                          displacement=displacement, assigned=assigned,
-                          models={name: str(m.path) for name, m, _ in jobs})
+    samplers: dict[tuple[int, int], Any] = {}  # (resolution, dilation) -> the models' atlas
+    names = [name for name, _, _ in jobs]
+    # Block by block of poses, written into the files as they come: memory stays that of
+    # one block (d of 10,000 poses and 24k vertices is 1.9 GB per camera).
+    with atomic_path(out) as tmp, tqdm(total=len(poses) * len(jobs), desc="predict", unit="image",
+                                       disable=not progress) as bar:
+        tmp.mkdir()
+        write_header(tmp, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
+                     cameras=names, models={name: str(m.path) for name, m, _ in jobs})
+        for name in names:
+            (tmp / name).mkdir()
+            open_memmap(tmp / name / "displacement.npy", mode="w+", dtype=np.float32,
+                        shape=(len(poses), len(uv), 2)).flush()
+            open_memmap(tmp / name / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), len(uv))).flush()
+        for start in range(0, len(poses), _BLOCK):
+            rows = poses[start:start + _BLOCK]
+            index = range(start, start + len(rows))
+            geometry: dict[tuple[int, int], np.ndarray] = {}
+            for name, m, view in jobs:
+                g = None
+                if m.needs_geometry:
+                    key = (m.network.config.resolution, int(m.meta["atlas"]["dilation"]))
+                    if key not in geometry:
+                        if key not in samplers:
+                            from .atlas import AtlasSampler
 
-
-def _geometry(dataset, poses, faces, uv, parent, resolution: int, dilation: int, source) -> np.ndarray:
-    """Geometry images of the poses' inferred meshes on the models' atlas."""
-    from .atlas import AtlasSampler
-    from .geometry import geometry_images
-
-    sampler = AtlasSampler(faces, uv, resolution, dilation=dilation, source=source)
-    return geometry_images(dataset, poses, sampler, parent)
+                            samplers[key] = AtlasSampler(faces, uv, key[0], dilation=key[1], source=m.path)
+                        geometry[key] = geometry_images(dataset, rows, samplers[key], parent)
+                    g = geometry[key]
+                d = predict_displacements(m, x[start:start + len(rows)], uv, geometry=g, cam_from_world=view,
+                                          device=device)
+                write_npy_rows(tmp / name / "displacement.npy", index, d)
+                write_npy_rows(tmp / name / "assigned.npy", index, np.ones((len(rows), len(uv)), dtype=bool))
+                bar.update(len(rows))
+    return out
