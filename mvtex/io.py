@@ -251,6 +251,18 @@ def read_rows(array: np.ndarray, start: int, stop: int) -> np.ndarray:
     return out
 
 
+def read_row(array: np.ndarray, index: int) -> np.ndarray:
+    """Row `index` of an array as a new in-memory array (`read_rows` of one row)."""
+    return read_rows(array, index, index + 1)[0]
+
+
+def create_npy(path: str | os.PathLike, dtype, shape: tuple[int, ...]) -> None:
+    """A new .npy file of `shape`, zero-filled (sparse on disk), for `write_npy_rows`."""
+    from numpy.lib.format import open_memmap
+
+    open_memmap(path, mode="w+", dtype=dtype, shape=shape).flush()
+
+
 def write_npy_rows(path: str | os.PathLike, rows: Sequence[int], values: np.ndarray) -> None:
     """Write values[i] into row rows[i] of an existing C-order .npy file, through the file
     (positioned writes, then fsync), not a memory map.
@@ -271,9 +283,9 @@ def write_npy_rows(path: str | os.PathLike, rows: Sequence[int], values: np.ndar
     rows = np.asarray(rows, dtype=np.int64)
     if values.dtype != dtype or values.shape[1:] != shape[1:] or len(values) != len(rows):
         raise ValueError(f"{path}: rows of {values.dtype} {values.shape} do not fit {dtype} {shape} at {len(rows)} rows")
-    if len(rows) and (rows.min() < 0 or rows.max() >= shape[0]):
+    if rows.min() < 0 or rows.max() >= shape[0]:
         raise ValueError(f"{path}: rows outside [0, {shape[0]})")
-    row_bytes = values[0].nbytes if len(values) else 0
+    row_bytes = values[0].nbytes
     fd = os.open(path, os.O_WRONLY)
     try:
         i = 0

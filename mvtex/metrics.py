@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import os
 import sys
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
@@ -32,6 +31,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from .camera import Camera, Rig
+from .parallel import ThreadState
 
 if TYPE_CHECKING:
     from .raster import GLContext, Raster
@@ -296,7 +296,7 @@ def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same
 
 @dataclass(frozen=True)
 class _EvalSpec:
-    """What a worker needs to evaluate images: picklable; opened inputs cached per process."""
+    """What a worker needs to evaluate images: picklable; its opened inputs are kept per thread by key."""
 
     dataset: str
     texcoords: str
@@ -310,9 +310,8 @@ class _EvalSpec:
 
 @dataclass
 class _EvalState:
-    """A process's opened inputs and GL context for one `_EvalSpec`."""
+    """A thread's opened inputs and GL context for one `_EvalSpec`."""
 
-    key: tuple[str, str]
     dataset: Any
     texcoord_set: Any
     charts: np.ndarray
@@ -326,58 +325,46 @@ class _EvalState:
             self.ctx.release()
 
 
-# Each thread's one _EvalState (one set at a time): per thread, because a Dask worker runs
-# tasks in several threads and a GL context is used by the thread that made it.
-_EVAL_STATE = threading.local()
+_EVAL_STATE = ThreadState()  # each thread's _EvalState, one set at a time
 
 
-def _set_eval_state(state: _EvalState | None) -> None:
-    old = getattr(_EVAL_STATE, "current", None)
-    _EVAL_STATE.current = state
-    if old is not None:
-        old.release()
-
-
-def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool, key: tuple[str, str]) -> _EvalState:
+def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool) -> _EvalState:
     from .mesh import charts_through_parent, uv_charts
 
     charts = uv_charts(ds.faces, ds.num_vertices)
     material_map = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=ctx) if ds.rest is not None else None
-    return _EvalState(key, ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)), ctx, material_map,
+    return _EvalState(ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)), ctx, material_map,
                       owns_ctx)
 
 
 def _eval_state(spec: _EvalSpec) -> _EvalState:
-    state = getattr(_EVAL_STATE, "current", None)
-    if state is None or state.key != spec.key:
-        from .dataset import load_dataset
-        from .raster import GLContext
-        from .slide_jobs import single_thread_gl
-        from .texcoords import open_texcoords
+    """A worker's state for an evaluation (one in this process puts its own in place up front)."""
+    from .dataset import load_dataset
+    from .raster import GLContext
+    from .slide_jobs import single_thread_gl
+    from .texcoords import open_texcoords
 
-        single_thread_gl()  # only workers open their state here (a local run sets it up front)
-        ds = load_dataset(spec.dataset, validate=False)
-        tc = open_texcoords(spec.texcoords, ds.num_vertices)
-        state = _open_eval_state(ds, tc, GLContext(), True, spec.key)
-        _set_eval_state(state)
-    return state
+    single_thread_gl()
+    ds = load_dataset(spec.dataset, validate=False)
+    tc = open_texcoords(spec.texcoords, ds.num_vertices)
+    return _open_eval_state(ds, tc, GLContext(), True)
 
 
 def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:
     """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b,
     same_t, material_b, material_t) each (NaN material without a rest shape)."""
-    from .io import read_rows, save_png
+    from .io import read_row, save_png
     from .viz import colorbar, heatmap, side_by_side
 
-    state = _eval_state(spec)
+    state = _EVAL_STATE.get(spec.key, lambda: _eval_state(spec))
     ds, tc, ctx, material_map = state.dataset, state.texcoord_set, state.ctx, state.material_map
     charts, charts_tc = state.charts, state.charts_tc
     out = []
     for index, k, name in jobs:
         cam = spec.rig[name]
-        # Through the files (`read_rows`): rows read through the dataset's maps stay resident.
-        gt = read_rows(ds.gt, k, k + 1)[0].astype(np.float64)
-        inferred = read_rows(ds.inferred, k, k + 1)[0].astype(np.float64)
+        # Through the files (`read_row`): rows read through the dataset's maps stay resident.
+        gt = read_row(ds.gt, k).astype(np.float64)
+        inferred = read_row(ds.inferred, k).astype(np.float64)
         uv_g, raster_g = texcoord_image(ctx, gt, ds.faces, ds.uv, cam)
         uv_b, raster_b = texcoord_image(ctx, inferred, ds.faces, ds.uv, cam)
         uv_t, raster_t = texcoord_image(ctx, tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam)
@@ -479,7 +466,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     local = workers <= 1 and not scheduler
     if local:  # this process: reuse what is open
         own = GLContext() if ctx is None else None
-        _set_eval_state(_open_eval_state(ds, tc, own or ctx, own is not None, spec.key))
+        _EVAL_STATE.set(spec.key, _open_eval_state(ds, tc, own or ctx, own is not None))
     jobs = [(i, k, name) for i, (k, name) in enumerate((k, c.name) for k in poses for c in rig)]
     chunk = max(1, min(8, len(jobs) // (4 * max(1, workers))))
     tasks = [(spec, jobs[i:i + chunk]) for i in range(0, len(jobs), chunk)]
@@ -492,7 +479,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
                 bar.update(len(results))
     finally:
         if local:
-            _set_eval_state(None)
+            _EVAL_STATE.set(None, None)
     has_rest = ds.rest is not None
     per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], [], [], []) for c in rig}
     for (_, _, name), image in zip(jobs, values):

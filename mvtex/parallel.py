@@ -41,18 +41,33 @@ def map_unordered(fn: Callable[..., Any], tasks: Sequence[tuple], *, workers: in
         yield from _processes(fn, tasks, workers, max_in_flight or 4 * workers)
 
 
-def in_dask_worker() -> bool:
-    """True in a task running on a Dask worker (dask.distributed loaded and `get_worker` answers)."""
-    import sys
+class ThreadState:
+    """What a worker keeps between the tasks of one run (dataset, topology, GL context), one
+    per thread: a Dask worker runs tasks in several threads at once (`dask worker` starts one
+    per core by default), and a GL context is used by the thread that made it.
 
-    distributed = sys.modules.get("distributed")
-    if distributed is None:
-        return False
-    try:
-        distributed.get_worker()
-    except ValueError:
-        return False
-    return True
+    `get(key, make)` returns this thread's value for run `key`, made by `make()` the first
+    time; `set(key, value)` puts one in place (a value None drops it). A value replaced or
+    dropped is released (`value.release()`).
+    """
+
+    def __init__(self) -> None:
+        import threading
+
+        self._local = threading.local()
+
+    def get(self, key: Any, make: Callable[[], Any]) -> Any:
+        held = getattr(self._local, "held", None)
+        if held is None or held[0] != key:
+            self.set(None, None)  # the previous run's state goes before the next one is made
+            held = self._local.held = (key, make())
+        return held[1]
+
+    def set(self, key: Any, value: Any) -> None:
+        old = getattr(self._local, "held", None)
+        self._local.held = None if value is None else (key, value)
+        if old is not None and old[1] is not value:
+            old[1].release()
 
 
 def _processes(fn, tasks: list, workers: int, max_in_flight: int) -> Iterator[Any]:

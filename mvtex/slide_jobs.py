@@ -14,7 +14,6 @@ import json
 import os
 import shutil
 import sys
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -23,8 +22,8 @@ import numpy as np
 
 from .camera import Rig
 from .errors import InputError
-from .io import read_rows, write_npy_rows
-from .parallel import in_dask_worker
+from .io import create_npy, read_row, write_npy_rows
+from .parallel import ThreadState
 from .sliding import SlideOptions, SlideTopology, build_topology, slide_pose
 
 if TYPE_CHECKING:
@@ -53,31 +52,30 @@ def _rig_record(rig: Rig) -> dict:
 
 @dataclass(frozen=True)
 class _Spec:
-    """What a worker needs to slide chunks of poses: picklable, cached per process by key."""
+    """What a worker needs to slide chunks of poses: picklable; its state is kept per thread by key."""
 
     dataset: str
     rig: Rig
     options: SlideOptions
     key: str
-    worker: bool = False
 
 
 @dataclass
 class _WorkerState:
-    """What one process keeps between chunks of one run: the dataset, its topology and
-    the process's GL context."""
+    """What one thread keeps between chunks of one run: the dataset, its topology and a GL
+    context."""
 
-    key: str
     dataset: Dataset
     topology: SlideTopology
     ctx: GLContext
     owns_ctx: bool
 
+    def release(self) -> None:
+        if self.owns_ctx:
+            self.ctx.release()
 
-# Each thread's state for the run it currently serves (one run at a time). Per thread, not
-# per process: a Dask worker runs several tasks at once in threads (`dask worker` starts one
-# per core by default), and a GL context is used by the thread that made it, one at a time.
-_WORKER = threading.local()
+
+_WORKER = ThreadState()
 
 
 def single_thread_gl() -> None:
@@ -88,40 +86,29 @@ def single_thread_gl() -> None:
     os.environ.setdefault("LP_NUM_THREADS", "0")
 
 
-def _set_state(state: _WorkerState | None) -> None:
-    old = getattr(_WORKER, "current", None)
-    _WORKER.current = state
-    if old is not None and old.owns_ctx and (state is None or old.ctx is not state.ctx):
-        old.ctx.release()
+def _open_state(spec: _Spec) -> _WorkerState:
+    """A worker's state for a run (a run in this process puts its own in place up front)."""
+    from .dataset import load_dataset, reference_shape
+    from .raster import GLContext
 
-
-def _state(spec: _Spec) -> _WorkerState:
-    state = getattr(_WORKER, "current", None)
-    if state is None or state.key != spec.key:
-        from .dataset import load_dataset, reference_shape
-        from .raster import GLContext
-
-        if spec.worker or in_dask_worker():
-            single_thread_gl()
-        ds = load_dataset(spec.dataset, validate=False)
-        topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
-        state = _WorkerState(spec.key, ds, topo, GLContext(), owns_ctx=True)
-        _set_state(state)
-    return state
+    single_thread_gl()
+    ds = load_dataset(spec.dataset, validate=False)
+    topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
+    return _WorkerState(ds, topo, GLContext(), owns_ctx=True)
 
 
 def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
     """Slide poses[rows] for one camera; returns (camera, rows, d (r,n',2), assigned (r,n'))."""
-    state = _state(spec)
+    state = _WORKER.get(spec.key, lambda: _open_state(spec))
     ds, topo = state.dataset, state.topology
     cam = spec.rig[camera]
     d_out = np.empty((len(rows), len(topo.uv), 2), np.float32)
     a_out = np.empty((len(rows), len(topo.uv)), bool)
     for i, row in enumerate(rows):
         k = poses[row]
-        # Read through the files (`read_rows`): rows read through the dataset's maps would stay
+        # Read through the files (`read_row`): rows read through the dataset's maps would stay
         # resident, and a long run would end up holding the whole dataset.
-        d_out[i], a_out[i] = slide_pose(read_rows(ds.gt, k, k + 1)[0], read_rows(ds.inferred, k, k + 1)[0],
+        d_out[i], a_out[i] = slide_pose(read_row(ds.gt, k), read_row(ds.inferred, k),
                                         ds.faces, ds.uv, cam, topo.subdivision, spec.options, topology=topo,
                                         ctx=state.ctx)
     return camera, rows, d_out, a_out
@@ -162,7 +149,6 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     Returns:
         Path of the finished texcoord set.
     """
-    from numpy.lib.format import open_memmap
     from tqdm import tqdm
 
     from .camera import as_rig
@@ -209,8 +195,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
                      subdiv=options.subdiv, poses=poses, cameras=rig.names, **record)
         for cam in rig.names:
             (tmp / cam).mkdir()
-            open_memmap(tmp / cam / "displacement.npy", mode="w+", dtype=np.float32, shape=(len(poses), n_sub, 2)).flush()
-            open_memmap(tmp / cam / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), n_sub)).flush()
+            create_npy(tmp / cam / "displacement.npy", np.float32, (len(poses), n_sub, 2))
+            create_npy(tmp / cam / "assigned.npy", np.bool_, (len(poses), n_sub))
             np.save(tmp / cam / "done.npy", np.zeros(len(poses), bool), allow_pickle=False)
         os.replace(tmp, partial)
 
@@ -240,8 +226,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     if workers > 1 and not scheduler and len(tasks) < 4 * workers:
         tasks = [(c, rows[i:i + 2]) for c, rows in tasks for i in range(0, len(rows), 2)]
     spec = _Spec(dataset=str(ds.path), rig=rig, options=options,
-                 key=_fingerprint(np.frombuffer(json.dumps(record, sort_keys=True).encode(), np.uint8)),
-                 worker=workers > 1 and not scheduler)
+                 key=_fingerprint(np.frombuffer(json.dumps(record, sort_keys=True).encode(), np.uint8)))
     own_ctx = None
     if workers == 1 and not scheduler:
         # The jobs run in this process and reuse what was just built.
@@ -249,7 +234,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             from .raster import GLContext
 
             ctx = own_ctx = GLContext()
-        _set_state(_WorkerState(spec.key, ds, topo, ctx, owns_ctx=False))
+        _WORKER.set(spec.key, _WorkerState(ds, topo, ctx, owns_ctx=False))
     total = len(poses) * len(rig)
     dirty: set = set()
 
@@ -273,7 +258,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     finally:
         flush()
         bar.close()
-        _set_state(None)
+        _WORKER.set(None, None)
         if own_ctx is not None:
             own_ctx.release()
     missing = [c for c in rig.names if not done[c].all()]

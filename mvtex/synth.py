@@ -657,11 +657,11 @@ class _RowFile:
     does not grow with K. Supports `obj[k] = rows`, `obj[block] = rows` and `obj[index]`."""
 
     def __init__(self, path, shape: tuple[int, ...]):
-        from numpy.lib.format import open_memmap
+        from .io import create_npy
 
         self.path = path
         self.shape = shape
-        open_memmap(path, mode="w+", dtype=np.float32, shape=shape).flush()
+        create_npy(path, np.float32, shape)
 
     def _map(self, mode: str) -> np.memmap:
         return np.load(self.path, mmap_mode=mode, allow_pickle=False)

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import InputError
-from .io import atomic_path, load_npy, load_npz, read_header, read_rows
+from .io import atomic_path, load_npy, load_npz, read_header, read_row, read_rows
 from .mesh import apply_extension, extension_matrix
 
 FORMAT = "mvtex-texcoords"
@@ -95,13 +95,11 @@ class TexcoordSet:
     # stay resident while it lives, so a pass over a 10,000-pose set would hold all of it.
     def displacement(self, camera: str, pose: int) -> np.ndarray:
         """d = T_N - T_G, (n',2) float32, for a dataset pose index (a copy)."""
-        row = self.row(pose)
-        return read_rows(self._arrays(camera)[0], row, row + 1)[0]
+        return read_row(self._arrays(camera)[0], self.row(pose))
 
     def assigned(self, camera: str, pose: int) -> np.ndarray:
         """(n',) bool: True where d came from the ray (a copy)."""
-        row = self.row(pose)
-        return read_rows(self._arrays(camera)[1], row, row + 1)[0]
+        return read_row(self._arrays(camera)[1], self.row(pose))
 
     def texcoords(self, camera: str, pose: int) -> np.ndarray:
         """T_N = T_G + d, (n',2) float32."""

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import os
 import sys
-import threading
 import uuid
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -47,7 +46,8 @@ import numpy as np
 
 from .camera import Camera, Rig
 from .errors import InputError
-from .io import read_rows
+from .io import read_row
+from .parallel import ThreadState
 
 METHODS = ("blend", "reconstruct")
 COMBINES = ("reproject", "hit", "all")
@@ -335,9 +335,9 @@ class ViewSynthesizer:
         """Load the array's texcoords of a pose and, for "reconstruct", triangulate it."""
         tc = self.texcoords
         state = PoseContext(pose=int(pose),
-                          displacement={c: np.asarray(tc.displacement(c, pose)) for c in self.array},
-                          assigned={c: np.asarray(tc.assigned(c, pose)) for c in self.array},
-                          inferred=read_rows(self.dataset.inferred, pose, pose + 1)[0].astype(np.float64))
+                          displacement={c: tc.displacement(c, pose) for c in self.array},
+                          assigned={c: tc.assigned(c, pose) for c in self.array},
+                          inferred=read_row(self.dataset.inferred, pose).astype(np.float64))
         if self.options.method == "reconstruct":
             from .recon import reconstruct
 
@@ -535,26 +535,19 @@ class _ViewSpec:
     key: str  # one run: a worker keeps its synthesizer between the run's tasks
 
 
-# Each thread's synthesizer for the run it currently serves (a Dask worker may run tasks in
-# several threads; a GL context is used by the thread that made it).
-_VIEW_STATE = threading.local()
+_VIEW_STATE = ThreadState()  # each thread's synthesizer for the run it serves
 
 
 def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
-    current = getattr(_VIEW_STATE, "current", None)
-    if current is None or current[0] != spec.key:
-        from .dataset import load_dataset
-        from .slide_jobs import single_thread_gl
-        from .texcoords import open_texcoords
+    """A worker's synthesizer for a run."""
+    from .dataset import load_dataset
+    from .slide_jobs import single_thread_gl
+    from .texcoords import open_texcoords
 
-        if current is not None:
-            current[1].release()
-        _VIEW_STATE.current = None
-        single_thread_gl()
-        ds = load_dataset(spec.dataset, validate=False)
-        tc = open_texcoords(spec.texcoords, ds.num_vertices)
-        _VIEW_STATE.current = (spec.key, ViewSynthesizer(ds, spec.rig, tc, spec.options, spec.rig_source))
-    return _VIEW_STATE.current[1]
+    single_thread_gl()
+    ds = load_dataset(spec.dataset, validate=False)
+    return ViewSynthesizer(ds, spec.rig, open_texcoords(spec.texcoords, ds.num_vertices), spec.options,
+                           spec.rig_source)
 
 
 def _views_of_poses(synth: "ViewSynthesizer", cameras: Sequence[Camera], weights: Sequence[Mapping[str, float]],
@@ -572,7 +565,8 @@ def _views_of_poses(synth: "ViewSynthesizer", cameras: Sequence[Camera], weights
 
 def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
     """In a worker: the views of one block of poses; returns (start, disp, asg)."""
-    return (start, *_views_of_poses(_view_state(spec), spec.cameras, spec.weights, poses))
+    synth = _VIEW_STATE.get(spec.key, lambda: _view_state(spec))
+    return (start, *_views_of_poses(synth, spec.cameras, spec.weights, poses))
 
 
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
@@ -595,11 +589,10 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     Returns:
         {"out", "method", "views": {name: weights}, "poses": [...], "cameras": {name: centre}}.
     """
-    from numpy.lib.format import open_memmap
     from tqdm import tqdm
 
     from .camera import save_rig
-    from .io import atomic_path, write_npy_rows
+    from .io import atomic_path, create_npy, write_npy_rows
     from .texcoords import write_header
 
     if len(weights) != len(names) or not names:
@@ -629,8 +622,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
                      **record)
         for name in names:
             (tmp / name).mkdir()
-            open_memmap(tmp / name / "displacement.npy", mode="w+", dtype=np.float32, shape=(len(poses), n_sub, 2)).flush()
-            open_memmap(tmp / name / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), n_sub)).flush()
+            create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), n_sub, 2))
+            create_npy(tmp / name / "assigned.npy", np.bool_, (len(poses), n_sub))
 
         def write(start: int, disp: dict, asg: dict) -> None:
             # Through the files, not maps: pages written through a map stay in the process's

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..io import read_rows
+from ..io import read_row
 from ..mesh import apply_parent, edge_strain, edges, uniform_laplacian, vertex_normals, weld_groups, welded_adjacency
 
 NUM_CHANNELS = 9
@@ -121,8 +121,8 @@ def geometry_images(dataset, poses, sampler, parent: np.ndarray, batch: int = 64
     out = np.empty((len(poses), NUM_CHANNELS, r, r), dtype=np.float32)
     for start in range(0, len(poses), batch):
         chunk = poses[start:start + batch]
-        # Rows through the file (`read_rows`): rows read through the dataset's map stay resident.
-        rows = np.stack([read_rows(dataset.inferred, p, p + 1)[0] for p in chunk])
+        # Rows through the file (`read_row`): rows read through the dataset's map stay resident.
+        rows = np.stack([read_row(dataset.inferred, p) for p in chunk])
         feats = apply_parent(geometry.features(rows), parent)  # (k,n',9)
         flat = feats.transpose(1, 0, 2).reshape(len(parent), -1)  # (n', k*9): one rasterization pass
         images = sampler.to_image(flat).reshape(r, r, len(chunk), NUM_CHANNELS)

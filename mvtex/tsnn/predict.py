@@ -18,11 +18,10 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-from numpy.lib.format import open_memmap
 
 from ..camera import check_camera_name
 from ..errors import InputError
-from ..io import atomic_path, read_json, write_npy_rows
+from ..io import atomic_path, create_npy, read_json, write_npy_rows
 from ..texcoords import write_header
 from .atlas import sample_atlas, vertex_grid
 from .geometry import geometry_images
@@ -296,9 +295,8 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                      cameras=names, models={name: str(m.path) for name, m, _ in jobs})
         for name in names:
             (tmp / name).mkdir()
-            open_memmap(tmp / name / "displacement.npy", mode="w+", dtype=np.float32,
-                        shape=(len(poses), len(uv), 2)).flush()
-            open_memmap(tmp / name / "assigned.npy", mode="w+", dtype=np.bool_, shape=(len(poses), len(uv))).flush()
+            create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), len(uv), 2))
+            create_npy(tmp / name / "assigned.npy", np.bool_, (len(poses), len(uv)))
         for start in range(0, len(poses), _BLOCK):
             rows = poses[start:start + _BLOCK]
             index = range(start, start + len(rows))
