@@ -15,3 +15,8 @@ class InputError(ValueError):
         self.path = None if path is None else os.fspath(path)
         self.problem = " ".join(str(problem).split())
         super().__init__(self.problem if self.path is None else f"{self.path}: {self.problem}")
+
+    def __reduce__(self):
+        # Rebuilt from (path, problem), not from the formatted message: an error raised in a
+        # worker process (`mvtex.parallel`) then reaches the command intact.
+        return type(self), (self.path, self.problem)

@@ -610,6 +610,9 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     poses = texcoords.poses if poses is None else [int(p) for p in poses]
     for p in poses:
         texcoords.row(p)
+    if poses:  # reading a row checks the camera's whole arrays: here, before any worker starts
+        for c in synth.array:
+            texcoords.displacement(c, poses[0])
     n_sub = len(texcoords.uv)
     out = Path(out)
     record = {"views": {name: dict(w) for name, w in zip(names, weights)}, "method": options.method,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import shutil
 import signal
 import subprocess
@@ -18,6 +19,7 @@ import pytest
 
 from mvtex.camera import Camera, Rig, save_rig
 from mvtex.cli import main
+from mvtex.errors import InputError
 from mvtex.io import MARKER, claim_output, replace_path
 
 MVTEX = [sys.executable, "-m", "mvtex"]
@@ -638,6 +640,36 @@ def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path
     ref.pop(MARKER)
     assert tree(tmp_path / "tc") == ref
     assert threaded == evaluate(slow_dataset, rig, reference_set / "tc", poses=list(range(0, 40, 2)), progress=False)
+
+
+def _bad_input(x: int) -> int:
+    raise InputError(f"file{x}.npy", f"problem {x}")
+
+
+def test_an_input_error_in_a_worker_process_reaches_the_command_intact():
+    """InputError pickles by (path, problem), so a worker's error is the caller's."""
+    from mvtex.parallel import map_unordered
+
+    err = pickle.loads(pickle.dumps(InputError("a/b.npy", "NaN  at\nrow 3")))
+    assert (err.path, err.problem, str(err)) == ("a/b.npy", "NaN at row 3", "a/b.npy: NaN at row 3")
+    with pytest.raises(InputError, match=r"^file\d\.npy: problem \d$"):
+        list(map_unordered(_bad_input, [(i,) for i in range(4)], workers=2))
+
+
+def test_nan_in_the_targets_of_parallel_views_and_training_exits_2_before_any_work(tmp_path, slid, tiny_dataset,
+                                                                                    capsys):
+    pytest.importorskip("torch")
+    tc = copy_set(slid, tmp_path)
+    d = np.load(tc / "a" / "displacement.npy")
+    d[1, 2, 0] = np.nan
+    np.save(tc / "a" / "displacement.npy", d)
+    rig = slid.parent / "rig.yaml"
+    for argv, out in ((["views", tiny_dataset, "--rig", rig, "--texcoords", tc, "--between", "a,b", "--steps", 2,
+                        "--method", "blend"], tmp_path / "v"),
+                      (["train", tiny_dataset, "--texcoords", tc, "--camera", "b,a", "--arch", "gp"], tmp_path / "m")):
+        code, _, err = run(capsys, *argv, "--out", out, "--workers", 2, "--quiet")
+        one_line_error(code, err, "displacement.npy", "NaN")
+        assert not out.exists()
 
 
 def _square(x: int) -> int:

@@ -337,6 +337,8 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
                          f"(it has {', '.join(texcoords.cameras)})")
     if len(set(cameras)) != len(cameras):
         raise InputError(None, f"cameras listed twice: {cameras}")
+    for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
+        texcoords.displacement(c, texcoords.poses[0])
     tasks = [(str(Path(dataset.path).resolve()), str(Path(texcoords.path).resolve()), c, str(out / c), options)
              for c in cameras]
     models: dict[str, Any] = {}
