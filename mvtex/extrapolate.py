@@ -4,8 +4,9 @@
 Two methods:
 
 - ``harmonic``: the Laplace equation with the assigned values as Dirichlet data, solved
-  with a sparse direct solver (SuperLU via `scipy.sparse.linalg.splu`; the unknowns are
-  eliminated in a minimum-degree order of the whole mesh computed once per `FillSystem`).
+  on the unknown vertices only with a sparse Cholesky factorisation (CHOLMOD through
+  cvxopt, simplicial LDL^T in an approximate-minimum-degree order; SuperLU with pivoting
+  where the factorisation meets a zero pivot).
   The operator is potpourri3d's cotangent Laplacian (`laplacian_matrix`), so a linear
   field on a flat patch is reproduced exactly for any triangulation. The intrinsic
   Delaunay Laplacian (robust_laplacian) was measured against it on the built-in garment
@@ -25,6 +26,8 @@ unassigned one receives its group's value. Connected parts with no assigned vert
 """
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 import scipy.sparse as sp
@@ -139,26 +142,12 @@ class FillSystem:
         self.kind = HARMONIC_LAPLACIAN if laplacian is None else laplacian
         self.laplacian = laplacian_matrix(pos_w, faces_w, self.kind)
         self.label = csgraph.connected_components(self.laplacian, directed=False)[1]
-        self._rank: np.ndarray | None = None
-        self._order: np.ndarray | None = None
         self._csc = self.laplacian.tocsc()
         self._csc.sort_indices()
-
-    def principal_submatrix(self, vertices: np.ndarray) -> sp.csc_matrix:
-        """L[vertices][:, vertices] as a CSC matrix (k,k), rows and columns in the order of
-        `vertices` ((k,) distinct welded indices), built from the stored CSC by selecting
-        columns and relabelling rows (no sparse fancy indexing of the minor axis)."""
-        vertices = np.asarray(vertices, dtype=np.int64)
-        local = np.full(self.num_welded, -1, np.int64)
-        local[vertices] = np.arange(len(vertices))
-        cols = self._csc[:, vertices]
-        rows = local[cols.indices]
-        keep = rows >= 0
-        # Column j keeps the kept entries among cols.indptr[j]:cols.indptr[j + 1].
-        indptr = np.concatenate([[0], np.cumsum(keep)])[cols.indptr]
-        out = sp.csc_matrix((cols.data[keep], rows[keep], indptr), shape=(len(vertices), len(vertices)))
-        out.sort_indices()
-        return out
+        self._lower = sp.tril(self._csc, format="csc")
+        self._lower.sort_indices()
+        self._rank: np.ndarray | None = None
+        self._order: np.ndarray | None = None
 
     @property
     def order(self) -> np.ndarray:
@@ -174,7 +163,7 @@ class FillSystem:
 
         Every Dirichlet problem on this mesh eliminates its unknowns in this order: the
         restriction of a good order to a subgraph stays good, and the per-solve ordering
-        (about half of SuperLU's time on a ~6k unknown system) is skipped.
+        (a third of a factorisation's time on a ~6k unknown system) is skipped.
         """
         if self._rank is None:
             from scipy.sparse.linalg import splu
@@ -188,6 +177,30 @@ class FillSystem:
             # SuperLU factors A[:, perm_c]-style: column j of A goes to position perm_c[j].
             self._rank = np.asarray(lu.perm_c, dtype=np.int64)
         return self._rank
+
+    def lower_submatrix(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The lower triangle of L[vertices][:, vertices] for increasing `vertices` ((k,)
+        distinct welded indices), as coordinate triplets (values, rows, columns)."""
+        vertices = np.asarray(vertices, dtype=np.int64)
+        if np.any(np.diff(vertices) <= 0):
+            raise ValueError("lower_submatrix needs increasing vertex indices")
+        data, rows, indptr = _select(self._lower, vertices, self.num_welded)
+        cols = np.repeat(np.arange(len(vertices), dtype=np.int64), np.diff(indptr))
+        return data, rows, cols
+
+
+def _select(csc: sp.csc_matrix, vertices: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(data, rows, indptr) of csc[vertices][:, vertices]: columns selected, rows relabelled
+    to positions in `vertices`, entries of other rows dropped."""
+    vertices = np.asarray(vertices, dtype=np.int64)
+    local = np.full(n, -1, np.int64)
+    local[vertices] = np.arange(len(vertices))
+    cols = csc[:, vertices]
+    rows = local[cols.indices]
+    keep = rows >= 0
+    # Column j keeps the kept entries among cols.indptr[j]:cols.indptr[j + 1].
+    indptr = np.concatenate([[0], np.cumsum(keep)])[cols.indptr]
+    return cols.data[keep], rows[keep], indptr
 
 
 def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned: np.ndarray,
@@ -244,8 +257,6 @@ def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned:
 
 
 def _harmonic(system: FillSystem, known: np.ndarray, vals: np.ndarray) -> np.ndarray:
-    from scipy.sparse.linalg import splu
-
     L = system.laplacian
     # Components with no known vertex are set to 0 (and become known).
     has = np.zeros(system.label.max() + 1, bool)
@@ -255,21 +266,69 @@ def _harmonic(system: FillSystem, known: np.ndarray, vals: np.ndarray) -> np.nda
     known = known | lost
     if known.all():
         return vals
-    # Unknowns in the system's precomputed elimination order (see `FillSystem.rank`).
+    u = np.flatnonzero(~known)
+    # The unknowns' elimination order (see `FillSystem.rank`) as positions in u: position
+    # of each unknown among the unknowns, taken in the system's order.
+    position = np.cumsum(~known) - 1
     order = system.order
-    u = order[~known[order]]
-    L_uu = system.principal_submatrix(u)
+    elimination = position[order[~known[order]]]
     # Only known values enter the right-hand side: the unknown entries are 0 here, and a
     # product with 0 adds nothing to a row sum (each row is summed in the same order as in
     # L[u] @ vals, so taking rows u of the whole product gives the same bits, faster).
     vals[u] = 0.0
     rhs = -(L @ vals)[u]
     # Every unknown's component touches a known vertex, so L_uu is nonsingular and
-    # symmetric positive definite (a principal submatrix of a connected Laplacian): no
-    # pivoting, and the rows are already in a fill-reducing order, so SuperLU keeps it.
-    lu = splu(L_uu, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    vals[u] = lu.solve(np.ascontiguousarray(rhs))
+    # symmetric positive definite (a principal submatrix of a connected Laplacian).
+    vals[u] = solve_spd(system.lower_submatrix(u), len(u), rhs, order=elimination)
     return vals
+
+
+_CHOLMOD_LOCK = threading.Lock()
+
+
+def solve_spd(lower: tuple[np.ndarray, np.ndarray, np.ndarray], k: int, rhs: np.ndarray,
+              order: np.ndarray | None = None) -> np.ndarray:
+    """Solve A x = rhs for a sparse symmetric positive definite A (k,k) given by its lower
+    triangle as triplets (values, rows, columns); rhs (k,) or (k,C) float.
+
+    CHOLMOD (through cvxopt) factors A = L D L^T, simplicial (no BLAS, so the same bits
+    whatever the thread count), eliminating in `order` ((k,) permutation of range(k)) or,
+    if None, in CHOLMOD's approximate-minimum-degree order. A block
+    that meets a zero pivot (degenerate triangles can make it singular in floating point)
+    is solved by SuperLU with partial pivoting instead. cvxopt's `cholmod.options` are set for the call
+    and restored, under a lock (cvxopt keeps them in one module-level dict).
+    """
+    from cvxopt import cholmod, matrix, spmatrix
+
+    values, rows, cols = lower
+    b = np.array(rhs, dtype=np.float64, order="F", copy=True)
+    if b.ndim == 1:
+        return solve_spd(lower, k, b[:, None], order)[:, 0]
+    A = spmatrix(np.asarray(values, np.float64), np.asarray(rows, np.int64), np.asarray(cols, np.int64), (k, k))
+    B = matrix(b)
+    with _CHOLMOD_LOCK:
+        saved = dict(cholmod.options)
+        cholmod.options.clear()
+        cholmod.options["supernodal"] = 0
+        given = {}
+        if order is not None:
+            cholmod.options["nmethods"] = 1  # the given order only (by default AMD is tried too)
+            given["p"] = matrix(np.asarray(order, np.int64), tc="i")
+        try:
+            factor = cholmod.symbolic(A, uplo="L", **given)
+            cholmod.numeric(A, factor)
+            cholmod.solve(factor, B)
+            return np.array(B)
+        except ArithmeticError:
+            pass
+        finally:
+            cholmod.options.clear()
+            cholmod.options.update(saved)
+    from scipy.sparse.linalg import spsolve
+
+    full = sp.coo_matrix((values, (rows, cols)), shape=(k, k)).tocsc()
+    full = (full + sp.tril(full, k=-1).T).tocsc()
+    return np.asarray(spsolve(full, b)).reshape(b.shape)
 
 
 def heat_distance(positions: np.ndarray, faces: np.ndarray, sources: np.ndarray) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from mvtex.extrapolate import FillSystem, fill
+from mvtex.extrapolate import FillSystem, fill, solve_spd
 
 
 def flat_patch(n: int = 400, seed: int = 0):
@@ -172,10 +172,51 @@ def test_restricted_harmonic_fill_equals_a_dense_dirichlet_solve():
         np.testing.assert_allclose(fill(faces, positions, values, assigned, "harmonic"), dense, rtol=0, atol=1e-10)
 
 
-def test_principal_submatrix_matches_dense_indexing():
+def test_lower_submatrix_matches_dense_indexing():
     faces, positions, _, rng = flat_patch(80, seed=5)
     system = FillSystem(faces, positions)
-    vertices = rng.permutation(len(positions))[:37]
-    sub = system.principal_submatrix(vertices)
-    assert sub.format == "csc"
-    np.testing.assert_array_equal(sub.toarray(), system.laplacian.toarray()[np.ix_(vertices, vertices)])
+    vertices = np.sort(rng.permutation(len(positions))[:37])
+    values, rows, cols = system.lower_submatrix(vertices)
+    assert np.all(rows >= cols)
+    dense = np.zeros((37, 37))
+    np.add.at(dense, (rows, cols), values)
+    np.testing.assert_array_equal(dense, np.tril(system.laplacian.toarray()[np.ix_(vertices, vertices)]))
+    with pytest.raises(ValueError, match="increasing"):
+        system.lower_submatrix(vertices[::-1])
+
+
+def _lower(A: np.ndarray):
+    rows, cols = np.nonzero(np.tril(A))
+    return A[rows, cols], rows, cols
+
+
+@pytest.mark.parametrize("ordered", [False, True])
+def test_solve_spd_matches_dense_solve(ordered):
+    """CHOLMOD's solve of a sparse SPD system (a grounded graph Laplacian), in its own order
+    or in a given elimination order, equals numpy's dense solve; one and several right-hand
+    sides."""
+    rng = np.random.default_rng(7)
+    k = 60
+    W = np.triu(rng.uniform(size=(k, k)) < 0.08, 1) * rng.uniform(0.5, 2.0, (k, k))
+    W = W + W.T
+    A = np.diag(W.sum(axis=1) + rng.uniform(0.01, 0.1, k)) - W
+    order = rng.permutation(k) if ordered else None
+    b = rng.normal(size=(k, 3))
+    np.testing.assert_allclose(solve_spd(_lower(A), k, b, order), np.linalg.solve(A, b), rtol=0, atol=1e-10)
+    np.testing.assert_allclose(solve_spd(_lower(A), k, b[:, 0], order), np.linalg.solve(A, b[:, 0]),
+                               rtol=0, atol=1e-10)
+
+
+def test_solve_spd_zero_pivot_falls_back_and_keeps_cvxopt_options():
+    """A nonsingular symmetric matrix whose LDL^T meets a zero pivot is still solved (SuperLU
+    with pivoting); cvxopt's global CHOLMOD options are as the caller left them."""
+    from cvxopt import cholmod
+
+    A = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 2.0]])
+    b = np.array([1.0, 2.0, 3.0])
+    cholmod.options["supernodal"] = 2
+    try:
+        np.testing.assert_allclose(solve_spd(_lower(A), 3, b), np.linalg.solve(A, b), rtol=0, atol=1e-12)
+        assert cholmod.options == {"supernodal": 2}
+    finally:
+        cholmod.options.clear()
