@@ -461,8 +461,9 @@ def cmd_train(args) -> dict:
                                        scheduler=args.scheduler, progress=not args.quiet)
             except ValueError as err:
                 raise InputError(None, str(err)) from None
+        kept = f" (kept from an earlier run with the same inputs: {', '.join(result['kept'])})" if result["kept"] else ""
         _emit(args, result, f"wrote {len(cameras)} models ({result['arch']}) to {args.out}/<camera>: "
-              f"{', '.join(cameras)}")
+              f"{', '.join(cameras)}{kept}")
         return result
     rig = None
     if args.camera is None:

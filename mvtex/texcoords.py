@@ -101,6 +101,13 @@ class TexcoordSet:
         """(n',) bool: True where d came from the ray (a copy)."""
         return read_row(self._arrays(camera)[1], self.row(pose))
 
+    def fingerprint(self, camera: str) -> str:
+        """Content hash of one camera's displacement and assigned arrays (`io.fingerprint`,
+        read in blocks through the files)."""
+        from .io import fingerprint
+
+        return fingerprint(*self._arrays(camera))
+
     def texcoords(self, camera: str, pose: int) -> np.ndarray:
         """T_N = T_G + d, (n',2) float32."""
         return self.uv + self.displacement(camera, pose)

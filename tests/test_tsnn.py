@@ -7,6 +7,7 @@ displacement field on a small two-chart mesh, so nothing depends on texture slid
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -602,3 +603,51 @@ def test_gp_kernel_is_ard_plus_additive_squared_exponential():
             r = (a[i] - b[j]) / ell
             expected = np.exp(2 * s) * np.exp(-0.5 * r @ r) + np.exp(2 * t) * np.exp(-0.5 * r ** 2).sum()
             assert k[i, j] == pytest.approx(expected, rel=1e-12)
+
+
+def test_several_camera_train_keeps_finished_models_on_a_rerun(rig_data, tmp_path, capsys):
+    """A rerun of `train --camera a,c` after an interruption (c's model missing) trains only
+    c and leaves a's files untouched; changed options or a damaged config.json train again;
+    a camera's model records what it was trained from ("inputs" in config.json)."""
+    from mvtex.cli import main
+
+    ds, rig, tc, root = rig_data
+    tc_path = tmp_path / "tc"  # a copy: this test rewrites it
+    shutil.copytree(tc.path, tc_path)
+    out = tmp_path / "models"
+    base = ["train", str(ds.path), "--texcoords", str(tc_path), "--arch", "gp", "--camera", "a,c", "--out", str(out),
+            "--quiet", "--json"]
+
+    def stamp(cam):
+        st = (out / cam / "model.safetensors").stat()
+        return st.st_ino, st.st_mtime_ns
+
+    assert main([*base, "--components", "4"]) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first["kept"] == []
+    keys = {c: json.loads((out / c / "config.json").read_text())["inputs"] for c in ("a", "c")}
+    assert keys["a"] != keys["c"]  # each camera's own targets
+    a_before, c_bytes = stamp("a"), (out / "c" / "model.safetensors").read_bytes()
+    shutil.rmtree(out / "c")  # a run stopped before camera c was written
+    assert main([*base, "--components", "4"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["kept"] == ["a"] and stamp("a") == a_before
+    assert (out / "c" / "model.safetensors").read_bytes() == c_bytes  # gp: the same model, bit for bit
+    assert again["models"]["a"]["losses"] == first["models"]["a"]["losses"]
+    # Other options: both trained again.
+    c_before = stamp("c")
+    assert main([*base, "--components", "3"]) == 0
+    assert json.loads(capsys.readouterr().out)["kept"] == [] and stamp("a") != a_before and stamp("c") != c_before
+    # A damaged config.json is not trusted: that camera is trained again, the other kept.
+    (out / "a" / "config.json").write_text("{")
+    c_before = stamp("c")
+    assert main([*base, "--components", "3"]) == 0
+    assert json.loads(capsys.readouterr().out)["kept"] == ["c"] and stamp("c") == c_before
+    assert json.loads((out / "a" / "config.json").read_text())["inputs"]
+    # Changed targets of camera a (the texcoord set rewritten in place): a trained again.
+    d = np.load(tc_path / "a" / "displacement.npy", mmap_mode="r+")
+    d[0, 0, 0] += 1e-3
+    d.flush()
+    del d
+    assert main([*base, "--components", "3"]) == 0
+    assert json.loads(capsys.readouterr().out)["kept"] == ["c"]

@@ -23,7 +23,8 @@ A model directory holds:
     config.json         {"format": "mvtex-tsnn", "version": 2, "camera" (null: conditioned
                          on the camera), "cameras" (name -> cam_from_world of the training
                          cameras), "architecture", "mesh" (subdiv, vertex counts, base-mesh
-                         hash), "atlas", "split", "options", "losses", "history", ...}
+                         hash), "atlas", "split", "options", "losses", "history",
+                         "inputs" (content fingerprint of what it was trained from), ...}
     loss.png            training and validation loss per epoch (networks)
     relevance.png       which pose coordinates move which principal component of d (gp)
 """
@@ -300,6 +301,53 @@ def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, option
     return train(dataset, texcoords, out, camera=camera, options=options, progress=progress)
 
 
+def _resolve(options: TrainOptions, camera: str | None) -> TrainOptions:
+    """The options `train` runs with: the default architecture for a camera (`gp`) or for
+    every camera (`unet`), then `TrainOptions.resolved`; ValueError if invalid."""
+    if options.arch is None:
+        options = replace(options, arch="gp" if camera is not None else "unet")
+    options = options.resolved()
+    options.validate()
+    return options
+
+
+def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: dict, options: TrainOptions,
+                dataset_hash: str | None = None) -> str:
+    """Content fingerprint of everything a model is trained from: the dataset's inferred
+    shapes, poses and mesh, the texcoord set's mesh, poses and the cameras' arrays, the
+    split, the cameras' views and the resolved options. config.json records it as
+    "inputs"; `train_cameras` keeps a camera's model that records the key it would train
+    with (the same inputs train the same model: bit for bit for `gp`)."""
+    from ..io import dumps_strict, fingerprint
+
+    record = {
+        "version": MODEL_VERSION,
+        "dataset": dataset_hash or fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
+        "texcoords": {"mesh": fingerprint(texcoords.faces, texcoords.uv, texcoords.parent), "poses": texcoords.poses,
+                      "cameras": {c: texcoords.fingerprint(c) for c in cameras}},
+        "views": views, "split": split, "options": asdict(options),
+    }
+    return hashlib.blake2b(dumps_strict(record, sort_keys=True).encode(), digest_size=8).hexdigest()
+
+
+def _kept_model(path: Path, key: str) -> dict[str, Any] | None:
+    """The `train` summary of the finished model directory at `path` if its config.json
+    records inputs `key`; None if there is none, it is unreadable or it was trained from
+    other inputs."""
+    import json
+
+    try:
+        meta = json.loads((path / "config.json").read_text())
+        if not (isinstance(meta, dict) and meta.get("inputs") == key and (path / "model.safetensors").is_file()):
+            return None
+        return {"camera": meta["camera"], "cameras": list(meta["cameras"]), "arch": meta["options"]["arch"],
+                "out": str(path), "device": meta["device"], "resolution": meta["architecture"].get("resolution"),
+                "epochs_run": meta["epochs_run"], "best_epoch": meta["best_epoch"], "seconds": meta["seconds"],
+                "num_poses": {k: len(v) for k, v in meta["split"].items()}, "losses": meta["losses"]}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
 def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
     """In a worker: one camera's model from paths (torch on one thread: the workers already
     fill the cores)."""
@@ -319,13 +367,16 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     """One model per camera, OUT/<camera>/ (each a model directory as `train` writes it),
     trained side by side on local processes or a Dask cluster (`mvtex.parallel`).
 
-    Each model is `train` with that camera, written atomically (a rerun trains every camera
-    again); on workers torch runs one thread per process (the workers fill the cores), which
-    can change a network's last bits against a multi-threaded run, not a `gp` model's
-    (tested bit for bit).
+    Each model is `train` with that camera, written atomically. A rerun keeps the model of
+    every camera whose config.json records the inputs it would be trained from now (see
+    `_inputs_key`), so an interrupted run continues with the cameras it had not finished,
+    and trains the others again. On workers torch runs one thread per process (the workers
+    fill the cores), which can change a network's last bits against a multi-threaded run,
+    not a `gp` model's (tested bit for bit).
 
     Returns:
-        {"out", "cameras", "arch", "models": {camera: the `train` summary}}.
+        {"out", "cameras", "arch", "models": {camera: the `train` summary}, "kept": the
+        cameras whose models were kept}.
     """
     from ..parallel import map_unordered
 
@@ -339,22 +390,42 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         raise InputError(None, f"cameras listed twice: {cameras}")
     for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
         texcoords.displacement(c, texcoords.poses[0])
-    tasks = [(str(Path(dataset.path).resolve()), str(Path(texcoords.path).resolve()), c, str(out / c), options)
-             for c in cameras]
+    try:
+        resolved = _resolve(options, cameras[0])
+    except ValueError as err:
+        raise InputError(None, f"training options: {err}") from None
+    split = _split(dataset, texcoords)
+    dataset_hash = None
     models: dict[str, Any] = {}
+    for c in cameras:
+        if not (out / c / "config.json").is_file():
+            continue
+        if dataset_hash is None:
+            from ..io import fingerprint
+
+            dataset_hash = fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv)
+        kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
+        if kept is not None:
+            models[c] = kept
+            if progress:
+                print(f"{out / c}: trained before from the same inputs; kept", file=sys.stderr)
+    todo = [c for c in cameras if c not in models]
+    tasks = [(str(Path(dataset.path).resolve()), str(Path(texcoords.path).resolve()), c, str(out / c), options)
+             for c in todo]
     if workers <= 1 and not scheduler:
-        for c in cameras:
+        for c in todo:
             models[c] = train(dataset, texcoords, out / c, camera=c, options=options, progress=progress)
     else:
         from tqdm import tqdm
 
-        with tqdm(total=len(cameras), desc="train", unit="camera", disable=not progress, file=sys.stderr) as bar:
+        with tqdm(total=len(cameras), initial=len(cameras) - len(todo), desc="train", unit="camera",
+                  disable=not progress, file=sys.stderr) as bar:
             for summary in map_unordered(_train_camera_task, tasks, workers=workers, scheduler=scheduler):
                 models[summary["camera"]] = summary
                 bar.update(1)
     arch = {m["arch"] for m in models.values()}
     return {"out": str(out), "cameras": cameras, "arch": arch.pop() if len(arch) == 1 else sorted(arch),
-            "models": {c: models[c] for c in cameras}}
+            "models": {c: models[c] for c in cameras}, "kept": [c for c in cameras if c not in todo]}
 
 
 def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
@@ -390,11 +461,8 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
     import torch
 
     out = Path(out)
-    if options.arch is None:
-        options = replace(options, arch="gp" if camera is not None else "unet")
     try:
-        options = options.resolved()
-        options.validate()
+        options = _resolve(options, camera)
     except ValueError as err:
         raise InputError(None, f"training options: {err}") from None
     if camera is not None:
@@ -445,6 +513,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
 
     meta = {
         "format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": camera,
+        "inputs": _inputs_key(dataset, texcoords, cameras, views, split, options),
         "cameras": views or {camera: None},
         "architecture": config.to_dict(),
         "pose_normalisation": {"mean": model.pose_mean.cpu().tolist(), "std": model.pose_std.cpu().tolist()},
