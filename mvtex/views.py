@@ -35,6 +35,7 @@ bit: the view is that camera, and its texcoords are the measured ones.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import uuid
@@ -569,6 +570,48 @@ def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
     return (start, *_views_of_poses(synth, spec.cameras, spec.weights, poses))
 
 
+def _open_partial(partial: Path, record: dict, texcoords, poses: list[int], names: Sequence[str],
+                  n_sub: int) -> np.ndarray:
+    """The unfinished views set `partial` (``OUT.partial``) of a run with `record`, created
+    empty if there is none; one made with other inputs or settings is started over (said
+    on stderr). Returns its done mask ((poses,) bool, True where the rows are written)."""
+    import shutil
+
+    from .io import create_npy, load_npy, read_json, save_npy
+    from .texcoords import write_header
+
+    if partial.is_dir():
+        try:
+            old = read_json(partial / "texcoords.json")
+        except InputError:
+            old = None
+        if not (isinstance(old, dict) and old.get("format") == "mvtex-texcoords"
+                and str(old.get("source", "")).startswith("views-")):
+            raise InputError(partial, "exists and is not an unfinished mvtex views; move it away and rerun")
+        same = all(old.get(k) == v for k, v in record.items()) and old.get("poses") == poses \
+            and old.get("cameras") == list(names) and (partial / "done.npy").is_file()
+        if same:
+            done = np.array(load_npy(partial / "done.npy", mmap=False), dtype=bool)
+            if done.shape == (len(poses),):
+                return done
+        print(f"{partial}: an unfinished run with other inputs or settings; starting over", file=sys.stderr)
+        shutil.rmtree(partial)
+    tmp = partial.with_name(partial.name + ".new")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    write_header(tmp, faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,
+                 source=f"views-{record['method']}", subdiv=texcoords.subdiv, poses=poses, cameras=list(names),
+                 **record)
+    for name in names:
+        (tmp / name).mkdir()
+        create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), n_sub, 2))
+        create_npy(tmp / name / "assigned.npy", np.bool_, (len(poses), n_sub))
+    done = np.zeros(len(poses), bool)
+    save_npy(tmp / "done.npy", done)
+    os.replace(tmp, partial)
+    return done
+
+
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
                 rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
@@ -577,8 +620,11 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
 
     Args:
         dataset: `Dataset`. rig: the array's `Rig`. texcoords: the array's `TexcoordSet`.
-        out: the directory to write (atomically): a texcoord set (DESIGN §4) with
-            source "views-<method>" and `rig.yaml` holding the novel cameras.
+        out: the directory to write: a texcoord set (DESIGN §4) with source
+            "views-<method>" and `rig.yaml` holding the novel cameras. It is built in
+            ``OUT.partial`` beside it, block by block of poses with a done mask, and renamed
+            into place when complete; a rerun with the same inputs (content fingerprints)
+            and settings continues where an interrupted run stopped.
         weights: one weight map per view (array camera -> weight). names: the views' names.
         poses: dataset pose indices (default: the set's poses).
         options: ViewOptions.
@@ -592,8 +638,7 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     from tqdm import tqdm
 
     from .camera import save_rig
-    from .io import atomic_path, create_npy, write_npy_rows
-    from .texcoords import write_header
+    from .io import dumps_strict, fingerprint, replace_path, save_npy, write_npy_rows
 
     if len(weights) != len(names) or not names:
         raise ValueError("one name per view is needed")
@@ -617,37 +662,40 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     out = Path(out)
     record = {"views": {name: dict(w) for name, w in zip(names, weights)}, "method": options.method,
               "view_options": asdict(options), "from": {"texcoords": str(Path(texcoords.path).resolve()),
-                                                        "source": texcoords.source, "cameras": texcoords.cameras}}
-    with atomic_path(out) as tmp, synth:
-        tmp.mkdir()
-        write_header(tmp, faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,
-                     source=f"views-{options.method}", subdiv=texcoords.subdiv, poses=poses, cameras=list(names),
-                     **record)
-        for name in names:
-            (tmp / name).mkdir()
-            create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), n_sub, 2))
-            create_npy(tmp / name / "assigned.npy", np.bool_, (len(poses), n_sub))
+                                                        "source": texcoords.source, "cameras": texcoords.cameras},
+              # Content, not only paths: a rerun continues only from the same inputs.
+              "inputs": {"dataset": fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
+                         "texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
+                         "rig": {c.name: [c.width, c.height, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in rig}}}
+    record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
+    partial = out.with_name(out.name + ".partial")
+    with synth:
+        done = _open_partial(partial, record, texcoords, poses, names, n_sub)
 
         def write(start: int, disp: dict, asg: dict) -> None:
             # Through the files, not maps: pages written through a map stay in the process's
-            # resident memory while it is open, which would grow with the run.
+            # resident memory while it is open, which would grow with the run. The rows are
+            # on disk before the done mask says so.
+            count = len(next(iter(asg.values())))
             for name in names:
                 for file, values in (("displacement.npy", disp[name]), ("assigned.npy", asg[name])):
-                    write_npy_rows(tmp / name / file, range(start, start + len(values)), values)
+                    write_npy_rows(partial / name / file, range(start, start + count), values)
+            done[start:start + count] = True
+            save_npy(partial / "done.npy", done)
+            bar.update(count * len(names))
 
-        bar = tqdm(total=len(poses) * len(names), desc=f"views ({options.method})", unit="view",
-                   disable=not progress, file=sys.stderr)
+        size = _WRITE_BLOCK
+        if workers > 1 or scheduler:  # blocks small enough that every worker gets several
+            size = max(1, min(_WRITE_BLOCK, -(-len(poses) // (4 * max(workers, 2)))))
+        starts = [start for start in range(0, len(poses), size) if not done[start:start + size].all()]
+        bar = tqdm(total=len(poses) * len(names), initial=int(done.sum()) * len(names),
+                   desc=f"views ({options.method})", unit="view", disable=not progress, file=sys.stderr)
         if workers <= 1 and not scheduler:
-            for start in range(0, len(poses), _WRITE_BLOCK):
-                block = poses[start:start + _WRITE_BLOCK]
-                write(start, *_views_of_poses(synth, cameras, weights, block))
-                bar.update(len(block) * len(names))
+            for start in starts:
+                write(start, *_views_of_poses(synth, cameras, weights, poses[start:start + size]))
         else:
             from .parallel import map_unordered
 
-            # Blocks small enough that every worker gets several.
-            size = max(1, min(_WRITE_BLOCK, -(-len(poses) // (4 * max(workers, 2)))))
-            starts = range(0, len(poses), size)
             spec = _ViewSpec(dataset=str(Path(dataset.path).resolve()), rig=rig,
                              texcoords=str(Path(texcoords.path).resolve()), options=options,
                              rig_source=None if rig_source is None else str(rig_source), cameras=tuple(cameras),
@@ -655,8 +703,11 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             tasks = [(spec, start, poses[start:start + size]) for start in starts]
             for start, disp, asg in map_unordered(_view_block, tasks, workers=workers, scheduler=scheduler):
                 write(start, disp, asg)
-                bar.update(len(next(iter(asg.values()))) * len(names))
         bar.close()
-        save_rig(Rig(tuple(cameras)), tmp / "rig.yaml")
+    save_rig(Rig(tuple(cameras)), partial / "rig.yaml")
+    # Rename the finished set in (an older `out` aside first), then drop the done mask: a
+    # stop in between leaves either a resumable partial or a complete set.
+    replace_path(partial, out)
+    (out / "done.npy").unlink(missing_ok=True)
     return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,
             "cameras": {c.name: c.center.tolist() for c in cameras}}

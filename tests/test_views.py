@@ -197,3 +197,57 @@ def test_views_never_replace_a_folder_they_did_not_write(tmp_path, sheet_set, ca
     assert run(capsys, *argv, "--out", tmp_path / "v")[0] == 0
     assert run(capsys, *argv, "--out", tmp_path / "v")[0] == 0
     assert (tmp_path / "v" / "texcoords.json").is_file()
+
+
+def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, capsys, monkeypatch):
+    """A views run stopped after its first block leaves OUT.partial; the rerun computes only
+    the missing blocks and writes the files an uninterrupted run writes, byte for byte.
+    Other settings start over (said on stderr); a foreign OUT.partial is refused."""
+    import mvtex.views
+
+    monkeypatch.setattr(mvtex.views, "_WRITE_BLOCK", 2)  # 3 poses: blocks of 2 and 1
+    dataset, rig_path, ts = sheet_set
+    argv = ["views", dataset, "--rig", rig_path, "--texcoords", ts, "--between", "a,b", "--steps", 3,
+            "--method", "reconstruct", "--quiet"]
+    assert run(capsys, *argv, "--out", tmp_path / "whole")[0] == 0
+    whole = {p.relative_to(tmp_path / "whole"): p.read_bytes() for p in sorted((tmp_path / "whole").rglob("*"))
+             if p.is_file()}
+
+    real = mvtex.views._views_of_poses
+    blocks = []
+
+    def stop_after_one(synth, cameras, weights, poses):
+        if blocks:
+            raise KeyboardInterrupt
+        blocks.append(list(poses))
+        return real(synth, cameras, weights, poses)
+
+    monkeypatch.setattr(mvtex.views, "_views_of_poses", stop_after_one)
+    out = tmp_path / "v"
+    assert run(capsys, *argv, "--out", out)[0] == 130  # as Ctrl-C
+    assert not out.exists() and (tmp_path / "v.partial" / "done.npy").is_file()
+
+    def count(synth, cameras, weights, poses):
+        blocks.append(list(poses))
+        return real(synth, cameras, weights, poses)
+
+    monkeypatch.setattr(mvtex.views, "_views_of_poses", count)
+    assert run(capsys, *argv, "--out", out)[0] == 0
+    assert blocks == [[0, 2], [4]]  # the second run computed only the block the first did not finish
+    assert not (tmp_path / "v.partial").exists() and not (out / "done.npy").exists()
+    assert {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()
+            and p.name != ".mvtex-output.json"} == {k: v for k, v in whole.items() if k.name != ".mvtex-output.json"}
+
+    # Stopped again, then rerun with other views: that partial is not reused.
+    monkeypatch.setattr(mvtex.views, "_views_of_poses", stop_after_one)
+    assert run(capsys, *argv, "--out", tmp_path / "w")[0] == 130
+    monkeypatch.setattr(mvtex.views, "_views_of_poses", real)
+    code, _, err = run(capsys, "views", dataset, "--rig", rig_path, "--texcoords", ts, "--weights", "a=0.25,b=0.75",
+                       "--name", "q", "--method", "reconstruct", "--quiet", "--out", tmp_path / "w")
+    assert code == 0 and "starting over" in err
+    # A folder named like a partial that views did not write: exit 2, untouched.
+    (tmp_path / "x.partial").mkdir()
+    (tmp_path / "x.partial" / "keep.txt").write_text("x")
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "x")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "x.partial" in err
+    assert [p.name for p in (tmp_path / "x.partial").iterdir()] == ["keep.txt"]
