@@ -15,7 +15,6 @@ the offset is removed here: `tri_id == -1` is background. Images over uv (`raste
 
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -308,13 +307,17 @@ class _PairBuffers:
 
 
 def _pair_buffers(ctx: GLContext, faces: np.ndarray, num_vertices: int, levels: int) -> _PairBuffers:
-    key = (int(num_vertices), len(faces), int(levels),
-           hashlib.sha1(np.ascontiguousarray(faces, dtype=np.int64).tobytes()).hexdigest())
-    if key not in ctx._pairs:
-        if len(ctx._pairs) >= 4:
-            ctx._pairs.popitem(last=False)[1].release()
-        ctx._pairs[key] = _PairBuffers(ctx, faces, num_vertices, levels)
-    return ctx._pairs[key]
+    # The few cached face lists are compared element by element: cheaper than hashing them.
+    for key, pair in ctx._pairs.items():
+        if pair.n == num_vertices and pair.levels == levels and pair.faces.shape == np.shape(faces) \
+                and np.array_equal(pair.faces, faces):
+            ctx._pairs.move_to_end(key)
+            return pair
+    if len(ctx._pairs) >= 4:
+        ctx._pairs.popitem(last=False)[1].release()
+    pair = _PairBuffers(ctx, faces, num_vertices, levels)
+    ctx._pairs[id(pair)] = pair
+    return pair
 
 
 def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positions: np.ndarray,
@@ -359,9 +362,23 @@ def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positi
         pair.prog["clip_from_cam"].write(clip_from_camera(camera, near, far).T.astype("f4").tobytes())
         pair.vbo.write(cam[:n].tobytes())
         pair.vbo_sub.write(cam[n:][pair.faces].tobytes())
+        # A triangle covers only pixel centres inside the box of its projected corners, so
+        # the box of all projections (one pixel margin) holds every id: only the box is
+        # cleared and read back. With a vertex behind the camera the projection says
+        # nothing: the whole image.
+        c0, r0, c1, r1 = 0, 0, W, H
+        if pixels is not None and len(pixels) and bool(np.all(cam[:, 2] > 0)):
+            # Column by column: NumPy reduces a (k,2) array along axis 0 far slower.
+            lo = np.floor([pixels[:, 0].min(), pixels[:, 1].min()]).astype(np.int64) - 1
+            hi = np.ceil([pixels[:, 0].max(), pixels[:, 1].max()]).astype(np.int64) + 2
+            c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
+            c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
+        w, h = c1 - c0, r1 - r0
         fbo = ctx._target("pair", W, H)
         fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        if w > 0 and h > 0:
+            for x0 in (c0, W + c0):
+                fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(x0, r0, w, h))
         gl.disable(moderngl.CULL_FACE)
         gl.enable(moderngl.DEPTH_TEST)
         # The viewport clips in clip space: nothing of one mesh can spill into the other half.
@@ -372,19 +389,8 @@ def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positi
         gl.viewport = (W, 0, W, H)
         pair.prog["levels"].value = pair.levels
         pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
-        # A triangle covers only pixel centres inside the box of its projected corners, so
-        # the box of all projections (one pixel margin) holds every id; with a vertex
-        # behind the camera the projection says nothing: read everything.
-        c0, r0, c1, r1 = 0, 0, W, H
-        if pixels is not None and len(pixels) and bool(np.all(cam[:, 2] > 0)):
-            # Column by column: NumPy reduces a (k,2) array along axis 0 far slower.
-            lo = np.floor([pixels[:, 0].min(), pixels[:, 1].min()]).astype(np.int64) - 1
-            hi = np.ceil([pixels[:, 0].max(), pixels[:, 1].max()]).astype(np.int64) + 2
-            c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
-            c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
         base_ids = np.full((H, W), -1, np.int32)
         sub_ids = np.full((H, W), -1, np.int32)
-        w, h = c1 - c0, r1 - r0
         if w > 0 and h > 0:
             # GL window row y is image row v (the projection flips once), so no flip here.
             for out, x0 in ((base_ids, c0), (sub_ids, W + c0)):

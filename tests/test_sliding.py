@@ -105,10 +105,15 @@ def test_pair_raster_subface_ids_match_raster_of_subdivided_mesh(gl, oblique):
     from mvtex.raster import rasterize, rasterize_pair
 
     faces, uv, gt, inferred = folded_sheet(20, 20)
+    # The same sheet enlarged about its centre: drawn first, it leaves ids and depths all
+    # over the region the next call reads (only that region is cleared).
+    centre = gt.mean(axis=0)
+    big_gt, big_inferred = centre + 1.6 * (gt - centre), centre + 1.6 * (inferred - centre)
     for levels in (0, 1, 2):
         sub = subdivide(faces, len(uv), levels)
         X = apply_parent(inferred, sub.parent)
         for pixels in (None, np.concatenate([oblique.project(gt)[0], oblique.project(X)[0]])):
+            rasterize_pair(gl, big_gt, big_inferred, faces, oblique, levels=levels)
             gt_ids, sub_ids = rasterize_pair(gl, gt, inferred, faces, oblique, levels=levels, pixels=pixels)
             assert np.array_equal(gt_ids, rasterize(gl, gt, faces, oblique, attributes=False).tri_id)
             expected = rasterize(gl, X, sub.faces, oblique, attributes=False).tri_id
