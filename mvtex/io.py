@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import glob
 import hashlib
 import json
 import mmap
@@ -67,6 +68,15 @@ def replace_path(source: str | os.PathLike, target: str | os.PathLike) -> None:
         shutil.rmtree(aside_dir, ignore_errors=True)
         raise
     shutil.rmtree(aside_dir, ignore_errors=True)
+
+
+def remove_leftovers(directory: str | os.PathLike, name: str) -> None:
+    """Delete the hidden folders that `atomic_path` and `replace_path` leave beside
+    ``directory/name`` when a process is killed between their renames (``.NAME.*.tmp``,
+    ``.NAME.*.aside``). Only for folders mvtex writes (an unfinished set it resumes)."""
+    for entry in Path(directory).glob(f".{glob.escape(name)}.*"):
+        if entry.is_dir() and not entry.is_symlink() and entry.name.endswith((".tmp", ".aside")):
+            shutil.rmtree(entry, ignore_errors=True)
 
 
 @contextlib.contextmanager

@@ -154,7 +154,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     from .camera import as_rig
     from .dataset import as_dataset, reference_shape, reference_shape_source
     from .io import fingerprint as content_fingerprint
-    from .io import load_npy, read_json, replace_path, save_npy
+    from .io import load_npy, read_json, remove_leftovers, replace_path, save_npy
     from .texcoords import write_header
 
     ds = as_dataset(dataset)
@@ -206,6 +206,10 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         for name, values in (("displacement.npy", d), ("assigned.npy", a)):
             write_npy_rows(partial / cam / name, rows, values)
 
+    # A run killed while saving a done mask leaves the mask's hidden temporary and aside
+    # copies in the camera's folder: they must not end up in the finished set.
+    for c in rig.names:
+        remove_leftovers(partial / c, "done.npy")
     # A missing done mask (a run stopped while finishing) means: redo that camera.
     done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool)
             if (partial / c / "done.npy").is_file() else np.zeros(len(poses), bool) for c in rig.names}

@@ -577,7 +577,7 @@ def _open_partial(partial: Path, record: dict, texcoords, poses: list[int], name
     on stderr). Returns its done mask ((poses,) bool, True where the rows are written)."""
     import shutil
 
-    from .io import create_npy, load_npy, read_json, save_npy
+    from .io import create_npy, load_npy, read_json, remove_leftovers, save_npy
     from .texcoords import write_header
 
     if partial.is_dir():
@@ -589,7 +589,10 @@ def _open_partial(partial: Path, record: dict, texcoords, poses: list[int], name
                 and str(old.get("source", "")).startswith("views-")):
             raise InputError(partial, "exists and is not an unfinished mvtex views; move it away and rerun")
         same = all(old.get(k) == v for k, v in record.items()) and old.get("poses") == poses \
-            and old.get("cameras") == list(names) and (partial / "done.npy").is_file()
+            and old.get("cameras") == list(names)
+        # A run killed while saving the done mask leaves its hidden temporary and aside copies.
+        remove_leftovers(partial, "done.npy")
+        same = same and (partial / "done.npy").is_file()
         if same:
             done = np.array(load_npy(partial / "done.npy", mmap=False), dtype=bool)
             if done.shape == (len(poses),):

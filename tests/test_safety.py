@@ -262,6 +262,25 @@ def test_a_partial_without_done_masks_is_redone_not_refused(tmp_path, tiny_datas
     assert tree(tmp_path / "tc") == tree(tmp_path / "fresh")
 
 
+def test_a_kill_while_saving_a_done_mask_leaves_nothing_in_the_finished_set(tmp_path, tiny_dataset, front_rig,
+                                                                             monkeypatch, gl):
+    """A kill between the two renames of a done-mask save leaves the mask's hidden
+    temporary and aside copies in the camera's folder (and no done.npy); the rerun redoes
+    that camera and the finished set holds exactly what an uninterrupted run writes."""
+    _interrupt_after(monkeypatch, 3)
+    with pytest.raises(KeyboardInterrupt):
+        _slide(tiny_dataset, front_rig, tmp_path / "tc")
+    monkeypatch.undo()
+    cam = tmp_path / "tc.partial" / "a"
+    for hidden in (".done.npy.k1ll3d.aside", ".done.npy.k1ll3d.tmp"):
+        (cam / hidden).mkdir()
+        shutil.copy(cam / "done.npy", cam / hidden / "done.npy")
+    (cam / "done.npy").unlink()
+    _slide(tiny_dataset, front_rig, tmp_path / "tc")
+    _slide(tiny_dataset, front_rig, tmp_path / "fresh")
+    assert tree(tmp_path / "tc") == tree(tmp_path / "fresh")
+
+
 def test_a_foreign_partial_folder_is_not_deleted(tmp_path, tiny_dataset, rig_file, capsys):
     mine = foreign(tmp_path)
     mine.rename(tmp_path / "tc.partial")
