@@ -5,8 +5,9 @@ Two methods:
 
 - ``harmonic``: the Laplace equation with the assigned values as Dirichlet data, solved
   on the unknown vertices only with a sparse Cholesky factorisation (CHOLMOD through
-  cvxopt, simplicial LDL^T in an approximate-minimum-degree order; SuperLU with pivoting
-  where the factorisation meets a zero pivot).
+  cvxopt, simplicial LDL^T, eliminating in a minimum-degree order of the whole mesh
+  computed once per `FillSystem`; SuperLU with pivoting where the factorisation meets a
+  zero pivot).
   The operator is potpourri3d's cotangent Laplacian (`laplacian_matrix`), so a linear
   field on a flat patch is reproduced exactly for any triangulation. The intrinsic
   Delaunay Laplacian (robust_laplacian) was measured against it on the built-in garment
@@ -142,9 +143,7 @@ class FillSystem:
         self.kind = HARMONIC_LAPLACIAN if laplacian is None else laplacian
         self.laplacian = laplacian_matrix(pos_w, faces_w, self.kind)
         self.label = csgraph.connected_components(self.laplacian, directed=False)[1]
-        self._csc = self.laplacian.tocsc()
-        self._csc.sort_indices()
-        self._lower = sp.tril(self._csc, format="csc")
+        self._lower = sp.tril(self.laplacian, format="csc")
         self._lower.sort_indices()
         self._rank: np.ndarray | None = None
         self._order: np.ndarray | None = None
@@ -184,23 +183,13 @@ class FillSystem:
         vertices = np.asarray(vertices, dtype=np.int64)
         if np.any(np.diff(vertices) <= 0):
             raise ValueError("lower_submatrix needs increasing vertex indices")
-        data, rows, indptr = _select(self._lower, vertices, self.num_welded)
-        cols = np.repeat(np.arange(len(vertices), dtype=np.int64), np.diff(indptr))
-        return data, rows, cols
-
-
-def _select(csc: sp.csc_matrix, vertices: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(data, rows, indptr) of csc[vertices][:, vertices]: columns selected, rows relabelled
-    to positions in `vertices`, entries of other rows dropped."""
-    vertices = np.asarray(vertices, dtype=np.int64)
-    local = np.full(n, -1, np.int64)
-    local[vertices] = np.arange(len(vertices))
-    cols = csc[:, vertices]
-    rows = local[cols.indices]
-    keep = rows >= 0
-    # Column j keeps the kept entries among cols.indptr[j]:cols.indptr[j + 1].
-    indptr = np.concatenate([[0], np.cumsum(keep)])[cols.indptr]
-    return cols.data[keep], rows[keep], indptr
+        local = np.full(self.num_welded, -1, np.int64)
+        local[vertices] = np.arange(len(vertices))
+        selected = self._lower[:, vertices]
+        rows = local[selected.indices]
+        keep = rows >= 0  # rows of other vertices are dropped
+        cols = np.repeat(np.arange(len(vertices), dtype=np.int64), np.diff(selected.indptr))
+        return selected.data[keep], rows[keep], cols[keep]
 
 
 def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned: np.ndarray,

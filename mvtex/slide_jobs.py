@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +21,7 @@ import numpy as np
 
 from .camera import Rig
 from .errors import InputError
-from .io import create_npy, read_row, write_npy_rows
+from .io import read_row, write_npy_rows
 from .parallel import ThreadState
 from .sliding import SlideOptions, SlideTopology, build_topology, slide_pose
 
@@ -154,8 +153,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     from .camera import as_rig
     from .dataset import as_dataset, reference_shape, reference_shape_source
     from .io import fingerprint as content_fingerprint
-    from .io import load_npy, read_json, remove_leftovers, replace_path, save_npy
-    from .texcoords import write_header
+    from .io import load_npy, remove_leftovers, replace_path, save_npy
+    from .texcoords import open_unfinished
 
     ds = as_dataset(dataset)
     rig, rig_path = as_rig(rig)
@@ -175,30 +174,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         "reference": {"shape": reference_shape_source(ds), "fingerprint": _fingerprint(reference)},
         "rig": _rig_record(rig),
     }
-    if partial.is_dir():
-        try:
-            old = read_json(partial / "texcoords.json")
-        except InputError:
-            old = None
-        if not (isinstance(old, dict) and old.get("format") == "mvtex-texcoords"):
-            raise InputError(partial, "exists and is not an unfinished mvtex slide; move it away and rerun")
-        same = isinstance(old, dict) and all(old.get(k) == v for k, v in record.items()) and \
-            old.get("poses") == poses and old.get("cameras") == rig.names and old.get("subdiv") == options.subdiv
-        if not same:
-            print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
-            shutil.rmtree(partial)
-    if not partial.is_dir():
-        tmp = partial.with_name(partial.name + ".new")
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        write_header(tmp, faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
-                     subdiv=options.subdiv, poses=poses, cameras=rig.names, **record)
-        for cam in rig.names:
-            (tmp / cam).mkdir()
-            create_npy(tmp / cam / "displacement.npy", np.float32, (len(poses), n_sub, 2))
-            create_npy(tmp / cam / "assigned.npy", np.bool_, (len(poses), n_sub))
-            np.save(tmp / cam / "done.npy", np.zeros(len(poses), bool), allow_pickle=False)
-        os.replace(tmp, partial)
+    open_unfinished(partial, "slide", "ts", faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
+                    subdiv=options.subdiv, poses=poses, cameras=rig.names,
+                    done_masks=[f"{cam}/done.npy" for cam in rig.names], **record)
 
     def write_rows(cam: str, rows: list[int], d: np.ndarray, a: np.ndarray) -> None:
         # Through the files (on disk before the rows are marked done), not maps: pages

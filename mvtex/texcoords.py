@@ -215,6 +215,53 @@ def write_header(path: Path, *, faces: np.ndarray, uv: np.ndarray, parent: np.nd
     (path / "texcoords.json").write_text(json.dumps(meta, indent=2) + "\n")
 
 
+def open_unfinished(partial: Path, command: str, source_prefix: str, *, faces: np.ndarray, uv: np.ndarray,
+                    parent: np.ndarray, source: str, subdiv: int, poses: Sequence[int], cameras: Sequence[str],
+                    done_masks: Sequence[str], **record: Any) -> None:
+    """Make `partial` (``OUT.partial``) the unfinished texcoord set of a `command` run that
+    streams its rows in: the one there is kept if its texcoords.json holds the same poses,
+    cameras, subdiv and `record` values (JSON-like), else deleted and started over (said
+    on stderr); a new one gets the header, zero-filled displacement / assigned arrays per
+    camera and all-False done masks at `done_masks` (paths inside the set), and is renamed
+    into place only when complete.
+
+    Raises:
+        InputError: `partial` exists and is not an unfinished set of this command (its
+            texcoords.json is not a texcoord header with a source starting `source_prefix`).
+    """
+    import shutil
+    import sys
+
+    from .io import create_npy, read_json
+
+    poses = [int(p) for p in poses]
+    if partial.is_dir():
+        try:
+            old = read_json(partial / "texcoords.json")
+        except InputError:
+            old = None
+        if not (isinstance(old, dict) and old.get("format") == FORMAT
+                and str(old.get("source", "")).startswith(source_prefix)):
+            raise InputError(partial, f"exists and is not an unfinished mvtex {command}; move it away and rerun")
+        if all(old.get(k) == v for k, v in record.items()) and old.get("poses") == poses \
+                and old.get("cameras") == list(cameras) and old.get("subdiv") == subdiv:
+            return
+        print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
+        shutil.rmtree(partial)
+    tmp = partial.with_name(partial.name + ".new")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses, cameras=cameras,
+                 **record)
+    for cam in cameras:
+        (tmp / cam).mkdir()
+        create_npy(tmp / cam / "displacement.npy", np.float32, (len(poses), len(uv), 2))
+        create_npy(tmp / cam / "assigned.npy", np.bool_, (len(poses), len(uv)))
+    for mask in done_masks:
+        np.save(tmp / mask, np.zeros(len(poses), bool), allow_pickle=False)
+    os.replace(tmp, partial)
+
+
 def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray,
                    source: str, subdiv: int, poses: Sequence[int],
                    displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray], **extra: Any) -> Path:

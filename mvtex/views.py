@@ -570,51 +570,6 @@ def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
     return (start, *_views_of_poses(synth, spec.cameras, spec.weights, poses))
 
 
-def _open_partial(partial: Path, record: dict, texcoords, poses: list[int], names: Sequence[str],
-                  n_sub: int) -> np.ndarray:
-    """The unfinished views set `partial` (``OUT.partial``) of a run with `record`, created
-    empty if there is none; one made with other inputs or settings is started over (said
-    on stderr). Returns its done mask ((poses,) bool, True where the rows are written)."""
-    import shutil
-
-    from .io import create_npy, load_npy, read_json, remove_leftovers, save_npy
-    from .texcoords import write_header
-
-    if partial.is_dir():
-        try:
-            old = read_json(partial / "texcoords.json")
-        except InputError:
-            old = None
-        if not (isinstance(old, dict) and old.get("format") == "mvtex-texcoords"
-                and str(old.get("source", "")).startswith("views-")):
-            raise InputError(partial, "exists and is not an unfinished mvtex views; move it away and rerun")
-        same = all(old.get(k) == v for k, v in record.items()) and old.get("poses") == poses \
-            and old.get("cameras") == list(names)
-        # A run killed while saving the done mask leaves its hidden temporary and aside copies.
-        remove_leftovers(partial, "done.npy")
-        same = same and (partial / "done.npy").is_file()
-        if same:
-            done = np.array(load_npy(partial / "done.npy", mmap=False), dtype=bool)
-            if done.shape == (len(poses),):
-                return done
-        print(f"{partial}: an unfinished run with other inputs or settings; starting over", file=sys.stderr)
-        shutil.rmtree(partial)
-    tmp = partial.with_name(partial.name + ".new")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    write_header(tmp, faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,
-                 source=f"views-{record['method']}", subdiv=texcoords.subdiv, poses=poses, cameras=list(names),
-                 **record)
-    for name in names:
-        (tmp / name).mkdir()
-        create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), n_sub, 2))
-        create_npy(tmp / name / "assigned.npy", np.bool_, (len(poses), n_sub))
-    done = np.zeros(len(poses), bool)
-    save_npy(tmp / "done.npy", done)
-    os.replace(tmp, partial)
-    return done
-
-
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
                 rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
@@ -641,7 +596,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     from tqdm import tqdm
 
     from .camera import save_rig
-    from .io import dumps_strict, fingerprint, replace_path, save_npy, write_npy_rows
+    from .io import dumps_strict, fingerprint, load_npy, remove_leftovers, replace_path, save_npy, write_npy_rows
+    from .texcoords import open_unfinished
 
     if len(weights) != len(names) or not names:
         raise ValueError("one name per view is needed")
@@ -661,7 +617,6 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     if poses:  # reading a row checks the camera's whole arrays: here, before any worker starts
         for c in synth.array:
             texcoords.displacement(c, poses[0])
-    n_sub = len(texcoords.uv)
     out = Path(out)
     record = {"views": {name: dict(w) for name, w in zip(names, weights)}, "method": options.method,
               "view_options": asdict(options), "from": {"texcoords": str(Path(texcoords.path).resolve()),
@@ -673,7 +628,15 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
     partial = out.with_name(out.name + ".partial")
     with synth:
-        done = _open_partial(partial, record, texcoords, poses, names, n_sub)
+        open_unfinished(partial, "views", "views-", faces=texcoords.faces, uv=texcoords.uv,
+                        parent=texcoords.parent, source=f"views-{options.method}", subdiv=texcoords.subdiv,
+                        poses=poses, cameras=list(names), done_masks=["done.npy"], **record)
+        # A run killed while saving the done mask leaves its hidden temporary and aside
+        # copies; without the mask every block is computed again.
+        remove_leftovers(partial, "done.npy")
+        done = np.zeros(len(poses), bool)
+        if (partial / "done.npy").is_file():
+            done = np.array(load_npy(partial / "done.npy", mmap=False), dtype=bool)
 
         def write(start: int, disp: dict, asg: dict) -> None:
             # Through the files, not maps: pages written through a map stay in the process's
