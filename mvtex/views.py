@@ -45,7 +45,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .camera import Camera, Rig
+from .camera import Camera, Rig, check_camera_name
 from .errors import InputError
 from .io import read_row
 from .parallel import ThreadState
@@ -603,6 +603,11 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
         raise ValueError("one name per view is needed")
     if len(set(names)) != len(names):
         raise InputError(None, f"view names must be unique, got {list(names)}")
+    for name in names:  # they become folder names
+        try:
+            check_camera_name(name)
+        except ValueError as err:
+            raise InputError(None, str(err)) from None
     weights = [check_weights(w, rig, rig_source) for w in weights]
     synth = ViewSynthesizer(dataset, rig, texcoords, options, rig_source)
     for w in weights:

@@ -156,6 +156,7 @@ def test_reconstruct_beats_blend_at_the_stereo_midpoint(tmp_path, garment):
     (["--between", "a,zz", "--steps", "3"], "zz"),
     (["--between", "a,b"], "--steps"),
     (["--grid", "a,b", "--steps", "3"], "4 comma"),
+    (["--weights", "a=0.5,b=0.5", "--name", "../x"], "not allowed"),
 ])
 def test_bad_weights_exit_2_with_one_line(tmp_path, sheet_set, capsys, args, needle):
     dataset, rig_path, ts = sheet_set
@@ -164,7 +165,7 @@ def test_bad_weights_exit_2_with_one_line(tmp_path, sheet_set, capsys, args, nee
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and needle in err, err
     assert out == ""
-    assert not (tmp_path / "v").exists()
+    assert not (tmp_path / "v").exists() and not (tmp_path / "v.partial").exists()
 
 
 def test_texcoords_from_another_rig_exit_2(tmp_path, sheet_set, capsys):
