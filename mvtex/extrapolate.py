@@ -111,7 +111,7 @@ def _group_dirichlet(values: np.ndarray, assigned: np.ndarray, index: np.ndarray
     # bincount adds in input order, as a loop over the assigned vertices would.
     acc = np.stack([np.bincount(index[a_idx], rows[:, c], minlength=ng) for c in range(values.shape[1])], axis=1)
     known = count > 0
-    acc[known] /= count[known, None]
+    np.divide(acc, count[:, None], out=acc, where=known[:, None])
     return known, acc
 
 
