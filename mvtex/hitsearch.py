@@ -4,11 +4,13 @@ The raster path tests each vertex ray against the triangles drawn in a small pix
 around the vertex's projection (and their edge neighbours), exactly, in float64. Written
 with NumPy array operations this builds a (rays, window) table, sorts it twice, expands it
 four-fold and keeps every temporary; per ray in a compiled loop (numba) the same work is
-a few dozen candidates in a small buffer, sorted and deduplicated, each intersected as it
-is found. Nothing about the answer changes: the candidates, their order, the
+a few dozen candidates in a small buffer, deduplicated with a per-face mark, each
+intersected as it is found. Nothing about the answer changes: the candidates, the
 Möller–Trumbore arithmetic (operation for operation, no fast-math contraction) and the
 tie-break keys are those of `sliding._window_pairs`, `sliding.intersect_pairs` and
-`sliding.choose_hits`, which stay as the reference the tests compare with.
+`sliding.choose_hits`, which stay as the reference the tests compare with. The candidates
+are not sorted: the nearest t does not depend on their order, and equal tie-break keys go
+to the smaller face id, which is what the reference's ascending order gives.
 
 Three kernels:
 
@@ -44,13 +46,14 @@ def _compiled(fn):
 
 
 @_compiled
-def _window(tri_id, col, row, radius, neighbours, modulo, buf):
-    """Distinct ids >= 0, ascending, of the (2r+1)² window at (row, col) (clipped to the
-    image) taken modulo `modulo` (> 0) and closed under `neighbours`, into buf[:count]."""
+def _window(tri_id, col, row, radius, neighbours, modulo, buf, mark, stamp):
+    """Distinct ids >= 0 of the (2r+1)² window at (row, col) (clipped to the image) taken
+    modulo `modulo` (> 0) and closed under `neighbours`, into buf[:count], in no particular
+    order (every caller's answer is independent of it). mark: (m,) int64 scratch, one
+    entry per face id; an id is taken once per distinct `stamp` (a value mark never held
+    for this ray: the ray's index + 1 for marks starting at 0)."""
     h, w = tri_id.shape
     count = 0
-    # A window holds a few distinct faces: collect them first, then add their neighbours,
-    # each only once (linear scans of a handful of entries, no allocation per ray).
     for dr in range(-radius, radius + 1):
         r = min(max(row + dr, 0), h - 1)
         for dc in range(-radius, radius + 1):
@@ -60,32 +63,19 @@ def _window(tri_id, col, row, radius, neighbours, modulo, buf):
                 continue
             if modulo > 0:
                 f = f % modulo
-            if not _contains(buf, count, f):
+            if mark[f] != stamp:
+                mark[f] = stamp
                 buf[count] = f
                 count += 1
     drawn = count
     for i in range(drawn):
         for k in range(3):
             f = neighbours[buf[i], k]
-            if f >= 0 and not _contains(buf, count, f):
+            if f >= 0 and mark[f] != stamp:
+                mark[f] = stamp
                 buf[count] = f
                 count += 1
-    for i in range(1, count):
-        f = buf[i]
-        j = i - 1
-        while j >= 0 and buf[j] > f:
-            buf[j + 1] = buf[j]
-            j -= 1
-        buf[j + 1] = f
     return count
-
-
-@_compiled
-def _contains(buf, count, f):
-    for i in range(count):
-        if buf[i] == f:
-            return True
-    return False
 
 
 @_compiled
@@ -131,10 +121,11 @@ def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, h
     k = len(dirs)
     out = np.full(k, np.inf)
     buf = np.empty(4 * (2 * radius + 1) ** 2, np.int64)
+    mark = np.zeros(len(neighbours), np.int64)
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(k):
         count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
-                        neighbours, modulo, buf)
+                        neighbours, modulo, buf, mark, i + 1)
         # The vertex's host keys are one sorted run of host_keys.
         lo = np.searchsorted(host_keys, vertices[i] * modulo)
         hi = np.searchsorted(host_keys, (vertices[i] + 1) * modulo)
@@ -180,10 +171,11 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
     b1s = np.empty(size)
     b2s = np.empty(size)
     facing = np.empty(size)
+    mark = np.zeros(len(neighbours), np.int64)
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(k):
         count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
-                        neighbours, 0, buf)
+                        neighbours, 0, buf, mark, i + 1)
         t_min = np.inf
         for j in range(count):
             ts[j], b1s[j], b2s[j], facing[j] = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2],
@@ -207,7 +199,8 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
             u = w0 * face_uv[a, 0] + b1 * face_uv[b, 0] + b2 * face_uv[c, 0] - vert_uv[i, 0]
             v = w0 * face_uv[a, 1] + b1 * face_uv[b, 1] + b2 * face_uv[c, 1] - vert_uv[i, 1]
             key = key + min(np.sqrt(u * u + v * v), 1.0)
-            if key < best_key:
+            # Equal keys go to the smaller face id, as in `choose_hits`' ascending order.
+            if key < best_key or (key == best_key and f < buf[best]):
                 best_key = key
                 best = j
         if best < 0:
