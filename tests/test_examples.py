@@ -96,3 +96,17 @@ def test_every_example_imports_names_that_exist(path):
             for alias in node.names:
                 assert hasattr(module, alias.name) or importlib.util.find_spec(f"{node.module}.{alias.name}"), \
                     f"{path.name}: {node.module} has no {alias.name}"
+
+
+def test_profile_job_times_every_step(tmp_path, gl, tiny_dataset, front_rig):
+    """Each wrapped function is the one the raster path calls (its timer runs), and the
+    remainders (hit search and displacement step minus their timed calls) are not negative:
+    a renamed or re-imported step would leave its timer at 0 or count time twice."""
+    from mvtex.camera import save_rig
+
+    save_rig(front_rig, tmp_path / "rig.yaml")
+    report, ms = load("profile_job").main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0:2", 1)
+    for step in ("raster", "occluder", "first_hits", "inside", "fill", "solve"):
+        assert ms[step] > 0, step
+    assert ms["solve"] < ms["fill"] and all(value >= 0 for value in ms["rows"])
+    assert report.count("\n| ") == 1 + 6  # the header and one row per step
