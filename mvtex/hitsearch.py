@@ -5,7 +5,8 @@ around the vertex's projection (and their edge neighbours), exactly, in float64.
 with NumPy array operations this builds a (rays, window) table, sorts it twice, expands it
 four-fold and keeps every temporary; per ray in a compiled loop (numba) the same work is
 a few dozen candidates in a small buffer, deduplicated with a per-face mark, each
-intersected as it is found. Nothing about the answer changes: the candidates, the
+intersected as it is found against the face's first corner and edges, computed once per
+call. Nothing about the answer changes: the candidates, the
 Möller–Trumbore arithmetic (operation for operation, no fast-math contraction) and the
 tie-break keys are those of `sliding._window_pairs`, `sliding.intersect_pairs` and
 `sliding.choose_hits`, which stay as the reference the tests compare with. The candidates
@@ -79,12 +80,27 @@ def _window(tri_id, col, row, radius, neighbours, modulo, buf, mark, stamp):
 
 
 @_compiled
-def _intersect(ox, oy, oz, dx, dy, dz, positions, faces, f):
-    """`sliding.intersect_pairs` for one (ray, triangle): (t or inf, b1, b2, facing)."""
-    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-    p0x, p0y, p0z = positions[a, 0], positions[a, 1], positions[a, 2]
-    e1x, e1y, e1z = positions[b, 0] - p0x, positions[b, 1] - p0y, positions[b, 2] - p0z
-    e2x, e2y, e2z = positions[c, 0] - p0x, positions[c, 1] - p0y, positions[c, 2] - p0z
+def _corner_edges(positions, faces):
+    """(m,9) float64 per face: its first corner p0 and edges e1 = p1 - p0, e2 = p2 - p0 (the
+    subtractions `_intersect` would repeat for every ray that tests the face)."""
+    m = len(faces)
+    out = np.empty((m, 9))
+    for f in range(m):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        for k in range(3):
+            out[f, k] = positions[a, k]
+            out[f, 3 + k] = positions[b, k] - positions[a, k]
+            out[f, 6 + k] = positions[c, k] - positions[a, k]
+    return out
+
+
+@_compiled
+def _intersect(ox, oy, oz, dx, dy, dz, corner_edges, f):
+    """`sliding.intersect_pairs` for one (ray, triangle): (t or inf, b1, b2, facing);
+    corner_edges from `_corner_edges`."""
+    p0x, p0y, p0z = corner_edges[f, 0], corner_edges[f, 1], corner_edges[f, 2]
+    e1x, e1y, e1z = corner_edges[f, 3], corner_edges[f, 4], corner_edges[f, 5]
+    e2x, e2y, e2z = corner_edges[f, 6], corner_edges[f, 7], corner_edges[f, 8]
     px = dy * e2z - dz * e2y
     py = dz * e2x - dx * e2z
     pz = dx * e2y - dy * e2x
@@ -122,24 +138,23 @@ def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, h
     out = np.full(k, np.inf)
     buf = np.empty(4 * (2 * radius + 1) ** 2, np.int64)
     mark = np.zeros(len(neighbours), np.int64)
+    hosted = np.zeros(len(neighbours), np.int64)
+    corner_edges = _corner_edges(positions, faces)
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(k):
         count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
                         neighbours, modulo, buf, mark, i + 1)
-        # The vertex's host keys are one sorted run of host_keys.
+        # The vertex's host keys are one sorted run of host_keys: mark its host faces.
         lo = np.searchsorted(host_keys, vertices[i] * modulo)
         hi = np.searchsorted(host_keys, (vertices[i] + 1) * modulo)
+        for h in range(lo, hi):
+            hosted[host_keys[h] - vertices[i] * modulo] = i + 1
         best = np.inf
         for j in range(count):
             f = buf[j]
-            key = vertices[i] * modulo + f
-            hosted = False
-            for h in range(lo, hi):
-                if host_keys[h] == key:
-                    hosted = True
-            if hosted:
+            if hosted[f] == i + 1:
                 continue
-            t = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2], positions, faces, f)[0]
+            t = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2], corner_edges, f)[0]
             if t < best:
                 best = t
         out[i] = best
@@ -172,6 +187,7 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
     b2s = np.empty(size)
     facing = np.empty(size)
     mark = np.zeros(len(neighbours), np.int64)
+    corner_edges = _corner_edges(positions, faces)
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(k):
         count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
@@ -179,7 +195,7 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
         t_min = np.inf
         for j in range(count):
             ts[j], b1s[j], b2s[j], facing[j] = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2],
-                                                          positions, faces, buf[j])
+                                                          corner_edges, buf[j])
             if ts[j] < t_min:
                 t_min = ts[j]
         if t_min == np.inf:
