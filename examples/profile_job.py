@@ -16,7 +16,6 @@ import argparse
 import os
 import platform
 import shlex
-import sys
 import time
 from contextlib import contextmanager
 
@@ -128,4 +127,3 @@ if __name__ == "__main__":
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
     print(main(args.dataset, args.rig, args.poses, args.repeats)[0])
-    sys.exit(0)

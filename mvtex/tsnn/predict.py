@@ -23,7 +23,7 @@ from ..camera import check_camera_name
 from ..errors import InputError
 from ..io import atomic_path, create_npy, read_json, write_npy_rows
 from ..texcoords import write_header
-from .atlas import sample_atlas, vertex_grid
+from .atlas import AtlasSampler, sample_atlas, vertex_grid
 from .geometry import geometry_images
 from .train import (MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH, MODEL_FORMAT, READABLE_VERSIONS, mesh_fingerprint,
                     rebuild_mesh)
@@ -284,7 +284,7 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
         raise InputError(first.path / "config.json", f"mesh.num_vertices {first.meta['mesh']['num_vertices']} but "
                          f"the dataset mesh subdivided {first.subdiv} time(s) has {len(uv)}")
     x = np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), -1)
-    samplers: dict[tuple[int, int], Any] = {}  # (resolution, dilation) -> the models' atlas
+    samplers: dict[tuple[int, int], AtlasSampler] = {}  # (resolution, dilation) -> the models' atlas
     names = [name for name, _, _ in jobs]
     # Block by block of poses, written into the files as they come: memory stays that of
     # one block (d of 10,000 poses and 24k vertices is 1.9 GB per camera).
@@ -307,8 +307,6 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                     key = (m.network.config.resolution, int(m.meta["atlas"]["dilation"]))
                     if key not in geometry:
                         if key not in samplers:
-                            from .atlas import AtlasSampler
-
                             samplers[key] = AtlasSampler(faces, uv, key[0], dilation=key[1], source=m.path)
                         geometry[key] = geometry_images(dataset, rows, samplers[key], parent)
                     g = geometry[key]

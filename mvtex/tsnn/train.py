@@ -32,6 +32,7 @@ A model directory holds:
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
 import sys
@@ -334,8 +335,6 @@ def _kept_model(path: Path, key: str) -> dict[str, Any] | None:
     """The `train` summary of the finished model directory at `path` if its config.json
     records inputs `key`; None if there is none, it is unreadable or it was trained from
     other inputs."""
-    import json
-
     try:
         meta = json.loads((path / "config.json").read_text())
         if not (isinstance(meta, dict) and meta.get("inputs") == key and (path / "model.safetensors").is_file()):
@@ -712,8 +711,6 @@ def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
 
 
 def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
-    import json
-
     from safetensors.torch import save_file
 
     with atomic_path(out) as tmp:
