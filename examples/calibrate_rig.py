@@ -28,9 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.board import parse_board_spec, random_board_poses, render_calibration_images
-from mvtex.camera import Camera, Rig, load_rig, look_at
+from mvtex.calibration.board import parse_board_spec
+from mvtex.calibration.synthetic import random_board_poses, render_calibration_images
 from mvtex.cli import main as mvtex
+from mvtex.data.camera import Camera, look_at
+from mvtex.data.rig import Rig, load_rig
 
 SPEC = "charuco:9x6:0.05:0.0375:DICT_4X4_50"  # 9x6 squares of 5 cm, 3.75 cm markers
 BARREL = (-0.12, 0.05, 0.0, 0.0, 0.0)

@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.camera import Rig, load_rig, resolve_rig
-from mvtex.dataset import load_dataset
-from mvtex.metrics import evaluate
-from mvtex.slide_jobs import slide_dataset
-from mvtex.sliding import SlideOptions
-from mvtex.synth import SynthOptions, write_synth
+from mvtex.data.dataset import load_dataset
+from mvtex.data.rig import Rig, load_rig, resolve_rig
+from mvtex.evaluation.evaluate import evaluate
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.synth.generate import SynthOptions, write_synth
 
 # One factor at a time around the defaults: (label, SlideOptions changes).
 CANDIDATES = [

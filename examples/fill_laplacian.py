@@ -1,6 +1,6 @@
 """Which Laplacian should the harmonic fill use? Both library operators, side by side on the
 built-in garment: the cotangent Laplacian (`potpourri3d.cotan_laplacian`) and the intrinsic
-Delaunay Laplacian (`robust_laplacian`), as `mvtex.extrapolate.laplacian_matrix` builds them.
+Delaunay Laplacian (`robust_laplacian`), as `mvtex.sliding.fill.laplacian_matrix` builds them.
 
     python examples/fill_laplacian.py DATASET [RIG] [POSES_SPEC]
 
@@ -19,12 +19,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from mvtex.camera import as_rig
-from mvtex.dataset import load_dataset, reference_shape
-from mvtex.extrapolate import LAPLACIANS, FillSystem, fill
-from mvtex.metrics import masked_uv_error, texcoord_image
-from mvtex.raster import GLContext
-from mvtex.sliding import SlideOptions, build_topology, slide_pose
+from mvtex.data.dataset import load_dataset, reference_shape
+from mvtex.data.rig import as_rig
+from mvtex.evaluation.uv import masked_uv_error, texcoord_image
+from mvtex.render.context import GLContext
+from mvtex.sliding.fill import LAPLACIANS, FillSystem, fill
+from mvtex.sliding.options import SlideOptions
+from mvtex.sliding.pose import slide_pose
+from mvtex.sliding.topology import build_topology
 
 
 def main(dataset_path: str, rig_spec: str = "stereo", spec: str = "test", seed: int = 0) -> dict:

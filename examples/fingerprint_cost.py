@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.io import fingerprint
+from mvtex.util.fingerprint import fingerprint
 
 
 def main() -> None:

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.camera import Rig, look_at, save_rig
+from mvtex.data.camera import look_at
+from mvtex.data.rig import Rig, save_rig
 
 SIZE, FOCAL, DISTANCE = 512, 1150.0, 2.2
 

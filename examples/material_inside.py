@@ -30,12 +30,13 @@ def main() -> None:
     parser.add_argument("--picture", type=Path, help="write the worst image's error picture here")
     args = parser.parse_args()
 
-    from mvtex.camera import load_rig, resolve_rig
-    from mvtex.dataset import load_dataset
-    from mvtex.mesh import face_normals
-    from mvtex.metrics import MaterialMap, material_error_image
-    from mvtex.raster import GLContext, rasterize
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.mesh import face_normals
+    from mvtex.data.rig import load_rig, resolve_rig
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.evaluation.material import MaterialMap, material_error_image
+    from mvtex.render.context import GLContext
+    from mvtex.render.raster import rasterize
 
     ds = load_dataset(args.data)
     rig = load_rig(resolve_rig(args.rig))

@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.camera import load_rig, resolve_rig
-from mvtex.dataset import import_sequences, load_dataset
-from mvtex.slide_jobs import slide_dataset
-from mvtex.sliding import SlideOptions
+from mvtex.data.dataset import load_dataset
+from mvtex.data.importer import import_sequences
+from mvtex.data.rig import load_rig, resolve_rig
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
 
 
 def write_obj(path: Path, positions: np.ndarray, uv: np.ndarray, faces: np.ndarray) -> None:
@@ -28,7 +29,7 @@ def write_obj(path: Path, positions: np.ndarray, uv: np.ndarray, faces: np.ndarr
 
 
 def demo_sequence(folder: Path, num_poses: int = 12) -> tuple[str, str]:
-    from mvtex.synth import SynthOptions, synthesize
+    from mvtex.synth.generate import SynthOptions, synthesize
 
     data = synthesize(SynthOptions(num_poses=max(num_poses, 10)))
     for k in range(num_poses):

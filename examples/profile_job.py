@@ -1,5 +1,5 @@
 """Where one raster sliding job's time goes: timers around each step of the raster path
-(`mvtex.sliding.find_hits_raster` + `displacement_from_hits`) on the jobs of a dataset, in
+(`mvtex.sliding.hits.find_hits_raster` + `displacement_from_hits`) on the jobs of a dataset, in
 one process, after a warm-up.
 
     python examples/profile_job.py DATASET [--rig stereo] [--poses 0:40] [--repeats 2]
@@ -21,22 +21,25 @@ from contextlib import contextmanager
 
 import numpy as np
 
-import mvtex.extrapolate
-import mvtex.hitsearch
-import mvtex.raster
-import mvtex.sliding
-from mvtex.camera import as_rig
-from mvtex.dataset import load_dataset, reference_shape
-from mvtex.raster import GLContext
-from mvtex.sliding import SlideOptions, build_topology, displacement_from_hits, find_hits_raster
+import mvtex.render.raster
+import mvtex.sliding.fill
+import mvtex.sliding.kernels
+import mvtex.sliding.pose
+from mvtex.data.dataset import load_dataset, reference_shape
+from mvtex.data.rig import as_rig
+from mvtex.render.context import GLContext
+from mvtex.sliding.hits import find_hits_raster
+from mvtex.sliding.options import SlideOptions
+from mvtex.sliding.pose import displacement_from_hits
+from mvtex.sliding.topology import build_topology
 
 TIMED = {  # step -> (module, function) whose calls are summed
-    "raster": (mvtex.raster, "rasterize_pair"),
-    "occluder": (mvtex.hitsearch, "nearest_occluder"),
-    "first_hits": (mvtex.hitsearch, "first_hits"),
-    "inside": (mvtex.hitsearch, "seen_from_inside"),
-    "fill": (mvtex.sliding, "fill"),
-    "solve": (mvtex.extrapolate, "solve_spd"),
+    "raster": (mvtex.render.raster, "rasterize_pair"),
+    "occluder": (mvtex.sliding.kernels, "nearest_occluder"),
+    "first_hits": (mvtex.sliding.kernels, "first_hits"),
+    "inside": (mvtex.sliding.kernels, "seen_from_inside"),
+    "fill": (mvtex.sliding.pose, "fill"),
+    "solve": (mvtex.sliding.fill, "solve_spd"),
 }
 
 

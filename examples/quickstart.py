@@ -10,14 +10,14 @@ four cameras of a square rig (PLY + COLMAP model). Every step is also a CLI comm
 import sys
 from pathlib import Path
 
-from mvtex.camera import builtin_rig_path, load_rig
-from mvtex.dataset import load_dataset
-from mvtex.metrics import evaluate
-from mvtex.recon import triangulate_pose
-from mvtex.slide_jobs import slide_dataset
-from mvtex.sliding import SlideOptions
-from mvtex.synth import SynthOptions, write_synth
-from mvtex.texcoords import open_texcoords
+from mvtex.data.dataset import load_dataset
+from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.texcoords import open_texcoords
+from mvtex.evaluation.evaluate import evaluate
+from mvtex.recon.pose import triangulate_pose
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.synth.generate import SynthOptions, write_synth
 
 
 def main(out: Path, num_poses: int) -> dict:

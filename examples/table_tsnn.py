@@ -17,14 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.camera import builtin_rig_path, load_rig
-from mvtex.dataset import load_dataset
-from mvtex.metrics import evaluate
-from mvtex.recon import ReconOptions, triangulate_pose
-from mvtex.slide_jobs import slide_dataset
-from mvtex.sliding import SlideOptions
-from mvtex.synth import SynthOptions, write_synth
-from mvtex.texcoords import open_texcoords
+from mvtex.data.dataset import load_dataset
+from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.texcoords import open_texcoords
+from mvtex.evaluation.evaluate import evaluate
+from mvtex.recon.pose import triangulate_pose
+from mvtex.recon.triangulate import ReconOptions
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.synth.generate import SynthOptions, write_synth
 from mvtex.tsnn.predict import predict
 from mvtex.tsnn.train import TrainOptions, train_camera
 

@@ -18,11 +18,11 @@ import time
 
 import numpy as np
 
-from mvtex.camera import load_rig, resolve_rig
-from mvtex.dataset import load_dataset
-from mvtex.locate import collect_hypotheses
-from mvtex.recon import ReconOptions, resolve_ambiguity, triangulate_observations
-from mvtex.texcoords import open_texcoords
+from mvtex.data.dataset import load_dataset
+from mvtex.data.rig import load_rig, resolve_rig
+from mvtex.data.texcoords import open_texcoords
+from mvtex.recon.locate import collect_hypotheses
+from mvtex.recon.triangulate import ReconOptions, resolve_ambiguity, triangulate_observations
 
 
 def main(dataset: str, rig: str, texcoords: str, pose: int, repeats: int = 5) -> dict:

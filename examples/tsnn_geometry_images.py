@@ -28,9 +28,9 @@ def main() -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from mvtex.camera import builtin_rig_path, load_rig
-    from mvtex.dataset import load_dataset
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.atlas import AtlasSampler
     from mvtex.tsnn.geometry import CHANNEL_NAMES, geometry_images
     from mvtex.tsnn.model import UNet

@@ -97,13 +97,13 @@ def summary_of(result: dict) -> dict:
 def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: int) -> dict:
     import torch
 
-    from mvtex.camera import builtin_rig_path, load_rig
-    from mvtex.dataset import load_dataset
-    from mvtex.metrics import evaluate
-    from mvtex.sliding import SlideOptions
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.synth import SynthOptions, write_synth
-    from mvtex.texcoords import open_texcoords, save_texcoords
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
+    from mvtex.evaluation.evaluate import evaluate
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.synth.generate import SynthOptions, write_synth
     from mvtex.tsnn.predict import predict
     from mvtex.tsnn.train import TrainOptions, train
 

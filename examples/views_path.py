@@ -5,7 +5,7 @@ README's "Novel views and stereo previews" section.
 
 1. synthesize the garment, texture-slide the test poses from the `stereo` and `square4` rigs;
 2. the two-camera plot: SqrtMSE against t along left -> right (7 views) for the baseline,
-   blend, reconstruct and TS computed directly at each view (`mvtex.viewpath`);
+   blend, reconstruct and TS computed directly at each view (`mvtex.views.measure`);
 3. the four-camera map: 3x3 views over square4;
 4. stereo previews (blend and reconstruct) of every test pose: SSIM/PSNR against gt.
 
@@ -30,15 +30,15 @@ def main() -> None:
     parser.add_argument("--grid-poses", type=int, default=2)
     args = parser.parse_args()
 
-    from mvtex.camera import builtin_rig_path, load_rig
-    from mvtex.dataset import load_dataset
-    from mvtex.preview import PreviewOptions, stereo_preview
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
-    from mvtex.synth import SynthOptions, write_synth
-    from mvtex.texcoords import open_texcoords
-    from mvtex.viewpath import measure_views, plot_grid, plot_path
-    from mvtex.views import between_weights, grid_weights, view_names
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.synth.generate import SynthOptions, write_synth
+    from mvtex.views.cameras import between_weights, grid_weights, view_names
+    from mvtex.views.measure import measure_views, plot_grid, plot_path
+    from mvtex.views.preview import PreviewOptions, stereo_preview
 
     work = args.work
     data = work / "shirt"

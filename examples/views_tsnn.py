@@ -12,16 +12,16 @@ import json
 import sys
 from pathlib import Path
 
-from mvtex.camera import builtin_rig_path, load_rig
-from mvtex.dataset import load_dataset
-from mvtex.slide_jobs import slide_dataset
-from mvtex.sliding import SlideOptions
-from mvtex.synth import SynthOptions, write_synth
-from mvtex.texcoords import open_texcoords
+from mvtex.data.dataset import load_dataset
+from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.texcoords import open_texcoords
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.synth.generate import SynthOptions, write_synth
 from mvtex.tsnn.predict import predict
 from mvtex.tsnn.train import TrainOptions, train_camera
-from mvtex.viewpath import measure_views
-from mvtex.views import between_weights, view_names
+from mvtex.views.cameras import between_weights, view_names
+from mvtex.views.measure import measure_views
 
 
 def main(work: Path, total: int = 1200, path_poses: int = 12, epochs: int = 60) -> dict:

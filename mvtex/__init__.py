@@ -14,6 +14,6 @@ Layers (imports point down only; docs/architecture.md has the full map):
 
 __version__ = "0.1.0"
 
-from .errors import InputError
+from mvtex.util.errors import InputError
 
 __all__ = ["InputError", "__version__"]

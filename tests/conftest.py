@@ -9,13 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mvtex.camera import Rig, look_at
+from mvtex.data.camera import look_at
+from mvtex.data.rig import Rig
 
 
 @pytest.fixture(scope="session")
 def gl():
     """The only place the GL context is created; checks GL errors around the session."""
-    from mvtex.raster import GLContext
+    from mvtex.render.context import GLContext
 
     ctx = GLContext()
     assert ctx.error == "GL_NO_ERROR"
@@ -67,7 +68,7 @@ def front_rig() -> Rig:
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory, sheet):
     """A 6-pose dataset of the wavy sheet: gt folds 1.5 cm deep, inferred a flattened version."""
-    from mvtex.dataset import save_dataset
+    from mvtex.data.dataset import save_dataset
 
     faces, uv, rest = sheet
     phases = np.linspace(0, 2.5, 6)
@@ -80,9 +81,9 @@ def tiny_dataset(tmp_path_factory, sheet):
 
 
 def fail_slide_pose(monkeypatch, first_failure: int, error: BaseException) -> dict:
-    """Make `mvtex.slide_jobs.slide_pose` raise `error` from its `first_failure`-th call on
+    """Make `mvtex.sliding.dataset.slide_pose` raise `error` from its `first_failure`-th call on
     (1-based). Returns the call counter {"n": calls so far}; lowering it postpones failures."""
-    import mvtex.slide_jobs as jobs
+    import mvtex.sliding.dataset as jobs
 
     original = jobs.slide_pose
     calls = {"n": 0}

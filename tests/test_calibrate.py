@@ -13,9 +13,10 @@ import cv2
 import numpy as np
 import pytest
 
-from mvtex.board import BoardDetector, board_image, parse_board_spec
-from mvtex.camera import Camera, Rig, load_rig, save_rig
+from mvtex.calibration.board import BoardDetector, board_image, parse_board_spec
 from mvtex.cli import main
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig, load_rig, save_rig
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -123,7 +124,7 @@ def test_calibration_record_and_pictures(calibrated):
 
 
 def test_projection_matches_opencv():
-    from mvtex.calibrate import project_points
+    from mvtex.calibration.calibrate import project_points
 
     rng = np.random.default_rng(3)
     points = rng.uniform(-0.3, 0.3, (50, 3)) + [0, 0, 1.2]
@@ -278,7 +279,7 @@ def test_rig_undistort_and_alpha(tmp_path):
                "--json"])
     crop = load_rig(tmp_path / "crop.yaml")["cam0"]
     # alpha 0: every pixel of the undistorted image comes from inside the input image.
-    from mvtex.camera import undistort_image
+    from mvtex.data.camera import undistort_image
 
     white = undistort_image(np.full((240, 320), 255, np.uint8), camera, crop)
     assert white[2:-2, 2:-2].min() > 250
@@ -287,7 +288,7 @@ def test_rig_undistort_and_alpha(tmp_path):
 def test_rig_colmap_round_trip(tmp_path, capsys):
     import pycolmap
 
-    from mvtex.camera import builtin_rig_path
+    from mvtex.data.rig import builtin_rig_path
 
     rig = load_rig(builtin_rig_path("square4"))
     model = tmp_path / "model"
@@ -315,7 +316,7 @@ def test_rig_colmap_round_trip(tmp_path, capsys):
 
 
 def test_rig_summary_and_plot(tmp_path):
-    from mvtex.camera import builtin_rig_path
+    from mvtex.data.rig import builtin_rig_path
 
     rig = load_rig(builtin_rig_path("stereo"))
     summary = _run_json(["rig", "stereo", "--json"])

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mvtex.camera import Camera, Rig, builtin_rig_path, load_rig, look_at, save_rig
-from mvtex.errors import InputError
+from mvtex.data.camera import Camera, look_at
+from mvtex.data.rig import Rig, builtin_rig_path, load_rig, save_rig
+from mvtex.util.errors import InputError
 
 
 def random_camera(rng, name="c") -> Camera:
@@ -79,7 +80,7 @@ def test_builtin_rigs_frame_the_origin():
 def test_colmap_round_trip_and_pixel_convention(tmp_path):
     import pycolmap
 
-    from mvtex.colmap import read_rig, rig_reconstruction, write_rig
+    from mvtex.formats.colmap import read_rig, rig_reconstruction, write_rig
 
     rig = load_rig(builtin_rig_path("square4"))
     write_rig(rig, tmp_path / "model")

@@ -8,8 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
-from mvtex.camera import Camera, Rig, save_rig
 from mvtex.cli import main
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig, save_rig
 
 
 @pytest.fixture()
@@ -33,8 +34,8 @@ def test_help_and_version(capsys):
 
 @pytest.mark.gl
 def test_render_writes_pictures_and_raster_dumps(tmp_path, tiny_dataset, rig_file, gl, capsys, front_rig):
-    from mvtex.dataset import load_dataset
-    from mvtex.raster import interpolate, rasterize
+    from mvtex.data.dataset import load_dataset
+    from mvtex.render.raster import interpolate, rasterize
 
     code, out, err = run(capsys, "render", tiny_dataset, "--rig", rig_file, "--pose", 2, "--out", tmp_path / "r",
                          "--raster", "--quiet")
@@ -100,9 +101,8 @@ def test_bad_inputs_exit_2_naming_the_file(tmp_path, tiny_dataset, rig_file, cap
 
 
 def test_import_mismatched_vertex_counts(tmp_path, capsys):
-    from test_dataset import _write_obj
-
     from conftest import grid_mesh
+    from test_dataset import _write_obj
 
     faces, uv, rest = grid_mesh(5, 5)
     f2, uv2, rest2 = grid_mesh(6, 5)
@@ -150,7 +150,7 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
     for picture in summary["pictures"]:
         assert (out_dir / picture).stat().st_size > 0
     # The report links only files that exist; the preview's texcoords look more like gt than T_G.
-    from mvtex.report import missing_images
+    from mvtex.apps.report import missing_images
 
     report = (out_dir / "report.html").read_text()
     assert missing_images(report, out_dir) == [] and "<model-viewer" in report

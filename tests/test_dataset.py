@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import grid_mesh, wave
-from mvtex.dataset import default_split, load_dataset, parse_pose_spec, save_dataset
-from mvtex.errors import InputError
-from mvtex.mesh import edges, subdivide
+
+from mvtex.data.dataset import default_split, load_dataset, parse_pose_spec, save_dataset
+from mvtex.data.mesh import edges, subdivide
+from mvtex.util.errors import InputError
 
 
 def test_round_trip_is_memory_mapped(tiny_dataset):
@@ -81,7 +81,7 @@ def test_import_obj_sequences(tmp_path):
     for k in range(3):
         _write_obj(tmp_path / f"gt_{k:03d}.obj", wave(rest, 0.01, k), uv, faces)
         _write_obj(tmp_path / f"inf_{k:03d}.obj", wave(rest, 0.003, k), uv, faces)
-    from mvtex.dataset import import_sequences
+    from mvtex.data.importer import import_sequences
 
     out = import_sequences(tmp_path / "ds", str(tmp_path / "gt_*.obj"), str(tmp_path / "inf_*.obj"))
     ds = load_dataset(out)
@@ -96,7 +96,7 @@ def test_import_refuses_different_connectivity(tmp_path):
     _write_obj(tmp_path / "gt_1.obj", rest, uv, faces[:, [0, 2, 1]])
     _write_obj(tmp_path / "inf_0.obj", rest, uv, faces)
     _write_obj(tmp_path / "inf_1.obj", rest, uv, faces)
-    from mvtex.dataset import import_sequences
+    from mvtex.data.importer import import_sequences
 
     with pytest.raises(InputError, match="gt_1.obj: connectivity"):
         import_sequences(tmp_path / "ds", str(tmp_path / "gt_*.obj"), str(tmp_path / "inf_*.obj"))
@@ -164,7 +164,8 @@ def _mapped_rss_kb(path) -> int:
 
 
 def test_read_rows_reads_maps_through_the_file(tmp_path):
-    from mvtex.io import fingerprint, load_npy, read_rows
+    from mvtex.util.files import load_npy, read_rows
+    from mvtex.util.fingerprint import fingerprint
 
     values = np.random.default_rng(0).normal(size=(300, 50, 3)).astype(np.float32)
     np.save(tmp_path / "a.npy", values)
@@ -193,7 +194,7 @@ def test_read_rows_reads_maps_through_the_file(tmp_path):
 def test_write_npy_rows_writes_through_the_file(tmp_path):
     from numpy.lib.format import open_memmap
 
-    from mvtex.io import write_npy_rows
+    from mvtex.util.files import write_npy_rows
 
     rng = np.random.default_rng(1)
     for dtype, shape in ((np.float32, (40, 7, 2)), (np.bool_, (40, 7))):
@@ -217,7 +218,7 @@ def test_write_npy_rows_writes_through_the_file(tmp_path):
 def test_texcoord_rows_are_read_through_the_file(tmp_path):
     """Opening a texcoord set (which checks every displacement) and reading all its rows
     leaves nothing of its files resident through the maps, and returns copies."""
-    from mvtex.texcoords import open_texcoords, save_texcoords
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
 
     rng = np.random.default_rng(2)
     n, k = 500, 40

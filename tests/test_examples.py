@@ -37,7 +37,7 @@ def test_own_data_import(tmp_path, gl):
 def test_make_rigs_matches_shipped_rigs(tmp_path):
     import numpy as np
 
-    from mvtex.camera import builtin_rig_path, load_rig
+    from mvtex.data.rig import builtin_rig_path, load_rig
 
     rigs = load("make_rigs").rigs()
     for name, rig in rigs.items():
@@ -48,7 +48,7 @@ def test_make_rigs_matches_shipped_rigs(tmp_path):
 
 
 def test_fill_laplacian_compares_both_operators(tmp_path, gl, tiny_dataset, front_rig):
-    from mvtex.camera import save_rig
+    from mvtex.data.rig import save_rig
 
     save_rig(front_rig, tmp_path / "rig.yaml")
     result = load("fill_laplacian").main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0,3")
@@ -101,7 +101,7 @@ def test_profile_job_times_every_step(tmp_path, gl, tiny_dataset, front_rig):
     """Each wrapped function is the one the raster path calls (its timer runs), and the
     remainders (hit search and displacement step minus their timed calls) are not negative:
     a renamed or re-imported step would leave its timer at 0 or count time twice."""
-    from mvtex.camera import save_rig
+    from mvtex.data.rig import save_rig
 
     save_rig(front_rig, tmp_path / "rig.yaml")
     report, ms = load("profile_job").main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0:2", 1)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from mvtex.extrapolate import FillSystem, fill, solve_spd
+from mvtex.sliding.fill import FillSystem, fill, solve_spd
 
 
 def flat_patch(n: int = 400, seed: int = 0):
@@ -78,7 +78,7 @@ def test_component_without_assigned_vertex_gets_zero_and_groups_join_copies():
 def test_prebuilt_system_order_gives_the_same_solution_as_a_fresh_solve():
     """The elimination order precomputed by FillSystem must not change the solution:
     compare with a dense solve of the Dirichlet problem."""
-    from mvtex.extrapolate import HARMONIC_LAPLACIAN, laplacian_matrix
+    from mvtex.sliding.fill import HARMONIC_LAPLACIAN, laplacian_matrix
 
     faces, positions, _, rng = flat_patch(300, seed=3)
     positions = positions + np.c_[np.zeros((len(positions), 2)), 0.1 * np.sin(5 * positions[:, 0])]
@@ -102,7 +102,7 @@ def _folded_strip():
 
 
 def test_cotan_laplacian_is_the_textbook_operator_without_clamp():
-    from mvtex.extrapolate import laplacian_matrix
+    from mvtex.sliding.fill import laplacian_matrix
 
     faces, positions = _folded_strip()
     n = len(positions)
@@ -121,7 +121,7 @@ def test_cotan_laplacian_is_the_textbook_operator_without_clamp():
 
 
 def test_intrinsic_laplacian_has_nonnegative_weights_and_degenerate_faces_fall_back():
-    from mvtex.extrapolate import laplacian_matrix
+    from mvtex.sliding.fill import laplacian_matrix
 
     faces, positions = _folded_strip()
     L = laplacian_matrix(positions, faces, "intrinsic").toarray()

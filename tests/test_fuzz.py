@@ -17,8 +17,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mvtex.camera import save_rig
 from mvtex.cli import main
+from mvtex.data.rig import save_rig
 
 FUZZ = settings(max_examples=25, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -173,9 +173,8 @@ def test_damaged_texcoord_sets(tiny_dataset, rig_yaml, texcoord_set, gl, key, va
        line=st.one_of(st.none(), st.tuples(st.floats(0, 1), st.sampled_from(
            ["v nan 0 0", "v 1e400 0 0", "vt x y", "f 1 2 999999", "f -5 -6 -7", "v 1 2", "f 1/1", "o ../x"]))))
 def test_damaged_obj_imports(which, how, line):
-    from test_dataset import _write_obj
-
     from conftest import grid_mesh, wave
+    from test_dataset import _write_obj
 
     with sandbox() as root:
         faces, uv, rest = grid_mesh(4, 4)
@@ -191,7 +190,7 @@ def test_damaged_obj_imports(which, how, line):
         code = check(["import", root / "ds", "--gt", root / "g*.obj", "--inferred", root / "i*.obj", "--quiet"],
                      root, root / "ds", inputs)
         if code == 0:
-            from mvtex.dataset import load_dataset
+            from mvtex.data.dataset import load_dataset
 
             assert np.isfinite(np.asarray(load_dataset(root / "ds").gt)).all()
 

@@ -7,7 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mvtex.camera import Rig, look_at
+from mvtex.data.camera import look_at
+from mvtex.data.rig import Rig
 
 
 def random_rig(rng, count: int, skew: float = 0.0) -> Rig:
@@ -60,7 +61,7 @@ def scipy_optimum(cameras, pixels, weights, start):
 def test_project_points_matches_opencv_and_the_closed_form_with_skew():
     import cv2
 
-    from mvtex.geometry import project_points, reprojection_errors
+    from mvtex.recon.geometry import project_points, reprojection_errors
 
     rng = np.random.default_rng(2)
     cams = list(random_rig(rng, 3))
@@ -77,7 +78,7 @@ def test_project_points_matches_opencv_and_the_closed_form_with_skew():
 
 
 def test_projection_jacobian_matches_finite_differences_with_skew():
-    from mvtex.geometry import camera_arrays, project_points, projection_jacobian
+    from mvtex.recon.geometry import camera_arrays, project_points, projection_jacobian
 
     rng = np.random.default_rng(4)
     cams = list(random_rig(rng, 3, skew=40.0))
@@ -93,7 +94,7 @@ def test_projection_jacobian_matches_finite_differences_with_skew():
 
 
 def test_in_image_against_pixel_centres():
-    from mvtex.geometry import in_image
+    from mvtex.recon.geometry import in_image
 
     # A 4x3 image: pixel centres 0..3 by 0..2, edges half a pixel beyond them.
     pixels = np.array([[0, 0], [3, 2], [-0.49, 1], [-0.5, 1], [3.49, 0], [3.5, 0], [1, 2.6], [np.nan, 1]])
@@ -108,7 +109,7 @@ def test_in_image_against_pixel_centres():
 def test_dlt_matches_opencv_and_truth_without_noise():
     import cv2
 
-    from mvtex.geometry import triangulate_dlt
+    from mvtex.recon.geometry import triangulate_dlt
 
     rng = np.random.default_rng(0)
     rig = random_rig(rng, 2)
@@ -128,8 +129,8 @@ def test_dlt_matches_opencv_and_truth_without_noise():
 def test_refined_triangulation_matches_scipy_and_pycolmap_with_noise():
     """Noisy observations: Gauss-Newton reaches scipy's least-squares optimum of the same
     reprojection error; COLMAP's estimator (its own linear + refinement) lands next to it."""
-    from mvtex.colmap import triangulate_colmap
-    from mvtex.geometry import refine_points, reprojection_errors, triangulate_dlt
+    from mvtex.formats.colmap import triangulate_colmap
+    from mvtex.recon.geometry import refine_points, reprojection_errors, triangulate_dlt
 
     rng = np.random.default_rng(1)
     cams = list(random_rig(rng, 4))
@@ -155,7 +156,7 @@ def test_refined_triangulation_matches_scipy_and_pycolmap_with_noise():
 
 def test_gauss_newton_with_skew_reaches_the_scipy_optimum():
     """Skewed cameras: the Jacobian must carry K[0,1], or Gauss-Newton stops beside the optimum."""
-    from mvtex.geometry import refine_points
+    from mvtex.recon.geometry import refine_points
 
     rng = np.random.default_rng(6)
     cams = list(random_rig(rng, 3, skew=60.0))
@@ -170,8 +171,8 @@ def test_gauss_newton_with_skew_reaches_the_scipy_optimum():
 def test_pycolmap_engine_agrees_with_mvtex_engine():
     """The same tracks through both engines: the same least-squares points (< 1e-6 m), and
     both at scipy's optimum."""
-    from mvtex.colmap import triangulate_tracks
-    from mvtex.geometry import triangulate_points
+    from mvtex.formats.colmap import triangulate_tracks
+    from mvtex.recon.geometry import triangulate_points
 
     rng = np.random.default_rng(7)
     cams = list(random_rig(rng, 5))
@@ -187,7 +188,7 @@ def test_pycolmap_engine_agrees_with_mvtex_engine():
 
 
 def test_least_disagreement_picks_the_consistent_candidate():
-    from mvtex.geometry import least_disagreement
+    from mvtex.recon.geometry import least_disagreement
 
     rng = np.random.default_rng(8)
     cams = list(random_rig(rng, 3))
@@ -205,9 +206,9 @@ def test_least_disagreement_picks_the_consistent_candidate():
 
 def test_surface_distance_matches_brute_force(sheet):
     import trimesh.triangles
-
     from conftest import wave
-    from mvtex.geometry import surface_distance
+
+    from mvtex.recon.geometry import surface_distance
 
     faces, _, rest = sheet
     positions = wave(rest, 0.015, 0.3)
@@ -221,7 +222,7 @@ def test_surface_distance_matches_brute_force(sheet):
 
 
 def test_rmse_closed_form():
-    from mvtex.geometry import rmse
+    from mvtex.recon.geometry import rmse
 
     a = np.zeros((4, 3))
     b = np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [1.0, 2.0, 2.0]])
@@ -234,9 +235,9 @@ def test_rmse_closed_form():
 # -- input checks -----------------------------------------------------------------------------
 
 def test_shape_checks_name_the_argument_and_echo_the_shape():
-    from mvtex.colmap import triangulate_tracks
-    from mvtex.geometry import (check_shape, project_points, refine_points, reprojection_errors, rmse,
-                                triangulate_dlt)
+    from mvtex.formats.colmap import triangulate_tracks
+    from mvtex.recon.geometry import project_points, refine_points, reprojection_errors, rmse, triangulate_dlt
+    from mvtex.util.checks import check_shape
 
     cams = list(random_rig(np.random.default_rng(0), 3))
     with pytest.raises(ValueError, match=r"pixels must have shape \(N,3,2\), got \(5, 2, 2\)"):

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-
 from conftest import grid_mesh, wave
-from mvtex.mesh import apply_extension, apply_parent, extension_matrix, face_neighbours, rms_distance, subdivide
+
+from mvtex.data.mesh import apply_extension, apply_parent, extension_matrix, face_neighbours, rms_distance, subdivide
 
 
 def test_face_neighbours_match_trimesh_face_adjacency():

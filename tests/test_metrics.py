@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mvtex.dataset import load_dataset
-from mvtex.metrics import evaluate, uv_error_image
-from mvtex.raster import rasterize
-from mvtex.texcoords import save_texcoords
-from mvtex.viz import heatmap
+from mvtex.data.dataset import load_dataset
+from mvtex.data.texcoords import save_texcoords
+from mvtex.evaluation.evaluate import evaluate
+from mvtex.evaluation.uv import uv_error_image
+from mvtex.render.pictures import heatmap
+from mvtex.render.raster import rasterize
 
 pytestmark = pytest.mark.gl
 
@@ -73,8 +74,8 @@ def test_baseline_and_texcoords_match_direct_computation(gl, tiny_dataset, front
 
 
 def test_sliding_beats_baseline_on_tiny_dataset(gl, tiny_dataset, front_rig, tmp_path):
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
     tc = slide_dataset(tiny_dataset, front_rig, tmp_path / "ts", poses=[0, 3], options=SlideOptions(subdiv=1), progress=False)
     result = evaluate(tiny_dataset, front_rig, tc, progress=False)
@@ -115,7 +116,7 @@ def two_chart_sheet():
 def test_same_chart_statistic_excludes_chart_boundaries(gl, front_rig, tmp_path):
     """Where the meshes show different charts the atlas distance is large; the same-chart
     statistic leaves exactly those pixels out (labels from the construction, not from mvtex)."""
-    from mvtex.dataset import save_dataset
+    from mvtex.data.dataset import save_dataset
 
     faces, uv, rest, face_chart = two_chart_sheet()
     gt = rest[None].astype(np.float32)  # as stored in the dataset
@@ -149,7 +150,7 @@ SHEET_SIZE = 0.6  # conftest.grid_mesh: uv = (xy + size/2) / size, rest in the z
 def test_material_error_is_scale_times_uv_error_on_flat_sheet(gl, tiny_dataset, front_rig, tmp_path):
     """Rest = flat sheet, uv = its positions / 0.6 m: every uv difference is a material
     difference of exactly 0.6 m per uv unit, so material error = 0.6 x uv error per pixel."""
-    from mvtex.metrics import MaterialMap, material_error_image
+    from mvtex.evaluation.material import MaterialMap, material_error_image
 
     ds = load_dataset(tiny_dataset)
     assert np.allclose(ds.uv * SHEET_SIZE - SHEET_SIZE / 2, ds.rest[:, :2], atol=1e-6)
@@ -192,9 +193,9 @@ def test_material_error_matches_ray_cast_and_brute_force_uv_lookup(gl, front_rig
     per-pixel material error against exact ray casts (trimesh) and a brute-force search of
     the containing uv triangle."""
     import trimesh
-
     from conftest import grid_mesh, wave
-    from mvtex.metrics import MaterialMap, material_error_image
+
+    from mvtex.evaluation.material import MaterialMap, material_error_image
 
     faces, uv, flat = grid_mesh(18, 14, 0.6)
     # Split the sheet at its middle column into two charts: the right half's vertices on
@@ -276,7 +277,7 @@ def test_material_error_matches_ray_cast_and_brute_force_uv_lookup(gl, front_rig
 
 
 def test_material_map_clamps_off_layout_points_to_the_nearest_boundary_point(gl):
-    from mvtex.metrics import MaterialMap
+    from mvtex.evaluation.material import MaterialMap
 
     uv = np.array([[0.2, 0.2], [0.6, 0.2], [0.6, 0.6], [0.2, 0.6]])
     faces = np.array([[0, 1, 2], [0, 2, 3]])
@@ -292,7 +293,8 @@ def test_material_map_clamps_off_layout_points_to_the_nearest_boundary_point(gl)
 
 def test_dataset_without_rest_reports_null_material_error(gl, sheet, front_rig, tmp_path):
     from conftest import wave
-    from mvtex.dataset import save_dataset
+
+    from mvtex.data.dataset import save_dataset
 
     faces, uv, rest = sheet
     gt = np.stack([wave(rest, 0.015, p) for p in (0.0, 1.0, 2.0)])

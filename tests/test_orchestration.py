@@ -11,10 +11,11 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import fail_slide_pose
-from mvtex.camera import look_at, save_rig
+
 from mvtex.cli import build_parser, main
+from mvtex.data.camera import look_at
+from mvtex.data.rig import save_rig
 
 
 def run(capsys, *argv):
@@ -52,7 +53,7 @@ def test_version(capsys):
 
 
 def test_synth_json(tmp_path, capsys):
-    from mvtex.dataset import load_dataset
+    from mvtex.data.dataset import load_dataset
 
     stats = run_json(capsys, "synth", tmp_path / "shirt", "--poses", 10)
     ds = load_dataset(tmp_path / "shirt")
@@ -64,7 +65,7 @@ def test_synth_json(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def norest(tmp_path_factory, tiny_dataset):
     """The tiny dataset without a rest shape: the reference shape is then gt of pose 0."""
-    from mvtex.dataset import load_dataset, save_dataset
+    from mvtex.data.dataset import load_dataset, save_dataset
 
     ds = load_dataset(tiny_dataset)
     path = tmp_path_factory.mktemp("norest") / "sheet"
@@ -86,7 +87,7 @@ def test_slide_is_independent_of_workers_and_pose_subset(gl, norest, rig_path, t
     """Without a rest shape the topology, seam groups, fill Laplacian and edge breaking are
     measured on gt of pose 0 in every process: pose 3 gets bit-identical d and assigned
     flags with 1 or 2 worker processes and in two different pose subsets."""
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
 
     runs = {"one": ("1,3,4", 1), "two": ("1,3,4", 2), "other": ("3,5", 1)}
     sets = {}
@@ -110,9 +111,9 @@ def test_slide_is_independent_of_workers_and_pose_subset(gl, norest, rig_path, t
 
 @pytest.mark.gl
 def test_resume_starts_over_when_the_reference_shape_changed(gl, norest, rig_path, tmp_path, monkeypatch, capsys):
-    import mvtex.slide_jobs as jobs
-    from mvtex.dataset import load_dataset
-    from mvtex.sliding import SlideOptions
+    import mvtex.sliding.dataset as jobs
+    from mvtex.data.dataset import load_dataset
+    from mvtex.sliding.options import SlideOptions
 
     monkeypatch.setattr(jobs, "_CHUNK", 1)
     original = jobs.slide_pose
@@ -137,7 +138,7 @@ def slid(tmp_path_factory, tiny_dataset, rig_path):
 
 @pytest.mark.gl
 def test_eval_json_matches_the_library(gl, tiny_dataset, rig_path, slid, capsys):
-    from mvtex.metrics import evaluate
+    from mvtex.evaluation.evaluate import evaluate
 
     result = run_json(capsys, "eval", tiny_dataset, "--rig", rig_path, "--texcoords", slid, "--poses", "0,4", "--quiet")
     assert result["num_images"] == 4 and set(result["per_camera"]) == {"a", "b"}
@@ -159,8 +160,8 @@ def test_triangulate_json(gl, tiny_dataset, rig_path, slid, tmp_path, capsys):
 @pytest.mark.gl
 def test_train_json_then_predict(gl, tiny_dataset, slid, tmp_path, capsys):
     pytest.importorskip("torch")
-    from mvtex.dataset import load_dataset
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.predict import load_model, predict_displacements
 
     out = tmp_path / "model"
@@ -181,7 +182,7 @@ def test_import_through_main(tmp_path, capsys):
     from conftest import grid_mesh, wave
     from test_dataset import _write_obj
 
-    from mvtex.dataset import load_dataset
+    from mvtex.data.dataset import load_dataset
 
     faces, uv, rest = grid_mesh(6, 5)
     for k in range(2):
@@ -222,8 +223,9 @@ def _two_chart_scene():
 
 @pytest.mark.gl
 def test_cross_chart_keeps_hits_on_the_other_chart(gl):
-    from mvtex.mesh import subdivide, uv_charts
-    from mvtex.sliding import SlideOptions, slide_pose
+    from mvtex.data.mesh import subdivide, uv_charts
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.sliding.pose import slide_pose
 
     faces, uv, gt, inferred, camera = _two_chart_scene()
     sub = subdivide(faces, len(uv), 0)
@@ -251,8 +253,9 @@ def test_cross_chart_keeps_hits_on_the_other_chart(gl):
 
 @pytest.mark.gl
 def test_max_displacement_unassigns_exactly_the_large_ones(gl):
-    from mvtex.mesh import subdivide
-    from mvtex.sliding import SlideOptions, slide_pose
+    from mvtex.data.mesh import subdivide
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.sliding.pose import slide_pose
 
     faces, uv, gt, inferred, camera = _two_chart_scene()
     sub = subdivide(faces, len(uv), 0)

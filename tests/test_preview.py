@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from mvtex.camera import builtin_rig_path, load_rig, save_rig
 from mvtex.cli import main
-from mvtex.preview import anaglyph, eye_cameras, garment_box, image_scores
-from mvtex.views import interpolate_camera
+from mvtex.data.rig import builtin_rig_path, load_rig, save_rig
+from mvtex.views.cameras import interpolate_camera
+from mvtex.views.preview import anaglyph, eye_cameras, garment_box, image_scores
 
 
 def run(capsys, *argv):
@@ -56,8 +56,8 @@ def test_scores_and_anaglyph_closed_forms():
 
 @pytest.fixture(scope="module")
 def sheet_set(tmp_path_factory, tiny_dataset, front_rig, gl):
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
     root = tmp_path_factory.mktemp("preview")
     save_rig(front_rig, root / "rig.yaml")
@@ -101,7 +101,7 @@ def test_preview_bad_input(tmp_path, sheet_set, capsys):
     assert code == 2 and "mvtex did not write" in err and len(err.strip().splitlines()) == 1
     assert (taken / "mine.txt").read_text() == "not mvtex's"
     # One run at a time per output folder.
-    from mvtex.io import claim_output
+    from mvtex.util.output import claim_output
 
     with claim_output(tmp_path / "busy", "preview"):
         code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out",

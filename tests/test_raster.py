@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import grid_mesh, wave
-from mvtex.camera import look_at
-from mvtex.raster import interpolate, rasterize, rasterize_uv, render_textured
+
+from mvtex.data.camera import look_at
+from mvtex.render.raster import interpolate, rasterize, rasterize_uv
+from mvtex.render.shading import render_textured
 
 pytestmark = pytest.mark.gl
 
@@ -144,7 +145,7 @@ def test_textured_render_shows_the_texture(gl, scene):
 
 
 def test_distortion_is_refused(gl, scene):
-    from mvtex.camera import Camera
+    from mvtex.data.camera import Camera
 
     positions, faces, uv, cam = scene
     bad = Camera("d", cam.width, cam.height, K=cam.K, R=cam.R, t=cam.t, dist=[0.1, 0, 0, 0, 0])

@@ -9,11 +9,12 @@ import subprocess
 
 import numpy as np
 import pytest
-
 from conftest import grid_mesh, wave
-from mvtex.camera import Rig, look_at
-from mvtex.errors import InputError
-from mvtex.mesh import barycentric_2d, subdivide
+
+from mvtex.data.camera import look_at
+from mvtex.data.mesh import barycentric_2d, subdivide
+from mvtex.data.rig import Rig
+from mvtex.util.errors import InputError
 
 
 def three_camera_rig(width: int = 160, height: int = 120) -> Rig:
@@ -29,7 +30,7 @@ def three_camera_rig(width: int = 160, height: int = 120) -> Rig:
 
 def test_locate_uv_matches_brute_force(gl):
     """Every (point, containing triangle) pair, also where jittered texcoords fold over."""
-    from mvtex.locate import locate_uv
+    from mvtex.recon.locate import locate_uv
 
     rng = np.random.default_rng(3)
     faces, uv, _ = grid_mesh(20, 18)
@@ -52,8 +53,8 @@ def test_locate_uv_matches_brute_force(gl):
 # -- triangulation -----------------------------------------------------------------------------
 
 def test_taubin_keeps_constants_and_damps_noise():
-    from mvtex.mesh import adjacency
-    from mvtex.recon import taubin_smooth
+    from mvtex.data.mesh import adjacency
+    from mvtex.recon.triangulate import taubin_smooth
 
     faces, uv, _ = grid_mesh(30, 30)
     adj = adjacency(faces, len(uv))
@@ -70,7 +71,7 @@ def test_taubin_keeps_constants_and_damps_noise():
 
 def test_identity_reproduces_gt(gl):
     """inferred = gt, T_N = T_G: triangulated vertices are the gt vertices."""
-    from mvtex.recon import reconstruct
+    from mvtex.recon.triangulate import reconstruct
 
     faces, uv, rest = grid_mesh(30, 26)
     gt = wave(rest, 0.015, 0.4)
@@ -90,8 +91,8 @@ def test_identity_reproduces_gt(gl):
 
 def test_identity_on_subdivided_mesh(gl):
     """Same on a subdivided texcoord mesh: the gt vertex lies on its midpoint triangles."""
-    from mvtex.mesh import apply_parent
-    from mvtex.recon import reconstruct
+    from mvtex.data.mesh import apply_parent
+    from mvtex.recon.triangulate import reconstruct
 
     faces, uv, rest = grid_mesh(24, 20)
     gt = wave(rest, 0.015, 1.1)
@@ -109,8 +110,8 @@ def test_fold_over_hypotheses_are_disambiguated(gl):
     """Camera b's texcoords fold over (one vertex dragged across its neighbours): several
     triangles contain some T_G. With two cameras no observation can be voted out, so only
     the choice of the hypotheses whose rays agree gives back the gt points."""
-    from mvtex.locate import locate_uv
-    from mvtex.recon import reconstruct
+    from mvtex.recon.locate import locate_uv
+    from mvtex.recon.triangulate import reconstruct
 
     faces, uv, rest = grid_mesh(30, 26)
     gt = wave(rest, 0.015, 0.4)
@@ -133,7 +134,7 @@ def test_untriangulated_get_the_extended_displacement(gl):
     ray through an inferred vertex meets the plane z = 0). Triangulation recovers gt; the
     vertices seen by < 2 cameras get X_N + the harmonic extension of the constant
     displacement, i.e. gt as well."""
-    from mvtex.recon import reconstruct
+    from mvtex.recon.triangulate import reconstruct
 
     size = 0.9
     faces, uv, rest = grid_mesh(36, 30, size=size)
@@ -153,7 +154,7 @@ def test_untriangulated_get_the_extended_displacement(gl):
 def test_engines_agree_on_a_noisy_reconstruction(gl):
     """Noisy texcoords, three cameras: `engine="pycolmap"` triangulates the same vertices
     to the same points as the default engine (< 1e-6 m), through every step."""
-    from mvtex.recon import ReconOptions, reconstruct
+    from mvtex.recon.triangulate import ReconOptions, reconstruct
 
     faces, uv, rest = grid_mesh(24, 20)
     gt = wave(rest, 0.015, 0.4)
@@ -176,7 +177,7 @@ def test_engines_agree_on_a_noisy_reconstruction(gl):
 
 
 def test_reconstruct_input_errors():
-    from mvtex.recon import ReconOptions, reconstruct
+    from mvtex.recon.triangulate import ReconOptions, reconstruct
 
     faces, uv, rest = grid_mesh(6, 5)
     rig = three_camera_rig()
@@ -195,9 +196,9 @@ def test_reconstruct_input_errors():
 @pytest.fixture(scope="module")
 def identity_run(gl, tmp_path_factory, tiny_dataset):
     """An identity texcoord set (inferred replaced by gt, d = 0) and its triangulation."""
-    from mvtex.dataset import load_dataset, save_dataset
-    from mvtex.recon import triangulate_pose
-    from mvtex.texcoords import open_texcoords, save_texcoords
+    from mvtex.data.dataset import load_dataset, save_dataset
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
+    from mvtex.recon.pose import triangulate_pose
 
     base = load_dataset(tiny_dataset)
     root = tmp_path_factory.mktemp("recon")
@@ -218,10 +219,10 @@ def identity_run(gl, tmp_path_factory, tiny_dataset):
 def test_slide_with_inferred_equal_gt_reproduces_gt(identity_run):
     """Texture sliding with inferred = gt assigns T_N = T_G (exact ray casting onto itself);
     triangulating that texcoord set gives back gt, with and without subdivision."""
-    from mvtex.recon import triangulate_pose
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.recon.pose import triangulate_pose
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
     ds, rig, tc, report, out = identity_run
     for subdiv in (0, 1):
@@ -266,7 +267,7 @@ def test_ply_loads_with_trimesh(identity_run):
 def test_colmap_model_reads_back(identity_run):
     import pycolmap
 
-    from mvtex.colmap import model_summary
+    from mvtex.formats.colmap import model_summary
 
     ds, rig, tc, report, out = identity_run
     rec = pycolmap.Reconstruction(str(out / "colmap"))
@@ -284,9 +285,9 @@ def test_colmap_model_reads_back(identity_run):
 
 def test_colmap_model_reprojection_equals_ours_with_noise(gl, tmp_path):
     """Noisy texcoords: COLMAP's reprojection error of the exported model equals ours."""
-    from mvtex.colmap import model_summary
-    from mvtex.export import export_reconstruction
-    from mvtex.recon import ReconOptions, reconstruct
+    from mvtex.formats.colmap import model_summary
+    from mvtex.recon.export import export_reconstruction
+    from mvtex.recon.triangulate import ReconOptions, reconstruct
 
     faces, uv, rest = grid_mesh(24, 20)
     gt = wave(rest, 0.015, 0.4)
@@ -314,7 +315,7 @@ def test_colmap_binary_reads_model(identity_run):
 
 
 def test_bad_inputs(identity_run):
-    from mvtex.recon import triangulate_pose
+    from mvtex.recon.pose import triangulate_pose
 
     ds, rig, tc, report, out = identity_run
     with pytest.raises(InputError, match="texcoords.json: pose 0"):
@@ -329,9 +330,9 @@ def test_triangulate_smooth_through_the_command_line(identity_run, tmp_path, cap
     reconstruction toward gt's."""
     import json
 
-    from mvtex.camera import save_rig
     from mvtex.cli import main
-    from mvtex.texcoords import save_texcoords
+    from mvtex.data.rig import save_rig
+    from mvtex.data.texcoords import save_texcoords
 
     ds, rig, tc, report, out = identity_run
     n = ds.num_vertices

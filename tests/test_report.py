@@ -12,7 +12,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from mvtex.report import copy_viewer, export_glb, figure, missing_images, model_view, page, table, write_html
+from mvtex.apps.report import copy_viewer, figure, missing_images, model_view, page, table, write_html
+from mvtex.formats.glb import export_glb
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
@@ -59,7 +60,7 @@ def test_missing_images_finds_absent_files(tmp_path):
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed")
 def test_report_opens_in_headless_chromium(tmp_path, sheet, gl):
-    from mvtex.io import save_png
+    from mvtex.util.files import save_png
 
     faces, uv, rest = sheet
     out = tmp_path / "report"

@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mvtex.camera import Camera, Rig, save_rig
 from mvtex.cli import main
-from mvtex.errors import InputError
-from mvtex.io import MARKER, claim_output, replace_path
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig, save_rig
+from mvtex.util.errors import InputError
+from mvtex.util.output import MARKER, claim_output, replace_path
 
 MVTEX = [sys.executable, "-m", "mvtex"]
 
@@ -91,9 +92,8 @@ def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_
         "demo": ["demo", "--out", out],
     }[command]
     if command == "import":
-        from test_dataset import _write_obj
-
         from conftest import grid_mesh
+        from test_dataset import _write_obj
 
         faces, uv, rest = grid_mesh(4, 4)
         _write_obj(tmp_path / "g.obj", rest, uv, faces)
@@ -176,15 +176,15 @@ def test_replacing_renames_aside_before_deleting(tmp_path, monkeypatch):
 # -- slide: resume keys, done masks, finishing ---------------------------------------------
 
 def _slide(ds, rig, out, **kw):
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
     return slide_dataset(ds, rig, out, poses=[0, 1, 2, 3], options=SlideOptions(subdiv=0), workers=1,
                          progress=False, **kw)
 
 
 def _interrupt_after(monkeypatch, calls: int):
-    import mvtex.slide_jobs as sliding
+    import mvtex.sliding.dataset as sliding
 
     real = sliding._slide_chunk
     count = {"n": 0}
@@ -229,17 +229,17 @@ def test_resume_key_includes_the_content_of_the_arrays(tmp_path, tiny_dataset, f
 
 def test_a_failure_while_finishing_leaves_a_partial_the_rerun_completes(tmp_path, tiny_dataset, front_rig,
                                                                         monkeypatch, gl):
-    import mvtex.io
-    import mvtex.slide_jobs as sliding
+    import mvtex.sliding.dataset as sliding
+    import mvtex.util.output
 
-    real = mvtex.io.replace_path
+    real = mvtex.util.output.replace_path
 
     def fail(src, dst):  # only the last step: renaming the finished set in
         if Path(src).name == "tc.partial":
             raise OSError(28, "No space left on device", str(dst))
         return real(src, dst)
 
-    monkeypatch.setattr(mvtex.io, "replace_path", fail)
+    monkeypatch.setattr(mvtex.util.output, "replace_path", fail)
     with pytest.raises(OSError):
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     monkeypatch.undo()
@@ -329,9 +329,9 @@ def _fake_model(path: Path, dataset) -> Path:
     """A model directory made by the library (random weights), small."""
     from safetensors.torch import save_file
 
-    from mvtex.dataset import load_dataset
+    from mvtex.data.dataset import load_dataset
     from mvtex.tsnn.model import TSNN, ModelConfig
-    from mvtex.tsnn.train import MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint
+    from mvtex.tsnn.modeldir import MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint
 
     ds = load_dataset(dataset)
     config = ModelConfig(pose_dim=ds.poses.shape[1], resolution=16, width=8, min_width=4)
@@ -477,7 +477,7 @@ def test_empty_validation_split_exits_2(tmp_path, tiny_dataset, slid, capsys):
 
 
 def test_json_output_is_strict(tmp_path, slid, tiny_dataset, rig_file, capsys):
-    from mvtex.io import dumps_strict
+    from mvtex.util.files import dumps_strict
 
     assert json.loads(dumps_strict({"a": float("nan"), "b": [np.float32(np.inf), 1.5]})) == {"a": None, "b": [None, 1.5]}
     code, out, err = run(capsys, "eval", tiny_dataset, "--rig", rig_file, "--texcoords", slid, "--json", "--quiet")
@@ -550,7 +550,8 @@ def slow_dataset(tmp_path_factory, sheet):
 def _wave_sheet(path: Path, sheet, num_poses: int) -> Path:
     """A dataset of the sheet waving through `num_poses` phases (gt 15 mm, inferred 4 mm waves)."""
     from conftest import wave
-    from mvtex.dataset import save_dataset
+
+    from mvtex.data.dataset import save_dataset
 
     faces, uv, rest = sheet
     phases = np.linspace(0, 6, num_poses)
@@ -623,8 +624,8 @@ def test_eval_with_workers_equals_one_process(reference_set, slow_dataset, capsy
 @pytest.mark.slow
 def test_dask_local_cluster_slide_equals_one_process(tmp_path, reference_set, slow_dataset):
     distributed = pytest.importorskip("dask.distributed")
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         slide_dataset(slow_dataset, reference_set / "rig.yaml", tmp_path / "tc", poses=list(range(40)),
@@ -640,9 +641,9 @@ def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path
     needs its own GL context and state (a shared one crashed or mixed results). Slide,
     eval and views."""
     distributed = pytest.importorskip("dask.distributed")
-    from mvtex.metrics import evaluate
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
+    from mvtex.evaluation.evaluate import evaluate
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
     rig = reference_set / "rig.yaml"
     with distributed.LocalCluster(n_workers=1, threads_per_worker=4, processes=True, dashboard_address=None) as cluster:
@@ -667,7 +668,7 @@ def _bad_input(x: int) -> int:
 
 def test_an_input_error_in_a_worker_process_reaches_the_command_intact():
     """InputError pickles by (path, problem), so a worker's error is the caller's."""
-    from mvtex.parallel import map_unordered
+    from mvtex.util.parallel import map_unordered
 
     err = pickle.loads(pickle.dumps(InputError("a/b.npy", "NaN  at\nrow 3")))
     assert (err.path, err.problem, str(err)) == ("a/b.npy", "NaN at row 3", "a/b.npy: NaN at row 3")
@@ -697,7 +698,7 @@ def _square(x: int) -> int:
 
 @pytest.mark.parametrize("backend", ["here", "processes", "dask"])
 def test_map_unordered_returns_every_task_once(backend):
-    from mvtex.parallel import map_unordered
+    from mvtex.util.parallel import map_unordered
 
     tasks = [(i,) for i in range(23)]  # more than the tasks kept in flight
     if backend == "dask":
@@ -711,14 +712,14 @@ def test_map_unordered_returns_every_task_once(backend):
 
 
 def test_slide_refuses_to_finish_when_a_backend_loses_tasks(tmp_path, tiny_dataset, front_rig, monkeypatch, gl):
-    import mvtex.parallel
+    import mvtex.util.parallel
 
-    real = mvtex.parallel.map_unordered
+    real = mvtex.util.parallel.map_unordered
 
     def lossy(fn, tasks, **kw):
         return real(fn, list(tasks)[1:], **kw)
 
-    monkeypatch.setattr(mvtex.parallel, "map_unordered", lossy)
+    monkeypatch.setattr(mvtex.util.parallel, "map_unordered", lossy)
     with pytest.raises(RuntimeError, match="were not computed"):
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     assert not (tmp_path / "tc").exists() and (tmp_path / "tc.partial").is_dir()
@@ -726,9 +727,9 @@ def test_slide_refuses_to_finish_when_a_backend_loses_tasks(tmp_path, tiny_datas
 
 def test_camera_names_from_a_colmap_model_are_checked(tmp_path):
     pytest.importorskip("pycolmap")
-    from mvtex.camera import look_at
-    from mvtex.colmap import read_rig, rig_reconstruction
-    from mvtex.errors import InputError
+    from mvtex.data.camera import look_at
+    from mvtex.formats.colmap import read_rig, rig_reconstruction
+    from mvtex.util.errors import InputError
 
     rec, ids = rig_reconstruction(Rig((look_at("a", (0, 0, 1), (0, 0, 0), width=64, height=48, focal=50.0),)))
     rec.images[ids["a"]].name = "bad name.png"
@@ -751,9 +752,8 @@ def test_eval_heatmaps_do_not_go_into_a_foreign_folder(tmp_path, slid, tiny_data
 @pytest.mark.parametrize("content,needle", [(b"\x93NUMPY garbage", "not a readable .npy"),
                                             (b"1 2\n3 nan\n", "NaN or infinite"), (b"1 2\n3\n", "cannot read poses")])
 def test_import_pose_files(content, needle, tmp_path, capsys):
-    from test_dataset import _write_obj
-
     from conftest import grid_mesh
+    from test_dataset import _write_obj
 
     faces, uv, rest = grid_mesh(4, 4)
     for k in range(2):
@@ -770,9 +770,8 @@ def test_import_pose_files(content, needle, tmp_path, capsys):
 def test_every_writer_marks_its_output_and_may_replace_it(command, tmp_path, tiny_dataset, rig_file, slid, capsys):
     out = tmp_path / "out"
     if command == "import":
-        from test_dataset import _write_obj
-
         from conftest import grid_mesh
+        from test_dataset import _write_obj
 
         faces, uv, rest = grid_mesh(4, 4)
         _write_obj(tmp_path / "g.obj", rest, uv, faces)
@@ -853,8 +852,8 @@ def test_evicting_cached_render_targets_leaves_no_gl_error(gl, sheet):
     """More image sizes than the context keeps render targets for: releasing the oldest
     must not leave GL pointing at a released framebuffer (the next draw would report an
     error)."""
-    from mvtex.camera import look_at
-    from mvtex.raster import rasterize
+    from mvtex.data.camera import look_at
+    from mvtex.render.raster import rasterize
 
     faces, uv, rest = sheet
     assert gl.error == "GL_NO_ERROR"

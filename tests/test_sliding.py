@@ -7,12 +7,14 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import fail_slide_pose
-from mvtex.camera import Rig, look_at
-from mvtex.mesh import apply_parent, subdivide
-from mvtex.slide_jobs import slide_dataset
-from mvtex.sliding import SlideOptions, build_topology, slide_pose
+
+from mvtex.data.camera import look_at
+from mvtex.data.mesh import apply_parent, subdivide
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.sliding.pose import slide_pose
+from mvtex.sliding.topology import build_topology
 
 pytestmark = pytest.mark.gl
 
@@ -102,7 +104,7 @@ def test_displacements_equal_brute_force_ray_cast(gl, oblique, subdiv):
 def test_pair_raster_subface_ids_match_raster_of_subdivided_mesh(gl, oblique):
     """The pair raster draws base faces only and reports subdivided face ids from the
     pixel barycentrics: compare with `raster.rasterize` of the subdivided mesh itself."""
-    from mvtex.raster import rasterize, rasterize_pair
+    from mvtex.render.raster import rasterize, rasterize_pair
 
     faces, uv, gt, inferred = folded_sheet(20, 20)
     # The same sheet enlarged about its centre: drawn first, it leaves ids and depths all
@@ -123,8 +125,8 @@ def test_pair_raster_subface_ids_match_raster_of_subdivided_mesh(gl, oblique):
 
 
 def test_identity_gives_zero_displacement_and_zero_error(gl):
-    from mvtex.metrics import uv_error_image
-    from mvtex.synth import deform, make_garment, sample_poses
+    from mvtex.evaluation.uv import uv_error_image
+    from mvtex.synth.shirt import deform, make_garment, sample_poses
 
     faces, uv, rest = make_garment()
     pose = sample_poses(3, 1)[1]
@@ -141,7 +143,7 @@ def test_identity_gives_zero_displacement_and_zero_error(gl):
 
 
 def _same_set(a, b):
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
 
     ta, tb = open_texcoords(a), open_texcoords(b)
     assert ta.poses == tb.poses and ta.cameras == tb.cameras
@@ -152,8 +154,8 @@ def _same_set(a, b):
 
 
 def test_slide_dataset_resumes_after_interruption(gl, tiny_dataset, front_rig, tmp_path, monkeypatch):
-    import mvtex.slide_jobs as jobs
-    from mvtex.texcoords import open_texcoords
+    import mvtex.sliding.dataset as jobs
+    from mvtex.data.texcoords import open_texcoords
 
     options = SlideOptions(subdiv=1)
     poses = [0, 2, 3, 5]
@@ -178,7 +180,7 @@ def test_slide_dataset_resumes_after_interruption(gl, tiny_dataset, front_rig, t
 
 
 def test_slide_dataset_starts_over_with_other_options(gl, tiny_dataset, front_rig, tmp_path, monkeypatch, capsys):
-    import mvtex.slide_jobs as jobs
+    import mvtex.sliding.dataset as jobs
 
     poses = [1, 4]
     monkeypatch.setattr(jobs, "_CHUNK", 1)
@@ -223,7 +225,7 @@ def test_views_into_an_opening_are_assigned(gl):
     """Looking down into a tube, the far wall is seen from the inside: its hits on the
     (back-facing) inside of gt are the right ones and must be kept; with inferred = gt
     they reproduce T_G."""
-    from mvtex.sliding import seen_from_inside
+    from mvtex.sliding.hits import seen_from_inside
 
     positions, faces, uv = open_tube()
     camera = look_at("top", (0.0, 0.9, 0.6), (0, 0, 0), width=160, height=160, focal=180.0)
@@ -239,7 +241,7 @@ def test_views_into_an_opening_are_assigned(gl):
 
 
 def _hits_both_ways(gl, gt, inferred, faces, uv, reference, camera, options):
-    from mvtex.sliding import find_hits_raster
+    from mvtex.sliding.hits import find_hits_raster
 
     topo = build_topology(faces, uv, reference, options.subdiv)
     X = topo.positions(inferred)
@@ -250,12 +252,12 @@ def _hits_both_ways(gl, gt, inferred, faces, uv, reference, camera, options):
 
 @pytest.mark.parametrize("radius", [0, 1, 2])
 def test_compiled_candidate_search_equals_numpy_search(gl, oblique, radius):
-    """The compiled kernels (`mvtex.hitsearch`) and the NumPy formulation give identical
+    """The compiled kernels (`mvtex.sliding.kernels`) and the NumPy formulation give identical
     hits, bit for bit: on a folded sheet seen whole and cut by the image border (windows
     clipped at the edge), and on the built-in shirt (UV seams: chart tie-breaks; views
     into the collar: hits on the inside; gt = inferred: exact ties)."""
-    from mvtex.camera import as_rig
-    from mvtex.synth import SynthOptions, synthesize
+    from mvtex.data.rig import as_rig
+    from mvtex.synth.generate import SynthOptions, synthesize
 
     close = look_at("close", (0.25, 0.1, 0.45), (0, 0, 0), width=160, height=120, focal=260.0)
     faces, uv, gt, inferred = folded_sheet()

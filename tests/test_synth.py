@@ -1,4 +1,4 @@
-"""Properties of the built-in garment dataset (mvtex.synth), measured independently.
+"""Properties of the built-in garment dataset (mvtex.synth.generate), measured independently.
 
 Every quantity is recomputed here from the arrays (edges from faces, seams from equal
 rest positions, normals from cross products), not read back from `stats` alone.
@@ -9,16 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mvtex.synth import (
-    POSE_DIM,
-    SynthOptions,
-    deform,
-    fit_predictor,
-    make_garment,
-    sample_poses,
-    synthesize,
-    write_synth,
-)
+from mvtex.synth.generate import SynthOptions, synthesize, write_synth
+from mvtex.synth.predictor import fit_predictor
+from mvtex.synth.shirt import POSE_DIM, deform, make_garment, sample_poses
 
 NUM_POSES = 60
 
@@ -353,7 +346,7 @@ def test_skirt_inferred_is_fitted_not_blurred(skirt):
 
 def test_builtin_rigs_frame_both_garments(shirt_and_skirt_extremes):
     """Every vertex of every pose projects inside every camera of the shipped rigs."""
-    from mvtex.camera import load_rig, resolve_rig
+    from mvtex.data.rig import load_rig, resolve_rig
 
     for rig_name in ("stereo", "square4", "trapezoid12"):
         for cam in load_rig(resolve_rig(rig_name)):
@@ -385,7 +378,7 @@ def test_cli_synth_records_the_garment(tmp_path):
 
 
 def test_skirt_public_functions_agree_with_synthesize(skirt):
-    from mvtex import skirt as skirt_module
+    from mvtex.synth import skirt as skirt_module
 
     faces, uv, rest = skirt_module.make_garment()
     for mine, theirs in ((faces, "faces"), (uv, "uv"), (rest, "rest")):
@@ -398,8 +391,8 @@ def test_skirt_public_functions_agree_with_synthesize(skirt):
 def test_streamed_write_equals_save_dataset_byte_for_byte(tmp_path, monkeypatch, garment):
     """write_synth streams blocks of poses to disk; with blocks of 4 poses its files must be
     exactly those `dataset.save_dataset` writes for the in-memory `synthesize` result."""
-    import mvtex.synth as synth
-    from mvtex.dataset import save_dataset
+    import mvtex.synth.generate as synth
+    from mvtex.data.dataset import save_dataset
 
     options = SynthOptions(num_poses=10, seed=2, garment=garment)
     save_dataset(tmp_path / "memory", garment=garment, **synthesize(options))

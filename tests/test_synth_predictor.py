@@ -1,4 +1,4 @@
-"""The predictor fit of mvtex.synth with its PCA basis from a subset of the training shapes
+"""The predictor fit of mvtex.synth.generate with its PCA basis from a subset of the training shapes
 and its ridge regression over all of them, block by block: checked against closed forms
 and against NumPy's SVD and least squares on the whole matrix."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import mvtex.synth as synth
-from mvtex.synth import fit_predictor
+import mvtex.synth.predictor as synth
+from mvtex.synth.predictor import fit_predictor
 
 
 class _Recorded:

@@ -15,8 +15,8 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
-from mvtex.errors import InputError  # noqa: E402
-from mvtex.mesh import apply_parent, subdivide  # noqa: E402
+from mvtex.data.mesh import apply_parent, subdivide
+from mvtex.util.errors import InputError
 
 pytestmark = pytest.mark.gl
 
@@ -51,8 +51,8 @@ def displacement_field(pose: np.ndarray, uv: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def field_data(tmp_path_factory, gl):
     """A 30-pose dataset of the two-chart mesh and a subdiv-1 texcoord set of camera 'cam'."""
-    from mvtex.dataset import save_dataset, load_dataset
-    from mvtex.texcoords import open_texcoords, save_texcoords
+    from mvtex.data.dataset import load_dataset, save_dataset
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
 
     faces, uv, pos = two_chart_mesh()
     k = 30
@@ -130,7 +130,7 @@ def test_overlapping_atlas_is_refused(gl):
 
 @pytest.mark.slow
 def test_training_beats_zero_predictor_and_checkpoint_roundtrips(field_data, tmp_path):
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.predict import load_model, predict, predict_displacements
     from mvtex.tsnn.train import TrainOptions, train_camera
 
@@ -172,8 +172,9 @@ def test_training_beats_zero_predictor_and_checkpoint_roundtrips(field_data, tmp
 
 @pytest.mark.slow
 def test_training_is_deterministic_on_cpu(field_data, tmp_path):
-    from mvtex.tsnn.train import TrainOptions, train_camera
     from safetensors.torch import load_file
+
+    from mvtex.tsnn.train import TrainOptions, train_camera
 
     dataset, tc, _ = field_data
     options = TrainOptions(arch="paper", epochs=2, resolution=16, batch_size=8, width=32, device="cpu", seed=5)
@@ -222,7 +223,7 @@ def test_bad_models_are_refused(field_data, tmp_path):
 
 
 def test_texcoord_set_of_another_mesh_is_refused(field_data, tmp_path):
-    from mvtex.texcoords import open_texcoords, save_texcoords
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
     from mvtex.tsnn.train import TrainOptions, train_camera
 
     dataset, tc, _ = field_data
@@ -268,7 +269,7 @@ def test_regularisation_options_train_and_roundtrip(field_data, tmp_path):
 def curved_dataset(root, k: int = 24, bend: float = 1.0):
     """The two-chart mesh bent into a pose-dependent arc (front at z=0, back at z=-0.1);
     bend=0: flat in every pose."""
-    from mvtex.dataset import load_dataset, save_dataset
+    from mvtex.data.dataset import load_dataset, save_dataset
 
     faces, uv, pos = two_chart_mesh()
     poses = np.random.default_rng(4).uniform(-1, 1, (k, 3)).astype(np.float32)
@@ -282,7 +283,7 @@ def curved_dataset(root, k: int = 24, bend: float = 1.0):
 def test_geometry_images_match_exact_point_in_triangle(gl, tmp_path):
     """Position and normal channels at texel centres against an exact point-in-triangle search
     (every triangle tested, barycentrics solved in float64) on the dataset mesh."""
-    from mvtex.mesh import barycentric_2d
+    from mvtex.data.mesh import barycentric_2d
     from mvtex.tsnn.atlas import AtlasSampler
     from mvtex.tsnn.geometry import geometry_images
 
@@ -328,8 +329,9 @@ def camera_field(pose: np.ndarray, uv: np.ndarray, cam_x: float) -> np.ndarray:
 @pytest.fixture(scope="module")
 def rig_data(tmp_path_factory, gl):
     """The arc dataset, a 3-camera rig and a subdiv-0 texcoord set of all three cameras."""
-    from mvtex.camera import Rig, look_at
-    from mvtex.texcoords import open_texcoords, save_texcoords
+    from mvtex.data.camera import look_at
+    from mvtex.data.rig import Rig
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
 
     root = tmp_path_factory.mktemp("rig")
     ds = curved_dataset(root / "data", k=40)
@@ -343,8 +345,9 @@ def rig_data(tmp_path_factory, gl):
 
 
 def test_camera_conditioned_model_serves_a_camera_it_never_saw(rig_data, tmp_path):
-    from mvtex.camera import Rig, look_at
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.camera import look_at
+    from mvtex.data.rig import Rig
+    from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.predict import load_model, predict
     from mvtex.tsnn.train import TrainOptions, train
 
@@ -416,7 +419,7 @@ def test_model_of_one_mesh_refuses_another(rig_data, tmp_path):
     train(ds, tc, tmp_path / "m", rig=rig, options=TrainOptions(epochs=1, resolution=16, widths=(8, 16), device="cpu"),
           progress=False)
     # Same vertex count and faces, other uv: the fingerprint differs.
-    from mvtex.dataset import load_dataset, save_dataset
+    from mvtex.data.dataset import load_dataset, save_dataset
 
     uv = ds.uv.copy()
     uv[:, 1] = 0.05 + 0.9 * uv[:, 1]
@@ -440,9 +443,10 @@ def test_model_of_one_mesh_refuses_another(rig_data, tmp_path):
 
 
 def test_cli_trains_one_network_for_all_cameras_and_predicts_a_rig(rig_data, tmp_path, capsys):
-    from mvtex.camera import Rig, look_at, save_rig
     from mvtex.cli import main
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.camera import look_at
+    from mvtex.data.rig import Rig, save_rig
+    from mvtex.data.texcoords import open_texcoords
 
     ds, rig, tc, root = rig_data
     save_rig(rig, tmp_path / "rig.yaml")
@@ -494,7 +498,7 @@ def test_gp_learns_the_field_roundtrips_and_is_deterministic(field_data, tmp_pat
     """`gp` (the default with a camera name) against the closed-form field on held-out poses."""
     from safetensors.torch import load_file
 
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.predict import load_model, predict, predict_displacements
     from mvtex.tsnn.train import TrainOptions, train_camera
 
@@ -529,7 +533,7 @@ def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_p
     """`train --camera a,c --workers 2`: OUT/a and OUT/c are the models `--camera a` and
     `--camera c` write, bit for bit (gp is deterministic), and predict takes them."""
     from mvtex.cli import main
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
 
     ds, rig, tc, root = rig_data
     base = [str(ds.path), "--texcoords", str(tc.path), "--arch", "gp", "--components", "4", "--quiet"]
@@ -561,7 +565,7 @@ def test_predict_in_blocks_equals_one_pass(rig_data, tmp_path, monkeypatch):
     pass of the model over all poses gives (gp, per vertex; unet, through the atlas and the
     geometry images of each block)."""
     import mvtex.tsnn.predict as P
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.train import TrainOptions, train
 
     ds, rig, tc, _ = rig_data

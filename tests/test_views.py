@@ -7,16 +7,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from mvtex.camera import builtin_rig_path, load_rig, save_rig
 from mvtex.cli import main
-from mvtex.views import blend_displacement, between_weights, grid_weights, interpolate_camera
+from mvtex.data.rig import builtin_rig_path, load_rig, save_rig
+from mvtex.views.cameras import between_weights, grid_weights, interpolate_camera
+from mvtex.views.synthesizer import blend_displacement
 
 
 @pytest.fixture(scope="module")
 def sheet_set(tmp_path_factory, tiny_dataset, front_rig, gl):
     """The wavy sheet slid from the two-camera front rig (3 poses)."""
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
     root = tmp_path_factory.mktemp("views")
     rig_path = root / "rig.yaml"
@@ -29,10 +30,10 @@ def sheet_set(tmp_path_factory, tiny_dataset, front_rig, gl):
 @pytest.fixture(scope="module")
 def garment(tmp_path_factory, gl):
     """The built-in garment (12 poses) slid from the stereo rig on two test poses."""
-    from mvtex.dataset import load_dataset
-    from mvtex.slide_jobs import slide_dataset
-    from mvtex.sliding import SlideOptions
-    from mvtex.synth import SynthOptions, write_synth
+    from mvtex.data.dataset import load_dataset
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.synth.generate import SynthOptions, write_synth
 
     root = tmp_path_factory.mktemp("garment")
     write_synth(root / "shirt", SynthOptions(num_poses=12, seed=0))
@@ -92,10 +93,10 @@ def test_grid_and_between_weights():
 
 @pytest.mark.parametrize("method", ["blend", "reconstruct"])
 def test_weight_one_reproduces_the_camera(tmp_path, sheet_set, capsys, method, monkeypatch):
-    import mvtex.views
-    from mvtex.texcoords import open_texcoords
+    import mvtex.views.novel
+    from mvtex.data.texcoords import open_texcoords
 
-    monkeypatch.setattr(mvtex.views, "_WRITE_BLOCK", 2)  # 3 poses: a full block and a partial one
+    monkeypatch.setattr(mvtex.views.novel, "_WRITE_BLOCK", 2)  # 3 poses: a full block and a partial one
     dataset, rig_path, ts = sheet_set
     code, _, err = run(capsys, "views", dataset, "--rig", rig_path, "--texcoords", ts, "--out", tmp_path / "v",
                        "--weights", "a=0,b=1", "--name", "same_as_b", "--method", method, "--quiet")
@@ -136,10 +137,10 @@ def test_blend_of_identical_sets_is_identity():
 
 def test_reconstruct_beats_blend_at_the_stereo_midpoint(tmp_path, garment):
     """On the built-in garment, reconstruct is closer to TS computed directly at the view."""
-    from mvtex.viewpath import measure_views
+    from mvtex.views.measure import measure_views
 
     ds, ts, poses = garment
-    from mvtex.texcoords import open_texcoords
+    from mvtex.data.texcoords import open_texcoords
 
     rig = load_rig(builtin_rig_path("stereo"))
     measured = measure_views(ds, rig, open_texcoords(ts, ds.num_vertices), [{"left": 0.5, "right": 0.5}], ["mid"],
@@ -204,9 +205,9 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
     """A views run stopped after its first block leaves OUT.partial; the rerun computes only
     the missing blocks and writes the files an uninterrupted run writes, byte for byte.
     Other settings start over (said on stderr); a foreign OUT.partial is refused."""
-    import mvtex.views
+    import mvtex.views.novel
 
-    monkeypatch.setattr(mvtex.views, "_WRITE_BLOCK", 2)  # 3 poses: blocks of 2 and 1
+    monkeypatch.setattr(mvtex.views.novel, "_WRITE_BLOCK", 2)  # 3 poses: blocks of 2 and 1
     dataset, rig_path, ts = sheet_set
     argv = ["views", dataset, "--rig", rig_path, "--texcoords", ts, "--between", "a,b", "--steps", 3,
             "--method", "reconstruct", "--quiet"]
@@ -214,7 +215,7 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
     whole = {p.relative_to(tmp_path / "whole"): p.read_bytes() for p in sorted((tmp_path / "whole").rglob("*"))
              if p.is_file()}
 
-    real = mvtex.views._views_of_poses
+    real = mvtex.views.novel._views_of_poses
     blocks = []
 
     def stop_after_one(synth, cameras, weights, poses):
@@ -223,7 +224,7 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
         blocks.append(list(poses))
         return real(synth, cameras, weights, poses)
 
-    monkeypatch.setattr(mvtex.views, "_views_of_poses", stop_after_one)
+    monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", stop_after_one)
     out = tmp_path / "v"
     assert run(capsys, *argv, "--out", out)[0] == 130  # as Ctrl-C
     assert not out.exists() and (tmp_path / "v.partial" / "done.npy").is_file()
@@ -235,7 +236,7 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
     # As if killed while saving the done mask: its hidden temporary copy is left behind.
     (tmp_path / "v.partial" / ".done.npy.k1ll3d.tmp").mkdir()
     (tmp_path / "v.partial" / ".done.npy.k1ll3d.tmp" / "done.npy").write_bytes(b"")
-    monkeypatch.setattr(mvtex.views, "_views_of_poses", count)
+    monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", count)
     assert run(capsys, *argv, "--out", out)[0] == 0
     assert blocks == [[0, 2], [4]]  # the second run computed only the block the first did not finish
     assert not (tmp_path / "v.partial").exists() and not (out / "done.npy").exists()
@@ -243,9 +244,9 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
             and p.name != ".mvtex-output.json"} == {k: v for k, v in whole.items() if k.name != ".mvtex-output.json"}
 
     # Stopped again, then rerun with other views: that partial is not reused.
-    monkeypatch.setattr(mvtex.views, "_views_of_poses", stop_after_one)
+    monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", stop_after_one)
     assert run(capsys, *argv, "--out", tmp_path / "w")[0] == 130
-    monkeypatch.setattr(mvtex.views, "_views_of_poses", real)
+    monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", real)
     code, _, err = run(capsys, "views", dataset, "--rig", rig_path, "--texcoords", ts, "--weights", "a=0.25,b=0.75",
                        "--name", "q", "--method", "reconstruct", "--quiet", "--out", tmp_path / "w")
     assert code == 0 and "starting over" in err

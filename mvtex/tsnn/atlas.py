@@ -1,6 +1,6 @@
 """Images over the UV atlas: per-vertex values <-> (C, H, W) images.
 
-Convention (the same as `mvtex.raster.rasterize_uv`): texel (row r, column c) of an H x W
+Convention (the same as `mvtex.render.raster.rasterize_uv`): texel (row r, column c) of an H x W
 atlas image has its centre at (u, v) = ((c + 0.5)/W, (r + 0.5)/H). Row 0 is v ≈ 0 (GL
 texture order, *not* picture order: flip rows to show v up). With that convention the
 `torch.nn.functional.grid_sample` coordinate of a texcoord is simply 2·uv − 1
@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import InputError
-from ..mesh import barycentric_2d
+from mvtex.data.mesh import barycentric_2d
+from mvtex.util.errors import InputError
 
 if TYPE_CHECKING:
-    from ..raster import GLContext
+    from mvtex.render.context import GLContext
 
 
 def vertex_grid(uv: np.ndarray):
@@ -65,7 +65,7 @@ def uv_overlap(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, resolution: in
     Returns:
         (R,R) bool, True on texels covered more than once (row 0 at v ≈ 0).
     """
-    from ..raster import rasterize_uv
+    from mvtex.render.raster import rasterize_uv
 
     faces = np.asarray(faces)
     forward = rasterize_uv(ctx, uv, faces, resolution, resolution, attributes=False).tri_id
@@ -113,7 +113,8 @@ class AtlasSampler:
 
     def __init__(self, faces: np.ndarray, uv: np.ndarray, resolution: int, *, dilation: int = 2,
                  source: str | os.PathLike | None = None, ctx: GLContext | None = None):
-        from ..raster import GLContext, Raster, rasterize_uv
+        from mvtex.render.context import GLContext
+        from mvtex.render.raster import Raster, rasterize_uv
 
         self.faces = np.asarray(faces, dtype=np.int32)
         self.uv = np.asarray(uv, dtype=np.float32)
@@ -173,7 +174,7 @@ class AtlasSampler:
             (H,W,C) float32, linear inside each triangle, continued linearly `dilation` texels
             past chart borders, 0 elsewhere. Row 0 is v ≈ 0.
         """
-        from ..raster import interpolate
+        from mvtex.render.raster import interpolate
 
         values = np.asarray(values)
         if values.ndim != 2 or values.shape[0] != self.num_vertices:

@@ -22,10 +22,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..io import read_row
-from ..mesh import apply_parent, edge_strain, edges, uniform_laplacian, vertex_normals, weld_groups, welded_adjacency
+from mvtex.data.mesh import apply_parent, edges, uniform_laplacian, vertex_normals, weld_groups, welded_adjacency
+from mvtex.util.files import read_row
 
 NUM_CHANNELS = 9
+
+
 CHANNEL_NAMES = ("x", "y", "z", "nx", "ny", "nz", "strain_u", "strain_v", "curvature")
 
 
@@ -105,7 +107,7 @@ def geometry_images(dataset, poses, sampler, parent: np.ndarray, batch: int = 64
     """Geometry images of the inferred meshes of some poses.
 
     Args:
-        dataset: a `mvtex.dataset.Dataset` (faces, uv, rest, inferred positions).
+        dataset: a `mvtex.data.dataset.Dataset` (faces, uv, rest, inferred positions).
         poses: dataset pose indices.
         sampler: `AtlasSampler` of the (possibly subdivided) texcoord mesh.
         parent: (n',2) parent map from the dataset mesh to the sampler's mesh.

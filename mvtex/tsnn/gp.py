@@ -37,12 +37,24 @@ import torch
 from torch import nn
 
 MAX_TRAIN = 2000  # training poses an exact GP is fitted on (O(K^3) time, O(K^2) memory)
+
+
 MAX_COMPONENTS = 256
+
+
 HYPER_POSES = 400  # training poses the hyperparameters are fitted on, before refining on all
+
+
 _REFINE_ITERATIONS = 100  # on the shirt at 960 poses: 30 -> same-chart ratio 2.998, 100 -> 3.02
+
+
 _REFINE_ELEMENTS = 2e7  # refinement poses K' with K'^2 P below this (the additive kernel's autograd memory)
+
+
 # (lengthscale, noise std, log std of the additive part) starts, standardised units
 _STARTS = ((1.0, 0.1, -2.0), (4.0, 0.1, -2.0), (1.0, 0.5, 0.0))
+
+
 # Shortest lengthscale, in training standard deviations of the pose coordinate: shorter ones
 # only fit noise (a few hundred poses cannot resolve them in a dozen dimensions).
 _LOG_L_MIN = math.log(0.3)

@@ -144,9 +144,6 @@ class TSNN(nn.Module):
         return (x + self.bias) * self.output_scale
 
 
-# ----------------------------------------------------------------------------- geometry U-Net
-
-
 @dataclass(frozen=True)
 class UNetConfig:
     """Architecture of a `UNet` (the default `unet` TSNN).
@@ -332,7 +329,7 @@ def build_network(arch: dict[str, Any]) -> nn.Module:
     if kind == "unet":
         return UNet(UNetConfig.from_dict(arch))
     if kind == "gp":
-        from .gp import GPConfig, PoseGP
+        from mvtex.tsnn.gp import GPConfig, PoseGP
 
         return PoseGP(GPConfig.from_dict(arch))
     raise ValueError(f"unknown arch {kind!r} (paper, unet or gp)")

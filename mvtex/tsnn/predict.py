@@ -19,14 +19,15 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..camera import check_camera_name
-from ..errors import InputError
-from ..io import atomic_path, create_npy, read_json, write_npy_rows
-from ..texcoords import write_header
-from .atlas import AtlasSampler, sample_atlas, vertex_grid
-from .geometry import geometry_images
-from .train import (MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH, MODEL_FORMAT, READABLE_VERSIONS, mesh_fingerprint,
-                    rebuild_mesh)
+from mvtex.data.camera import check_camera_name
+from mvtex.data.texcoords import write_header
+from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
+from mvtex.tsnn.geometry import geometry_images
+from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, mesh_fingerprint, rebuild_mesh
+from mvtex.tsnn.train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH
+from mvtex.util.errors import InputError
+from mvtex.util.files import create_npy, read_json, write_npy_rows
+from mvtex.util.output import atomic_path
 
 _BLOCK = 256  # poses predicted (and written) at a time
 
@@ -81,7 +82,7 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
-    from .model import build_network
+    from mvtex.tsnn.model import build_network
 
     path = Path(path)
     if not path.is_dir():
@@ -234,12 +235,12 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     """Run networks over poses and write a texcoord set.
 
     Args:
-        dataset: the `mvtex.dataset.Dataset` (its mesh, inferred meshes and pose vectors).
+        dataset: the `mvtex.data.dataset.Dataset` (its mesh, inferred meshes and pose vectors).
         models: model directories (same subdivision level): one-camera models and/or a
             camera-conditioned one.
         out: texcoord set directory to write (atomically).
         poses: dataset pose indices, in the order of the set's rows.
-        rig: a `mvtex.camera.Rig`: predict its cameras (a one-camera model serves its own
+        rig: a `mvtex.data.rig.Rig`: predict its cameras (a one-camera model serves its own
             camera, a camera-conditioned model every other camera of the rig). None: every
             model's own camera(s).
         progress: progress bar over cameras on stderr.

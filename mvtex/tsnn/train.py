@@ -32,10 +32,8 @@ A model directory holds:
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
-import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -43,19 +41,20 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import InputError
-from ..io import atomic_path
-from ..mesh import apply_parent, subdivide
+from mvtex.tsnn.modeldir import MODEL_FORMAT, MODEL_VERSION, _write_model, mesh_fingerprint, rebuild_mesh
+from mvtex.util.errors import InputError
 
-MODEL_FORMAT = "mvtex-tsnn"
-MODEL_VERSION = 2
-READABLE_VERSIONS = (1, 2)  # version 1: paper architecture, one camera, no "arch" key
 ARCHS = ("gp", "unet", "paper")
 
 
 MAX_RESOLUTION = 2048  # atlas image size: 2·R² floats per pose and per batch item
+
+
 MAX_WIDTH = 1024  # channels of the first stage
+
+
 MAX_SUBDIV = 3
+
 
 @dataclass(frozen=True)
 class TrainOptions:
@@ -152,21 +151,6 @@ class TrainOptions:
             raise ValueError("pose_noise must be >= 0 and dropout in [0, 1)")
 
 
-def mesh_fingerprint(faces: np.ndarray, uv: np.ndarray) -> str:
-    """SHA-256 of a base mesh's faces (int32) and uv (float32): ties a model to its mesh."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(faces, dtype=np.int32).tobytes())
-    h.update(np.ascontiguousarray(uv, dtype=np.float32).tobytes())
-    return h.hexdigest()
-
-
-def rebuild_mesh(faces: np.ndarray, uv: np.ndarray, subdiv: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The texcoord-set mesh made from a dataset mesh: (faces (m',3) int32, uv (n',2) float32,
-    parent (n',2) int32) after `subdiv` midpoint subdivisions."""
-    sub = subdivide(faces, len(uv), int(subdiv))
-    return sub.faces, apply_parent(np.asarray(uv, np.float32), sub.parent).astype(np.float32), sub.parent
-
-
 def _check_texcoord_mesh(dataset, texcoords) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     faces, uv, parent = rebuild_mesh(dataset.faces, dataset.uv, texcoords.subdiv)
     same = (texcoords.faces.shape == faces.shape and np.array_equal(texcoords.faces, faces)
@@ -189,28 +173,6 @@ def _split(dataset, texcoords) -> dict[str, list[int]]:
                          f"({len(dataset.split['val'])} in the split of {dataset.path}); slide them too, or "
                          "give the dataset a split.json with a non-empty 'val'")
     return split
-
-
-def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, title: str) -> None:
-    # The object-oriented API with an Agg canvas: no global backend switch, no display.
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(6, 4), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    epochs = np.arange(1, len(history["train"]) + 1)
-    ax.semilogy(epochs, history["train"], label="train")
-    if history.get("val"):
-        ax.semilogy(epochs, history["val"], label="validation")
-    ax.axvline(best_epoch, color="gray", linestyle=":", label=f"best (epoch {best_epoch})")
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("weighted MSE of d (uv²)")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, format="png")
 
 
 class _Data:
@@ -319,7 +281,8 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
     split, the cameras' views and the resolved options. config.json records it as
     "inputs"; `train_cameras` keeps a camera's model that records the key it would train
     with (the same inputs train the same model: bit for bit for `gp`)."""
-    from ..io import dumps_strict, fingerprint
+    from mvtex.util.files import dumps_strict
+    from mvtex.util.fingerprint import fingerprint
 
     record = {
         "version": MODEL_VERSION,
@@ -331,114 +294,18 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
     return hashlib.blake2b(dumps_strict(record, sort_keys=True).encode(), digest_size=8).hexdigest()
 
 
-def _kept_model(path: Path, key: str) -> dict[str, Any] | None:
-    """The `train` summary of the finished model directory at `path` if its config.json
-    records inputs `key`; None if there is none, it is unreadable or it was trained from
-    other inputs."""
-    try:
-        meta = json.loads((path / "config.json").read_text())
-        if not (isinstance(meta, dict) and meta.get("inputs") == key and (path / "model.safetensors").is_file()):
-            return None
-        return {"camera": meta["camera"], "cameras": list(meta["cameras"]), "arch": meta["options"]["arch"],
-                "out": str(path), "device": meta["device"], "resolution": meta["architecture"].get("resolution"),
-                "epochs_run": meta["epochs_run"], "best_epoch": meta["best_epoch"], "seconds": meta["seconds"],
-                "num_poses": {k: len(v) for k, v in meta["split"].items()}, "losses": meta["losses"]}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return None
-
-
-def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
-    """In a worker: one camera's model from paths (torch on one thread: the workers already
-    fill the cores)."""
-    import torch
-
-    from ..dataset import load_dataset
-    from ..texcoords import open_texcoords
-
-    torch.set_num_threads(1)
-    ds = load_dataset(dataset, validate=False)
-    return train(ds, open_texcoords(texcoords, ds.num_vertices), out, camera=camera, options=options, progress=False)
-
-
-def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.PathLike,
-                  options: TrainOptions = TrainOptions(), *, workers: int = 1, scheduler: str | None = None,
-                  progress: bool = True) -> dict[str, Any]:
-    """One model per camera, OUT/<camera>/ (each a model directory as `train` writes it),
-    trained side by side on local processes or a Dask cluster (`mvtex.parallel`).
-
-    Each model is `train` with that camera, written atomically. A rerun keeps the model of
-    every camera whose config.json records the inputs it would be trained from now (see
-    `_inputs_key`), so an interrupted run continues with the cameras it had not finished,
-    and trains the others again. On workers torch runs one thread per process (the workers
-    fill the cores), which can change a network's last bits against a multi-threaded run,
-    not a `gp` model's (tested bit for bit).
-
-    Returns:
-        {"out", "cameras", "arch", "models": {camera: the `train` summary}, "kept": the
-        cameras whose models were kept}.
-    """
-    from ..parallel import map_unordered
-
-    out = Path(out)
-    cameras = list(cameras)
-    missing = [c for c in cameras if c not in texcoords.cameras]
-    if missing:
-        raise InputError(texcoords.path, f"no camera {missing[0]!r} in this texcoord set "
-                         f"(it has {', '.join(texcoords.cameras)})")
-    if len(set(cameras)) != len(cameras):
-        raise InputError(None, f"cameras listed twice: {cameras}")
-    for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
-        texcoords.displacement(c, texcoords.poses[0])
-    try:
-        resolved = _resolve(options, cameras[0])
-    except ValueError as err:
-        raise InputError(None, f"training options: {err}") from None
-    split = _split(dataset, texcoords)
-    dataset_hash = None
-    models: dict[str, Any] = {}
-    for c in cameras:
-        if not (out / c / "config.json").is_file():
-            continue
-        if dataset_hash is None:
-            from ..io import fingerprint
-
-            dataset_hash = fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv)
-        kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
-        if kept is not None:
-            models[c] = kept
-            if progress:
-                print(f"{out / c}: trained before from the same inputs; kept", file=sys.stderr)
-    todo = [c for c in cameras if c not in models]
-    tasks = [(str(Path(dataset.path).resolve()), str(Path(texcoords.path).resolve()), c, str(out / c), options)
-             for c in todo]
-    if workers <= 1 and not scheduler:
-        for c in todo:
-            models[c] = train(dataset, texcoords, out / c, camera=c, options=options, progress=progress)
-    else:
-        from tqdm import tqdm
-
-        with tqdm(total=len(cameras), initial=len(cameras) - len(todo), desc="train", unit="camera",
-                  disable=not progress, file=sys.stderr) as bar:
-            for summary in map_unordered(_train_camera_task, tasks, workers=workers, scheduler=scheduler):
-                models[summary["camera"]] = summary
-                bar.update(1)
-    arch = {m["arch"] for m in models.values()}
-    return {"out": str(out), "cameras": cameras, "arch": arch.pop() if len(arch) == 1 else sorted(arch),
-            "models": {c: models[c] for c in cameras}, "kept": [c for c in cameras if c not in todo]}
-
-
 def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
           options: TrainOptions = TrainOptions(), train_poses: Sequence[int] | None = None,
           cameras: Sequence[str] | None = None, progress: bool = True) -> dict[str, Any]:
     """Train a texture sliding network and write a model directory.
 
     Args:
-        dataset: the `mvtex.dataset.Dataset` the texcoord set was made from (poses, split, mesh).
+        dataset: the `mvtex.data.dataset.Dataset` the texcoord set was made from (poses, split, mesh).
         texcoords: an opened `TexcoordSet`.
         out: model directory to write (replaced atomically).
         camera: train one camera's network; None: one network on every camera of the set,
             conditioned on the camera (`unet` only; needs `rig`).
-        rig: a `mvtex.camera.Rig` holding the set's cameras (their extrinsics are the
+        rig: a `mvtex.data.rig.Rig` holding the set's cameras (their extrinsics are the
             network's view inputs); needed when `camera` is None.
         options: see `TrainOptions`.
         train_poses: train on these poses of the training split only (learning curves);
@@ -549,7 +416,7 @@ def _build(options: TrainOptions, sampler, train: _Data, views: dict, pose_dim: 
     """The network with its normalisation set from the training samples."""
     import torch
 
-    from .model import TSNN, ModelConfig, UNet, UNetConfig
+    from mvtex.tsnn.model import TSNN, ModelConfig, UNet, UNetConfig
 
     mean_d = train.d_numpy.mean(axis=0)  # (n',2): the pose-independent part of d
     scale = float(np.sqrt(np.mean((train.d_numpy - mean_d) ** 2))) if len(train) > 1 else 0.0
@@ -561,7 +428,7 @@ def _build(options: TrainOptions, sampler, train: _Data, views: dict, pose_dim: 
         model = TSNN(config)
         model.set_normalisation(x_train.mean(0), x_train.std(0), scale)
     else:
-        from .geometry import NUM_CHANNELS
+        from mvtex.tsnn.geometry import NUM_CHANNELS
 
         config = UNetConfig(pose_dim=pose_dim, resolution=options.resolution, geometry_channels=NUM_CHANNELS,
                             view=bool(views), widths=tuple(options.widths))
@@ -594,13 +461,13 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
     import torch
     from tqdm import tqdm
 
-    from .atlas import AtlasSampler
+    from mvtex.tsnn.atlas import AtlasSampler
 
     sampler = AtlasSampler(faces, uv, options.resolution, dilation=options.dilation, source=texcoords.path / "mesh.npz")
     grid = sampler.grid().to(device)
     geometry = {k: None for k in split}
     if options.arch == "unet":
-        from .geometry import geometry_images
+        from mvtex.tsnn.geometry import geometry_images
 
         geometry = {k: geometry_images(dataset, split[k], sampler, parent) for k in split}
     data = {k: _Data(dataset, texcoords, cameras, split[k], options.weight_assigned, device, geometry[k])
@@ -668,7 +535,7 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, pro
     """`gp`: fit the Gaussian processes of one camera (on the CPU, float64); `_train`'s results."""
     from tqdm import tqdm
 
-    from .gp import MAX_TRAIN, evenly_spaced, fit_pose_gp
+    from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced, fit_pose_gp
 
     split = dict(split)
     # An exact GP is O(K^3): at most MAX_TRAIN evenly spaced training poses.
@@ -689,42 +556,3 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, pro
 
     losses = {k: _evaluate(vertices, v, 256) for k, v in data.items() if len(v)}
     return model, model.config, {"train": [], "val": []}, 0, losses
-
-
-def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
-    """Heatmap of a `gp` model's inverse lengthscales: component (rows) x pose coordinate."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    c, p = relevance.shape
-    fig = Figure(figsize=(min(12.0, 2.0 + 0.45 * p), min(8.0, 1.6 + 0.3 * c)), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    image = ax.imshow(relevance, cmap="viridis", aspect="auto", interpolation="nearest")
-    ax.set_xlabel("pose coordinate")
-    ax.set_ylabel("principal component of d")
-    ax.set_xticks(range(p))
-    ax.set_title(title, fontsize=9)
-    fig.colorbar(image, ax=ax, label="1 / lengthscale (standardised pose)")
-    fig.tight_layout()
-    fig.savefig(path, format="png")
-
-
-def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
-    from safetensors.torch import save_file
-
-    with atomic_path(out) as tmp:
-        tmp.mkdir()
-        state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-        # One metadata entry: safetensors writes its metadata map in hash order, which varies
-        # from process to process, and a model's bytes should not (the cameras are in config.json).
-        save_file(state, str(tmp / "model.safetensors"), metadata={"format": MODEL_FORMAT})
-        (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
-        if meta["architecture"]["arch"] == "gp":
-            _relevance_plot(tmp / "relevance.png", model.relevance(),
-                            f"gp {meta['camera']}: relevance of the pose coordinates "
-                            f"({meta['architecture']['num_train']} training poses)")
-        else:
-            _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
-                       f"TSNN {meta['architecture']['arch']} {meta['camera'] or 'all cameras'} "
-                       f"({meta['architecture']['resolution']}², best epoch {meta['best_epoch']})")

@@ -1,0 +1,2 @@
+"""Whole-pipeline applications: the benchmark, the demo and its report.
+"""

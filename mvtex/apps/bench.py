@@ -1,0 +1,247 @@
+"""Throughput of texture sliding: the raster path against a ray-cast (Embree) path of the
+same algorithm, measured side by side on the same jobs, with their agreement; and the
+throughput of the per-pixel evaluation.
+
+The ray-cast path differs from `sliding.find_hits_raster` only in how it finds things:
+pixel ownership (rule 1) by casting a ray through every pixel centre of the inferred
+mesh's bounding box, the depth test (rule 2) and the first gt hit by casting the vertex
+rays (`trimesh.ray.ray_pyembree.RayMeshIntersector`, which needs `embreex`). Embree works
+in float32, so its hit triangle is re-intersected in float64 for the barycentrics; every
+rule after that (`sliding.displacement_from_hits`: back faces, edge breaking, fill) is shared.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import time
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig
+from mvtex.sliding.hits import Hits, find_hits_raster, intersect_pairs
+from mvtex.sliding.options import SlideOptions
+from mvtex.sliding.pose import displacement_from_hits
+from mvtex.sliding.topology import SlideTopology, build_topology
+
+if TYPE_CHECKING:
+    from mvtex.render.context import GLContext
+
+
+def _intersector(positions: np.ndarray, faces: np.ndarray):
+    import trimesh
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    return RayMeshIntersector(trimesh.Trimesh(vertices=positions, faces=faces, process=False))
+
+
+def _first_hits(intersector, origins: np.ndarray, dirs: np.ndarray, num_faces: int):
+    """Nearest hit triangle per ray (-1 = none)."""
+    tri, ray = intersector.intersects_id(origins, dirs, multiple_hits=False, return_locations=False)
+    out = np.full(len(dirs), -1, np.int64)
+    out[ray] = tri
+    return out
+
+
+def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray, topo: SlideTopology,
+                     camera: Camera, options: SlideOptions) -> Hits:
+    """Same contract as `sliding.find_hits_raster`, by ray casting with Embree."""
+    from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
+
+    n = len(X)
+    origin = camera.center
+    W, H = camera.width, camera.height
+    inf_rt = _intersector(X, topo.faces)
+    gt_rt = _intersector(gt, faces)
+    pixels, z = camera.project(X)
+    # Rule 1: cast a ray through every pixel centre of the projected bounding box.
+    front = z > 0
+    lo = np.clip(np.floor(pixels[front].min(axis=0)) - 1, 0, [W - 1, H - 1]).astype(int)
+    hi = np.clip(np.ceil(pixels[front].max(axis=0)) + 1, 0, [W - 1, H - 1]).astype(int)
+    cols, rows = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+    pix = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float64)
+    dirs_px = camera.pixel_rays(pix)
+    owner = _first_hits(inf_rt, np.broadcast_to(origin, dirs_px.shape), dirs_px, len(topo.faces))
+    owned = np.zeros(len(topo.faces), bool)
+    owned[owner[owner >= 0]] = True
+    touched = np.zeros(n, bool)
+    touched[topo.faces[owned].ravel()] = True
+    cand = np.flatnonzero(touched & camera.in_image(pixels, z))
+    # Rule 2: the first inferred surface along the vertex ray is not (much) nearer.
+    dirs = X[cand] - origin
+    unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    occ = _first_hits(inf_rt, np.broadcast_to(origin, unit.shape), unit, len(topo.faces))
+    t_occ = np.full(len(cand), np.inf)
+    has = occ >= 0
+    t_occ[has] = intersect_pairs(origin, dirs[has], X, topo.faces, occ[has])[0]
+    # Embree's float32 hit can miss in float64 by a hair at an edge: then it is not an occluder.
+    vis = ~(t_occ < 1 - options.depth_tolerance)
+    cand, dirs, unit = cand[vis], dirs[vis], unit[vis]
+    visible = np.zeros(n, bool)
+    visible[cand] = True
+    tri = _first_hits(gt_rt, np.broadcast_to(origin, unit.shape), unit, len(faces))
+    tri_hit = np.full(n, -1, np.int64)
+    bary = np.zeros((n, 3))
+    back = np.zeros(n, bool)
+    ok = tri >= 0
+    t, b1, b2, facing = intersect_pairs(origin, dirs[ok], gt, faces, tri[ok])
+    idx = cand[ok]
+    tri_hit[idx] = tri[ok]
+    bary[idx] = np.stack([1 - b1 - b2, b1, b2], axis=1)
+    back[idx] = facing > 0
+    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back,
+                from_inside=compiled_seen_from_inside(np.ascontiguousarray(X, dtype=np.float64), topo.faces,
+                                                      np.ascontiguousarray(origin, dtype=np.float64)))
+
+
+def _job(ctx: GLContext, path: str, gt, inferred, faces, uv, topo, camera, options):
+    gt = np.asarray(gt, np.float64)
+    inferred = np.asarray(inferred, np.float64)
+    X = topo.positions(inferred)
+    if path == "raster":
+        hits = find_hits_raster(ctx, gt, inferred, faces, X, topo, camera, options)
+    else:
+        hits = find_hits_embree(gt, inferred, faces, X, topo, camera, options)
+    return displacement_from_hits(hits, faces, uv, X, topo, options)
+
+
+def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: int, barrier) -> tuple[int, float]:
+    """In a worker process: warm up, wait for the other workers, then time `repeats`
+    passes over `jobs` ((pose, camera name) pairs) on the raster path. Returns (number of
+    jobs, fastest pass in seconds)."""
+    from mvtex.data.dataset import load_dataset, reference_shape
+    from mvtex.render.context import GLContext
+    from mvtex.util.parallel import single_thread_gl
+
+    single_thread_gl()
+    ds = load_dataset(dataset_path, validate=False)
+    options = SlideOptions(subdiv=subdiv)
+    topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
+    faces = ds.faces.astype(np.int64)
+    with GLContext() as ctx:
+        _job(ctx, "raster", ds.gt[jobs[0][0]], ds.inferred[jobs[0][0]], faces, ds.uv, topo, rig[jobs[0][1]], options)
+        barrier.wait()
+        best = np.inf
+        for _ in range(repeats):
+            start = time.perf_counter()
+            for k, cam in jobs:
+                _job(ctx, "raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options)
+            best = min(best, time.perf_counter() - start)
+    return len(jobs), best
+
+
+def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: int, workers: int) -> float:
+    """Raster-path jobs/s of `workers` processes running side by side, each on its share
+    of the jobs (start-up, topology and warm-up excluded: the processes start timing
+    together, behind a barrier)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        barrier = manager.Barrier(workers)
+        shares = [jobs[w::workers] for w in range(workers)]
+        futures = [pool.submit(_worker_pass, dataset_path, rig, share, subdiv, repeats, barrier) for share in shares]
+        done = [f.result() for f in futures]
+    return sum(count for count, _ in done) / max(seconds for _, seconds in done)
+
+
+def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
+              progress: bool = True, workers: int = 2, ctx: GLContext | None = None) -> dict:
+    """Measure jobs/s of the raster and ray-cast sliding paths and the eval throughput.
+
+    Args:
+        dataset: `Dataset` or directory. rig: `Rig` or rig path / built-in name.
+        poses: pose indices (default: the first 10).
+        subdiv: subdivision levels of the sliding jobs.
+        repeats: timed passes over all jobs per path; the fastest pass is reported.
+        progress: progress bar on stderr.
+        workers: also measure the raster path on this many processes side by side
+            (`slide_jobs.slide_dataset(workers=...)`); 1 = skip.
+        ctx: `raster.GLContext` for this process (created, and released, if None).
+
+    Returns:
+        JSON-able dict: jobs, sliding.{raster,raycast}.jobs_per_s, speedup (raster over
+        ray cast, both in one process), sliding.raster_workers.{workers,jobs_per_s}, agreement.{displacement (fraction of vertices assigned by both whose d
+        agree to 1e-5), assigned_flags (fraction with equal flags)}, eval.images_per_s, machine.
+    """
+    from tqdm import tqdm
+
+    from mvtex.data.dataset import as_dataset, reference_shape
+    from mvtex.data.rig import as_rig
+    from mvtex.render.context import GLContext
+
+    ds = as_dataset(dataset)
+    rig = as_rig(rig)[0]
+    poses = list(range(min(10, ds.num_poses))) if poses is None else [int(p) for p in poses]
+    if ctx is None:
+        with GLContext() as own:
+            return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,
+                             workers=workers, ctx=own)
+    from mvtex.evaluation.uv import masked_uv_error, texcoord_image
+
+    options = SlideOptions(subdiv=subdiv)
+    topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
+    faces = ds.faces.astype(np.int64)
+    jobs = [(k, cam) for k in poses for cam in rig]
+    gts = {k: np.asarray(ds.gt[k], np.float64) for k in poses}
+    infs = {k: np.asarray(ds.inferred[k], np.float64) for k in poses}
+    # Warm up both paths (GL context, shader compilation, Embree import).
+    for path in ("raster", "raycast"):
+        _job(ctx, path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options)
+    results: dict = {}
+    bar = tqdm(total=2 * repeats * len(jobs), desc="bench", unit="job", disable=not progress, file=sys.stderr)
+    # The passes of the two paths alternate, so that both meet the same moments of a shared
+    # machine; the fastest pass of each counts.
+    timing = {"raster": np.inf, "raycast": np.inf}
+    for _ in range(repeats):
+        for path in ("raster", "raycast"):
+            start = time.perf_counter()
+            for k, cam in jobs:
+                results[path, k, cam.name] = _job(ctx, path, gts[k], infs[k], faces, ds.uv, topo, cam, options)
+                bar.update(1)
+            timing[path] = min(timing[path], time.perf_counter() - start)
+    bar.close()
+    parallel = None
+    if workers > 1:
+        parallel = _bench_workers(str(ds.path), rig, [(k, cam.name) for k, cam in jobs], subdiv, repeats, workers)
+    both = agree = flags = total = 0
+    for k, cam in jobs:
+        d_r, a_r = results["raster", k, cam.name]
+        d_e, a_e = results["raycast", k, cam.name]
+        common = a_r & a_e
+        both += int(common.sum())
+        agree += int((np.abs(d_r[common] - d_e[common]).max(axis=1) <= 1e-5).sum())
+        flags += int((a_r == a_e).sum())
+        total += len(a_r)
+    # Evaluation: per image one gt, one baseline and one (subdivided) texcoords render.
+    start = time.perf_counter()
+    for k, cam in jobs:
+        uv_g, r_g = texcoord_image(ctx, gts[k], faces, ds.uv, cam)
+        uv_b, r_b = texcoord_image(ctx, infs[k], faces, ds.uv, cam)
+        masked_uv_error(uv_b, r_b.mask, uv_g, r_g.mask)
+        d, _ = results["raster", k, cam.name]
+        uv_t, r_t = texcoord_image(ctx, topo.positions(infs[k]), topo.faces, topo.uv + d, cam)
+        masked_uv_error(uv_t, r_t.mask, uv_g, r_g.mask)
+    eval_time = time.perf_counter() - start
+    return {
+        "jobs": len(jobs),
+        "poses": len(poses),
+        "cameras": rig.names,
+        "subdiv": subdiv,
+        "num_vertices": len(topo.uv),
+        "image_size": [rig.cameras[0].width, rig.cameras[0].height],
+        "sliding": {
+            "raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
+            "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
+            "raster_workers": {"workers": int(workers), "jobs_per_s": parallel},
+        },
+        "speedup": timing["raycast"] / timing["raster"],
+        "agreement": {"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
+        "eval": {"images_per_s": len(jobs) / eval_time},
+        "machine": {"cpu_count": os.cpu_count(), "gl_renderer": ctx.renderer, "platform": platform.platform(),
+                    "python": platform.python_version(), "processes": 1},
+    }

@@ -1,0 +1,187 @@
+"""`mvtex demo`: the whole pipeline on the built-in garment, with pictures to look at.
+
+    synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
+          -> train the TSNN of camera left (gp: Gaussian processes of the pose) -> predict -> eval
+          -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
+
+Each step writes into OUT and is skipped when its output is already there, so an
+interrupted demo resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class DemoOptions:
+    num_poses: int = 120
+    seed: int = 0
+    epochs: int | None = None
+    tsnn: bool = True
+
+
+def _step(name: str, progress: bool) -> float:
+    if progress:
+        import sys
+
+        print(f"[demo] {name}", file=sys.stderr, flush=True)
+    return time.perf_counter()
+
+
+def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progress: bool = True) -> dict:
+    """Run the demo into `out`; returns a summary dict (also written to OUT/summary.json)."""
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.evaluation.evaluate import evaluate
+    from mvtex.recon.pose import triangulate_pose
+    from mvtex.recon.triangulate import ReconOptions
+    from mvtex.render.pose import render_pose
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.synth.generate import SynthOptions, write_synth
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    summary: dict = {"out": str(out)}
+
+    t = _step("synthesizing the built-in garment", progress)
+    data = out / "shirt"
+    if not (data / "dataset.json").exists():
+        write_synth(data, SynthOptions(num_poses=options.num_poses, seed=options.seed))
+    dataset = load_dataset(data)
+    timings["synth"] = time.perf_counter() - t
+    test_pose = dataset.split["test"][0]
+    summary["dataset"] = {"path": str(data), "num_poses": dataset.num_poses, "num_vertices": dataset.num_vertices,
+                          "test_pose": test_pose}
+
+    stereo = load_rig(builtin_rig_path("stereo"))
+    square = load_rig(builtin_rig_path("square4"))
+
+    t = _step(f"rendering pose {test_pose} from the stereo rig", progress)
+    render_pose(dataset, stereo, test_pose, out / "render", progress=progress)
+    timings["render"] = time.perf_counter() - t
+
+    poses = dataset.select("all")
+    results = {}
+    for rig_name, rig in (("stereo", stereo), ("square4", square)):
+        t = _step(f"texture sliding, {rig_name} rig, {len(poses)} poses, 1 subdivision", progress)
+        tc_path = out / f"ts_{rig_name}"
+        if not (tc_path / "texcoords.json").exists():
+            slide_dataset(dataset, rig, tc_path, poses=poses, options=SlideOptions(subdiv=1), progress=progress)
+        timings[f"slide_{rig_name}"] = time.perf_counter() - t
+        t = _step(f"evaluating TS on the {rig_name} rig", progress)
+        heat = out / "heatmaps" / rig_name if rig_name == "stereo" else None
+        tc = open_texcoords(tc_path, dataset.num_vertices)
+        results[rig_name] = evaluate(dataset, rig, tc, poses=poses, heatmaps=None, progress=progress)
+        if heat is not None:
+            evaluate(dataset, rig, tc, poses=[test_pose], heatmaps=heat, progress=False)
+        timings[f"eval_{rig_name}"] = time.perf_counter() - t
+    summary["texture_sliding"] = {k: _short(v) for k, v in results.items()}
+
+    t = _step(f"triangulating pose {test_pose} from the square4 rig", progress)
+    tc = open_texcoords(out / "ts_square4", dataset.num_vertices)
+    summary["reconstruction"] = triangulate_pose(dataset, square, tc, test_pose, out / "reconstruction",
+                                                 ReconOptions(), progress=progress)
+    timings["triangulate"] = time.perf_counter() - t
+
+    if options.tsnn:
+        from mvtex.tsnn.predict import predict
+        from mvtex.tsnn.train import TrainOptions, train
+
+        t = _step("training the texture sliding network of camera 'left'", progress)
+        model = out / "tsnn_left"
+        # The per-camera default (gp); epochs matter only for the networks (--arch unet|paper).
+        train_opts = TrainOptions(seed=options.seed, epochs=options.epochs or 30)
+        if not (model / "config.json").exists():
+            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
+                  options=train_opts, progress=progress)
+        timings["train"] = time.perf_counter() - t
+        t = _step("predicting texcoords for the test poses and evaluating", progress)
+        pred = out / "tsnn_pred"
+        predict(dataset, [model], pred, poses=dataset.split["test"], rig=stereo.select(["left"]), progress=progress)
+        tc_pred = open_texcoords(pred, dataset.num_vertices)
+        summary["tsnn"] = _short(evaluate(dataset, stereo.select(["left"]), tc_pred, progress=progress,
+                                          heatmaps=out / "heatmaps" / "tsnn"))
+        summary["tsnn"]["train_poses"] = len(dataset.split["train"])
+        timings["tsnn_predict_eval"] = time.perf_counter() - t
+
+    from mvtex.apps.report import demo_novel_views, demo_preview
+
+    t = _step("novel views: two-camera path (stereo) and four-camera map (square4)", progress)
+    summary["views"] = demo_novel_views(dataset, stereo, square, out, progress=progress)
+    timings["views"] = time.perf_counter() - t
+    t = _step(f"stereo preview of pose {test_pose}", progress)
+    summary["preview"] = demo_preview(dataset, stereo, out, test_pose, progress=progress)
+    timings["preview"] = time.perf_counter() - t
+
+    summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
+    summary["pictures"] = sorted(str(p.relative_to(out)) for p in out.rglob("*.png")
+                                 if "heatmaps" in p.parts or p.parent.name in ("render", "reconstruction"))
+    from mvtex.apps.report import demo_report
+
+    t = _step("writing report.html", progress)
+    summary["report"] = str(demo_report(out, summary, dataset))
+    summary["timings_s"]["report"] = round(time.perf_counter() - t, 2)
+    summary["summary_text"] = _text(summary)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def _short(result: dict) -> dict:
+    s = result["sqrt_mse"]
+    c = result["sqrt_mse_same_chart"]
+    m = result["material_rmse_m"]
+    return {"num_images": result["num_images"],
+            "material_inferred_mm": round(m["inferred"]["mean"] * 1e3, 3),
+            "material_texcoords_mm": round(m["texcoords"]["mean"] * 1e3, 3),
+            "ratio_material": round(result["ratio_material"], 2),
+            "inferred_e3": round(s["inferred"]["mean"] * 1e3, 3),
+            "texcoords_e3": round(s["texcoords"]["mean"] * 1e3, 3), "ratio": round(result["ratio"], 2),
+            "same_chart_inferred_e3": round(c["inferred"]["mean"] * 1e3, 3),
+            "same_chart_texcoords_e3": round(c["texcoords"]["mean"] * 1e3, 3),
+            "ratio_same_chart": round(result["ratio_same_chart"], 2)}
+
+
+def _pair(r: dict) -> str:
+    return (f"material error inferred {r['material_inferred_mm']} mm -> {r['material_texcoords_mm']} mm "
+            f"(ratio {r['ratio_material']}); SqrtMSE inferred {r['inferred_e3']} e-3 -> {r['texcoords_e3']} e-3 "
+            f"(ratio {r['ratio']}); "
+            f"diagnostic, same-chart pixels {r['same_chart_inferred_e3']} -> {r['same_chart_texcoords_e3']} e-3 "
+            f"(ratio {r['ratio_same_chart']})")
+
+
+def _text(summary: dict) -> str:
+    lines = [f"mvtex demo -> {summary['out']}",
+             f"dataset: {summary['dataset']['num_poses']} poses, {summary['dataset']['num_vertices']} vertices"]
+    for rig, r in summary["texture_sliding"].items():
+        lines.append(f"TS ({rig}, 1 subdivision, {r['num_images']} images): {_pair(r)}")
+    rec = summary["reconstruction"]
+    lines.append(f"reconstruction (square4, pose {rec['pose']}): {rec['num_triangulated']}/{rec['num_vertices']} "
+                 f"triangulated, RMSE {rec['rmse_m']['inferred']*1e3:.2f} mm (inferred) -> "
+                 f"{rec['rmse_m']['reconstructed']*1e3:.2f} mm; on triangulated vertices "
+                 f"{rec['rmse_triangulated_m']['inferred']*1e3:.2f} -> {rec['rmse_triangulated_m']['reconstructed']*1e3:.2f} mm")
+    if "tsnn" in summary:
+        r = summary["tsnn"]
+        lines.append(f"TSNN (camera left, {r['num_images']} test poses): {_pair(r)}")
+        lines.append(f"  trained on {r['train_poses']} poses only; accuracy grows with the number of poses "
+                     "(README, examples/tsnn_learning_curve.py)")
+    if "views" in summary:
+        v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
+        lines.append("novel view at the stereo midpoint (same-chart SqrtMSE e-3): " +
+                     ", ".join(f"{k} {x:.3f}" for k, x in v.items()))
+    if "preview" in summary:
+        e = summary["preview"]["eyes"]
+        lines.append(f"stereo preview SSIM (inferred -> texcoords): left {e['left']['ssim']['inferred']:.3f} -> "
+                     f"{e['left']['ssim']['texcoords']:.3f}, right {e['right']['ssim']['inferred']:.3f} -> "
+                     f"{e['right']['ssim']['texcoords']:.3f}")
+    if "report" in summary:
+        lines.append(f"report: {summary['report']}")
+    lines.append("pictures: " + ", ".join(summary["pictures"][:8]) + (" ..." if len(summary["pictures"]) > 8 else ""))
+    return "\n".join(lines)

@@ -1,0 +1,265 @@
+"""A static HTML report of a demo run (`OUT/report.html`), readable offline.
+
+One page: every stage's numbers as tables and its pictures (relative links to the PNG/GIF
+files in OUT), and the reconstruction beside the gt and inferred meshes as an interactive
+3-D view. The 3-D view is `@google/model-viewer` (vendored in `mvtex/vendor`, copied to
+OUT/viewer/) showing a GLB written with trimesh; the GLB is also embedded in the page as a
+data URI, because browsers refuse `fetch` of local files opened from `file://`.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from mvtex.formats.glb import export_glb
+
+VIEWER_JS = "model-viewer-umd.min.js"
+
+
+def copy_viewer(out: str | os.PathLike) -> Path:
+    """Copy the vendored model-viewer script to OUT/viewer/; returns its path."""
+    src = Path(__file__).resolve().parents[1] / "vendor" / VIEWER_JS
+    dst = Path(out) / "viewer" / VIEWER_JS
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dst)
+    shutil.copyfile(src.with_name("model-viewer.LICENSE"), dst.with_name("model-viewer.LICENSE"))
+    return dst
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """An HTML table; floats printed with 4 significant digits."""
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return "—" if v is None else html.escape(str(v))
+
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def figure(src: str, caption: str, width: str = "100%") -> str:
+    return (f'<figure><img src="{html.escape(src)}" alt="{html.escape(caption)}" style="max-width:{width}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def model_view(glb: Path, caption: str) -> str:
+    data = base64.b64encode(Path(glb).read_bytes()).decode("ascii")
+    return (f'<figure><model-viewer src="data:model/gltf-binary;base64,{data}" camera-controls '
+            f'shadow-intensity="0.6" exposure="1.1" camera-orbit="0deg 80deg auto" '
+            f'style="width:100%;height:420px;background:#202024" alt="{html.escape(caption)}"></model-viewer>'
+            f'<figcaption>{html.escape(caption)} (drag to turn, scroll to zoom; the file: '
+            f'<a href="{html.escape(glb.name)}">{html.escape(glb.name)}</a>)</figcaption></figure>')
+
+
+_STYLE = """
+body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222;line-height:1.45}
+h1{margin-bottom:0.2em} h2{border-bottom:1px solid #ccc;padding-bottom:0.2em;margin-top:2em}
+table{border-collapse:collapse;margin:0.8em 0} th,td{border:1px solid #ccc;padding:0.25em 0.6em;text-align:right}
+th{background:#f1f1f4} td:first-child,th:first-child{text-align:left}
+figure{margin:1em 0} figure img{border:1px solid #ddd} figcaption{font-size:0.9em;color:#555}
+.row{display:flex;gap:1em;flex-wrap:wrap} .row figure{flex:1 1 300px}
+code{background:#f4f4f6;padding:0 0.2em}
+"""
+
+
+# After loading, the page records on <html> how many images failed to load and whether the
+# 3-D viewer is defined: a headless browser's DOM dump then tells whether the page is whole.
+_CHECK = """<script>window.addEventListener('load', function () {
+  var broken = Array.prototype.filter.call(document.images, function (i) { return !i.complete || !i.naturalWidth; });
+  document.documentElement.setAttribute('data-broken-images', String(broken.length));
+  document.documentElement.setAttribute('data-viewer', window.customElements && customElements.get('model-viewer') ? 'ready' : 'absent');
+});</script>"""
+
+
+def page(title: str, sections: Sequence[tuple[str, str]], viewer: bool) -> str:
+    script = (f'<script src="viewer/{VIEWER_JS}"></script>' if viewer else "") + _CHECK
+    body = "".join(f"<h2>{html.escape(h)}</h2>{content}" for h, content in sections)
+    return (f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+            f"<style>{_STYLE}</style>{script}</head><body><h1>{html.escape(title)}</h1>{body}</body></html>\n")
+
+
+def write_html(path: str | os.PathLike, text: str) -> Path:
+    from mvtex.util.output import atomic_path
+
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
+def missing_images(html_text: str, folder: str | os.PathLike) -> list[str]:
+    """The `<img src>` of a page that are not files under `folder` (data URIs count as present)."""
+    import re
+
+    folder = Path(folder)
+    out = []
+    for src in re.findall(r'<img[^>]*\ssrc="([^"]+)"', html_text):
+        src = html.unescape(src)
+        if not src.startswith("data:") and not (folder / src).is_file():
+            out.append(src)
+    return out
+
+
+def demo_novel_views(dataset, stereo, square, out: str | os.PathLike, *, path_poses: int = 2, grid_poses: int = 1,
+                     progress: bool = True) -> dict:
+    """The two-camera plot (stereo, 5 views, first `path_poses` test poses) and the
+    four-camera map (square4, 3×3 views, first `grid_poses` test poses) into OUT/views/.
+    Skipped when OUT/views/views.json exists (the demo resumes)."""
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.util.files import read_json, write_json
+    from mvtex.views.cameras import between_weights, grid_weights, view_names
+    from mvtex.views.measure import measure_views, plot_grid, plot_path
+
+    folder = Path(out) / "views"
+    if (folder / "views.json").is_file():
+        return read_json(folder / "views.json")
+    folder.mkdir(parents=True, exist_ok=True)
+    test = dataset.split["test"]
+    weights = between_weights("left", "right", 5)
+    tc = open_texcoords(Path(out) / "ts_stereo", dataset.num_vertices)
+    two = measure_views(dataset, stereo, tc, weights, view_names(5), poses=test[:path_poses], progress=progress)
+    plot_path(two, folder / "two_camera.png", [w["right"] for w in weights], a="left", b="right")
+    corners = ["tl", "tr", "bl", "br"]
+    grid = grid_weights(*corners, 3)
+    tc4 = open_texcoords(Path(out) / "ts_square4", dataset.num_vertices)
+    four = measure_views(dataset, square, tc4, grid, view_names(9), poses=test[:grid_poses], progress=progress)
+    plot_grid(four, folder / "four_camera.png", 3, corners)
+    result = {
+        "two_camera": {**two, "picture": "views/two_camera.png",
+                       "midpoint_same_chart_e3": {k: v[2] * 1e3 for k, v in two["sqrt_mse_same_chart"].items()},
+                       "cameras_same_chart_e3": {k: (v[0] + v[-1]) / 2 * 1e3
+                                                 for k, v in two["sqrt_mse_same_chart"].items()}},
+        "four_camera": {**four, "picture": "views/four_camera.png",
+                        "mean_same_chart_e3": {k: float(np.mean(v)) * 1e3
+                                               for k, v in four["sqrt_mse_same_chart"].items()}},
+    }
+    write_json(folder / "views.json", result)
+    return result
+
+
+def demo_preview(dataset, stereo, out: str | os.PathLike, pose: int, *, progress: bool = True) -> dict:
+    """`mvtex preview` of one pose from the stereo TS set into OUT/preview/ (with path.gif);
+    skipped when OUT/preview/preview.json exists."""
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.util.files import read_json
+    from mvtex.views.preview import PreviewOptions, stereo_preview
+
+    folder = Path(out) / "preview"
+    if (folder / "preview.json").is_file():
+        return read_json(folder / "preview.json")
+    tc = open_texcoords(Path(out) / "ts_stereo", dataset.num_vertices)
+    return stereo_preview(dataset, stereo, tc, pose, folder, options=PreviewOptions(path=True, frames_per_segment=4),
+                          progress=progress)
+
+
+def _pictures(out: Path, folder: str, limit: int) -> list[str]:
+    return [str(p.relative_to(out)) for p in sorted((out / folder).glob("*.png"))[:limit]] if (out / folder).is_dir() else []
+
+
+def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
+    """Write OUT/report.html (and OUT/viewer/, OUT/reconstruction.glb) from a demo's summary."""
+    out = Path(out)
+    sections: list[tuple[str, str]] = []
+    d = summary["dataset"]
+    sections.append(("Dataset and renders", table(["poses", "vertices", "test pose shown"],
+                                                  [[d["num_poses"], d["num_vertices"], d["test_pose"]]]) +
+                     (figure("render/overview.png", "gt (top) and inferred (bottom) cloth from the stereo rig")
+                      if (out / "render" / "overview.png").is_file() else "")))
+
+    def ts_rows(items):
+        return [[name, r["num_images"], r.get("material_inferred_mm"), r.get("material_texcoords_mm"),
+                 r.get("ratio_material"), r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
+                 r["same_chart_texcoords_e3"], r["ratio_same_chart"]] for name, r in items]
+
+    header = ["", "images", "material inferred mm", "material texcoords mm", "material ratio", "inferred e-3",
+              "texcoords e-3", "ratio", "same-chart inferred e-3", "same-chart texcoords e-3", "same-chart ratio"]
+    ts = summary.get("texture_sliding", {})
+    heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS; top uv error (blue 0, red >= 0.04), bottom material error (red >= 20 mm)")
+                                         for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
+    sections.append(("Texture sliding (material error in mm and SqrtMSE per image, mean)", table(header, ts_rows(ts.items())) + heat))
+
+    rec = summary.get("reconstruction")
+    if rec:
+        rows = [["all vertices", rec["rmse_m"]["inferred"] * 1e3, rec["rmse_m"]["reconstructed"] * 1e3],
+                ["triangulated vertices", rec["rmse_triangulated_m"]["inferred"] * 1e3,
+                 rec["rmse_triangulated_m"]["reconstructed"] * 1e3]]
+        content = (f"<p>pose {rec['pose']}, square4 rig: {rec['num_triangulated']} of {rec['num_vertices']} vertices "
+                   f"triangulated, mean reprojection error {rec['mean_reprojection_error_px'] or float('nan'):.3f} px.</p>"
+                   + table(["RMSE vs gt (mm)", "inferred", "reconstructed"], rows))
+        ply = out / "reconstruction" / "reconstruction.ply"
+        if ply.is_file():
+            glb = _reconstruction_glb(out, ply, dataset, int(rec["pose"]))
+            content += model_view(glb, "left to right: gt (grey), reconstruction, inferred — coloured by distance "
+                                       "to gt, blue 0 to red >= 10 mm")
+        if (out / "reconstruction" / "comparison.png").is_file():
+            content += figure("reconstruction/comparison.png", "gt / inferred / reconstruction: texture, strain, error",
+                              width="75%")
+        sections.append(("Reconstruction", content))
+
+    if "tsnn" in summary:
+        r = summary["tsnn"]
+        sections.append(("Texture sliding network (camera left, test poses)",
+                         f"<p>trained on {r.get('train_poses')} poses.</p>" + table(header, ts_rows([("TSNN", r)])) +
+                         "".join(figure(p, f"TSNN error heatmaps {Path(p).stem}: inferred | TSNN", width="60%")
+                                 for p in _pictures(out, "heatmaps/tsnn", 1))))
+
+    views = summary.get("views")
+    if views:
+        two = views["two_camera"]
+        curves = list(two["midpoint_same_chart_e3"])
+        rows = [[c, two["cameras_same_chart_e3"][c], two["midpoint_same_chart_e3"][c],
+                 two["sqrt_mse"][c][2] * 1e3] for c in curves]
+        content = ("<p>Views between the stereo cameras (t = 0 left, 1 right): blend is the paper's "
+                   "T_N(v) = Σ w_p T_N(v_p); reconstruct triangulates the pose from the array and reads the material "
+                   "where each view's ray meets it; direct TS slides at the view with gt (the upper bound).</p>" +
+                   table(["SqrtMSE e-3", "at the cameras (same chart)", "midpoint (same chart)", "midpoint (all pixels)"],
+                         rows) + figure(two["picture"], "SqrtMSE along the path between the stereo cameras"))
+        four = views.get("four_camera")
+        if four:
+            content += table(["3x3 views over square4", "mean same-chart SqrtMSE e-3"],
+                             [[c, v] for c, v in four["mean_same_chart_e3"].items()])
+            content += figure(four["picture"], "four-camera map: same-chart SqrtMSE of 3x3 views over square4")
+        sections.append(("Novel views", content))
+
+    prev = summary.get("preview")
+    if prev:
+        rows = [[eye, s["ssim"]["inferred"], s["ssim"]["texcoords"], s["psnr"]["inferred"], s["psnr"]["texcoords"]]
+                for eye, s in prev["eyes"].items()]
+        content = (f"<p>pose {prev['pose']}, viewpoint {prev['viewpoint']['weights']}, ipd {prev['ipd']} m, method "
+                   f"{prev['method']}; scores over the garment's bounding box against the gt render.</p>" +
+                   table(["eye", "SSIM inferred", "SSIM texcoords", "PSNR inferred (dB)", "PSNR texcoords (dB)"], rows) +
+                   '<div class="row">' + figure("preview/stereo.png", "stereo pair (left | right)") +
+                   figure("preview/anaglyph.png", "red-cyan anaglyph") + "</div>" +
+                   '<div class="row">' + figure("preview/comparison.png", "gt / inferred with T_G / with the eyes' texcoords") +
+                   (figure("preview/path.gif", "the viewpoint moving through the array")
+                    if (out / "preview" / "path.gif").is_file() else "") + "</div>")
+        sections.append(("Stereo preview", content))
+
+    timings = summary.get("timings_s", {})
+    sections.append(("Timings", table(["step", "seconds"], [[k, float(v)] for k, v in timings.items()])))
+    copy_viewer(out)
+    text = page("mvtex demo report", sections, viewer=True)
+    return write_html(out / "report.html", text)
+
+
+def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int) -> Path:
+    import trimesh
+
+    from mvtex.render.pictures import error_colors
+
+    rec = np.asarray(trimesh.load(ply, process=False).vertices, np.float64)
+    gt = np.asarray(dataset.gt[pose], np.float64)
+    inferred = np.asarray(dataset.inferred[pose], np.float64)
+    grey = np.full((len(gt), 3), 190, np.uint8)
+    meshes = [("gt", gt, dataset.faces, grey),
+              ("reconstruction", rec, dataset.faces, error_colors(np.linalg.norm(rec - gt, axis=1), 0.01)),
+              ("inferred", inferred, dataset.faces, error_colors(np.linalg.norm(inferred - gt, axis=1), 0.01))]
+    return export_glb(out / "reconstruction.glb", meshes)

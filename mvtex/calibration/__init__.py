@@ -1,0 +1,2 @@
+"""Calibrating camera arrays from ChArUco boards, and rig tools.
+"""

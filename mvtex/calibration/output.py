@@ -1,0 +1,217 @@
+"""What `mvtex calibrate` writes: the rig YAML and, beside it, `<stem>_calibration/` with
+the record of the calibration and its pictures (the rig, the reprojection residuals).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mvtex.calibration.board import BoardSpec
+from mvtex.calibration.calibrate import CALIBRATION_FORMAT, CalibrateOptions, Calibration, calibrate, find_images
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig
+from mvtex.util.errors import InputError
+
+
+def pictures_folder(rig_path: str | os.PathLike) -> Path:
+    """Where the pictures and the record of a calibration go: `<rig stem>_calibration/`
+    next to the rig."""
+    rig_path = Path(rig_path)
+    return rig_path.with_name(f"{rig_path.stem}_calibration")
+
+
+def check_outputs(rig_path: str | os.PathLike) -> None:
+    """Refuse (InputError) to replace a rig file or a pictures folder mvtex did not write."""
+    rig_path = Path(rig_path)
+    check_rig_overwritable(rig_path)
+    folder = pictures_folder(rig_path)
+    if folder.exists():
+        record = folder / "calibration.json"
+        ours = False
+        if folder.is_dir() and record.is_file():
+            try:
+                import json
+
+                ours = json.loads(record.read_text()).get("format") == CALIBRATION_FORMAT
+            except (ValueError, UnicodeDecodeError, AttributeError):
+                ours = False
+        if not ours:
+            raise InputError(folder, "exists and was not written by mvtex calibrate; not overwriting it")
+
+
+def check_rig_overwritable(path: str | os.PathLike) -> None:
+    """Refuse (InputError) to replace a file that is not an mvtex rig."""
+    path = Path(path)
+    if not path.exists():
+        return
+    head = b""
+    if path.is_file():
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    if b"mvtex-rig" not in head:
+        raise InputError(path, "exists and is not an mvtex rig; not overwriting it")
+
+
+def write_calibration(calibration: Calibration, rig_path: str | os.PathLike) -> dict:
+    """Write the rig YAML and, next to it, `<stem>_calibration/` with `calibration.json`
+    (options, per-camera numbers, frames), `rig.png` (frusta and board poses) and
+    `residuals.png` (per camera, reprojection residuals over the image).
+
+    Returns:
+        {"rig": path, "pictures": [paths]}.
+    """
+    from mvtex.data.rig import save_rig
+    from mvtex.util.output import atomic_path
+
+    rig_path = Path(rig_path)
+    check_outputs(rig_path)
+    folder = pictures_folder(rig_path)
+    with atomic_path(folder) as tmp:
+        tmp.mkdir()
+        record = {"format": CALIBRATION_FORMAT, "version": 1, "rig": rig_path.name,
+                  "options": {**calibration.options.to_json(), "reference": calibration.reference}
+                  if calibration.options else None,
+                  **calibration.summary(),
+                  "frames": list(calibration.frames),
+                  "cameras": {name: {"frames": list(obs.frames), "skipped": list(obs.skipped),
+                                     "corners": int(sum(len(d) for d in obs.detections)),
+                                     "frame_rms_px": calibration.frame_rms_px(name)}
+                              for name, obs in calibration.observations.items()}}
+        import json
+
+        (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
+        plot_rig(calibration.rig, tmp / "rig.png", board=calibration.board,
+                 world_from_board=calibration.world_from_board,
+                 title=f"{len(calibration.rig)} cameras, {len(calibration.frames)} board poses, "
+                       f"RMS {calibration.rms_px:.3f} px")
+        plot_residuals(calibration, tmp / "residuals.png")
+    save_rig(calibration.rig, rig_path)
+    return {"rig": str(rig_path), "pictures": [str(folder / "rig.png"), str(folder / "residuals.png")]}
+
+
+def calibrate_folder(images: str | os.PathLike, rig_path: str | os.PathLike, options: CalibrateOptions, *,
+                     progress: bool = True) -> Calibration:
+    """`mvtex calibrate`: find the images, calibrate, write the rig and its pictures."""
+    check_outputs(rig_path)
+    calibration = calibrate(find_images(images), options, progress=progress)
+    write_calibration(calibration, rig_path)
+    return calibration
+
+
+def _frustum(camera: Camera, depth: float) -> np.ndarray:
+    """(5,3) world points: the centre and the image corners at `depth` along the axis."""
+    W, H = camera.width, camera.height
+    corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5]])
+    rays = np.hstack([corners, np.ones((4, 1))]) @ np.linalg.inv(camera.K).T * depth
+    return np.vstack([camera.center, (rays - camera.t) @ camera.R])
+
+
+def plot_rig(rig: Rig, path: str | os.PathLike, *, board: BoardSpec | None = None,
+             world_from_board: np.ndarray | None = None, title: str = "") -> None:
+    """A 3-D picture of the rig: camera frusta (image top edge in black), names, and the
+    board outlines (their x edge thicker).
+
+    Drawn in the cameras' mean axes: right, forward (mean viewing direction) and up (mean
+    of the cameras' -y), so a rig looks upright whichever world frame it uses.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    up = -np.mean([cam.R[1] for cam in rig], axis=0)
+    up /= np.linalg.norm(up)
+    forward = np.mean([cam.R[2] for cam in rig], axis=0)
+    forward -= up * np.dot(forward, up)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    display = np.stack([right, forward, up])
+
+    def show(p):  # world points (..., 3) -> plot coordinates (right, forward, up)
+        q = np.asarray(p) @ display.T
+        return q[..., 0], q[..., 1], q[..., 2]
+
+    fig = Figure(figsize=(8, 6.5), dpi=110)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(projection="3d")
+    centres = np.stack([c.center for c in rig])
+    everything = [centres]
+    boards = []
+    if board is not None and world_from_board is not None and len(world_from_board):
+        w, h = board.size_m
+        outline = np.array([[0, 0, 0], [w, 0, 0], [w, h, 0], [0, h, 0], [0, 0, 0]])
+        boards = [outline @ T[:3, :3].T + T[:3, 3] for T in world_from_board]
+        everything += boards
+    pts = np.vstack(everything)
+    scale = max(float(np.ptp(pts, axis=0).max()), 0.1)
+    from matplotlib import colormaps
+
+    colors = colormaps["viridis"](np.linspace(0, 1, max(len(boards), 1)))
+    for i, b in enumerate(boards):
+        ax.plot(*show(b), color=colors[i], lw=1.0, alpha=0.8)
+        ax.plot(*show(b[:2]), color=colors[i], lw=2.2, alpha=0.9)  # the board's x axis edge
+    for cam in rig:
+        f = _frustum(cam, 0.12 * scale)
+        for k in range(1, 5):
+            ax.plot(*show(f[[0, k]]), color="tab:red", lw=1.0)
+        ax.plot(*show(f[[1, 2, 3, 4, 1]]), color="tab:red", lw=1.4)
+        ax.plot(*show(f[[1, 2]]), color="black", lw=2.0)  # image top edge
+        ax.text(*show(cam.center + up * 0.03 * scale), cam.name, fontsize=9)
+    shown = pts @ display.T
+    lo, hi = shown.min(axis=0), shown.max(axis=0)
+    mid, half = (lo + hi) / 2, (hi - lo).max() / 2 + 0.05 * scale
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("right (m)")
+    ax.set_ylabel("forward (m)")
+    ax.set_zlabel("up (m)")
+    ax.view_init(elev=22, azim=-62)
+    ax.set_title(title or f"{len(rig)} cameras", fontsize=10)
+    fig.tight_layout()
+    _save_figure(fig, path)
+
+
+def plot_residuals(calibration: Calibration, path: str | os.PathLike, *, columns: int = 3) -> None:
+    """Per camera, each detected corner over the image with its reprojection residual
+    (arrow, magnified) coloured by its length in pixels."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    names = calibration.rig.names
+    cols = min(columns, len(names))
+    rows = (len(names) + cols - 1) // cols
+    fig = Figure(figsize=(4.6 * cols, 3.9 * rows), dpi=100)
+    FigureCanvasAgg(fig)
+    everything = np.concatenate([np.linalg.norm(r, axis=1) for r in calibration.residuals.values()])
+    vmax = max(float(np.percentile(everything, 99)), 1e-3) if everything.size else 1.0
+    typical = max(float(np.median(everything)), 1e-3) if everything.size else 1.0
+    magnify = float(np.round(0.03 * max(c.width for c in calibration.rig) / typical, -1) or 1.0)
+    for i, name in enumerate(names):
+        cam = calibration.rig[name]
+        ax = fig.add_subplot(rows, cols, i + 1)
+        obs = calibration.observations[name]
+        pixels = np.concatenate([d.pixels for d in obs.detections])
+        r = calibration.residuals[name]
+        length = np.linalg.norm(r, axis=1)
+        sc = ax.scatter(pixels[:, 0], pixels[:, 1], c=length, cmap="viridis", vmin=0, vmax=vmax, s=3)
+        ax.quiver(pixels[:, 0], pixels[:, 1], r[:, 0] * magnify, r[:, 1] * magnify, length, cmap="viridis",
+                  angles="xy", scale_units="xy", scale=1, width=0.0025, clim=(0, vmax))
+        ax.set_xlim(-0.5, cam.width - 0.5)
+        ax.set_ylim(cam.height - 0.5, -0.5)
+        ax.set_aspect("equal")
+        ax.set_title(f"{name}: {len(obs.frames)} frames, RMS {calibration.camera_rms_px(name):.3f} px", fontsize=9)
+        ax.tick_params(labelsize=7)
+        fig.colorbar(sc, ax=ax, fraction=0.035, pad=0.02).set_label("residual (px)", fontsize=7)
+    fig.suptitle(f"reprojection residuals (arrows x{magnify:.0f})", fontsize=10)
+    fig.tight_layout()
+    _save_figure(fig, path)
+
+
+def _save_figure(fig, path: str | os.PathLike) -> None:
+    from mvtex.util.output import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")

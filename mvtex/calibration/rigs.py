@@ -1,0 +1,178 @@
+"""Rig operations behind `mvtex rig` and `mvtex undistort`: summaries, pictures, COLMAP
+import/export and undistortion, each refusing to replace files mvtex did not write.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mvtex.data.camera import undistort_image, undistorted_camera
+from mvtex.data.rig import Rig, save_rig, undistort_rig
+from mvtex.util.errors import InputError
+
+UNDISTORT_FORMAT = "mvtex-undistorted"
+
+
+COLMAP_MODEL_FILES = {f"{stem}.{ext}" for stem in ("cameras", "images", "points3D", "rigs", "frames")
+                      for ext in ("bin", "txt")}
+
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def rig_summary(rig: Rig) -> dict:
+    """Per camera its size, intrinsics, whether it has distortion, its centre; and the
+    baselines between camera centres (meters)."""
+    cameras = {}
+    for cam in rig:
+        cameras[cam.name] = {"width": cam.width, "height": cam.height, "fx": float(cam.K[0, 0]),
+                             "fy": float(cam.K[1, 1]), "cx": float(cam.K[0, 2]), "cy": float(cam.K[1, 2]),
+                             "distortion": [float(d) for d in cam.dist], "center_m": [float(c) for c in cam.center]}
+    centres = np.stack([cam.center for cam in rig])
+    distances = np.linalg.norm(centres[:, None] - centres[None], axis=-1)[np.triu_indices(len(rig), 1)]
+    return {"num_cameras": len(rig), "cameras": cameras,
+            "distorted": [cam.name for cam in rig if np.any(cam.dist != 0)],
+            "baseline_m": {"min": float(distances.min()), "max": float(distances.max())} if distances.size else None}
+
+
+def check_rig_target(path: str | os.PathLike) -> None:
+    """Refuse (InputError) to replace a file that is not an mvtex rig."""
+    from mvtex.calibration.output import check_rig_overwritable
+
+    check_rig_overwritable(path)
+
+
+def write_pinhole_rig(rig: Rig, out: str | os.PathLike, alpha: float | None = None) -> Rig:
+    """Write the undistorted (pinhole) rig of `rig` (see `mvtex.data.camera.undistorted_camera`)."""
+    check_rig_target(out)
+    if alpha is not None and not 0.0 <= alpha <= 1.0:
+        raise InputError(None, f"--alpha must be in [0, 1], got {alpha}")
+    pinhole = undistort_rig(rig, alpha)
+    save_rig(pinhole, out)
+    return pinhole
+
+
+def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, source: str | os.PathLike | None = None) -> Path:
+    """Write a rig as a COLMAP model (PINHOLE cameras, one image `<camera>.png` each).
+
+    `out` may be missing or hold a COLMAP model; anything else there is left alone.
+    """
+    from mvtex.formats.colmap import write_rig
+
+    out = Path(out)
+    if out.exists():
+        foreign = [p.name for p in out.iterdir()] if out.is_dir() else [out.name]
+        foreign = [name for name in foreign if name not in COLMAP_MODEL_FILES]
+        if not out.is_dir() or foreign:
+            raise InputError(out, f"exists and is not a COLMAP model folder ({', '.join(foreign[:3])}); not replacing it")
+    distorted = [cam.name for cam in rig if np.any(cam.dist != 0)]
+    if distorted:
+        raise InputError(source, f"cameras {', '.join(distorted)} have distortion; COLMAP PINHOLE needs a pinhole rig: "
+                         "mvtex rig RIG --undistort --out RIG2 (and undistort the images with mvtex undistort)")
+    try:
+        return write_rig(rig, out, text=text)
+    except ValueError as err:  # skewed intrinsics
+        raise InputError(source, str(err)) from None
+
+
+def import_colmap(model: str | os.PathLike, out: str | os.PathLike) -> Rig:
+    """Read the cameras of a COLMAP model (PINHOLE or SIMPLE_PINHOLE) and write them as a rig."""
+    from mvtex.formats.colmap import read_rig
+
+    check_rig_target(out)
+    rig = read_rig(model)
+    save_rig(rig, out)
+    return rig
+
+
+def plot_rig_file(rig: Rig, out: str | os.PathLike, title: str = "") -> None:
+    """A 3-D picture of the rig (frusta and names) as PNG."""
+    from mvtex.calibration.output import plot_rig
+
+    out = Path(out)
+    if out.exists() and out.suffix.lower() != ".png":
+        raise InputError(out, "exists and is not a PNG; not replacing it")
+    plot_rig(rig, out, title=title)
+
+
+def _camera_images(folder: Path, rig: Rig) -> dict[str, list[tuple[Path, Path]]]:
+    """camera -> [(input file, output path relative to the output folder)]."""
+    plan: dict[str, list[tuple[Path, Path]]] = {}
+    for entry in sorted(folder.iterdir()):
+        if entry.name.startswith("."):
+            continue
+        if entry.is_dir():
+            files = [p for p in sorted(entry.iterdir()) if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
+            if not files:
+                continue
+            if entry.name not in rig.names:
+                raise InputError(entry, f"no camera named {entry.name} in the rig (it has {', '.join(rig.names)})")
+            plan.setdefault(entry.name, []).extend((p, Path(entry.name) / f"{p.stem}.png") for p in files)
+        elif entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES and entry.stem in rig.names:
+            plan.setdefault(entry.stem, []).append((entry, Path(f"{entry.stem}.png")))
+    if not plan:
+        raise InputError(folder, "no images of the rig's cameras; expected IMAGES/<camera>/<name>.png|jpg or "
+                         f"IMAGES/<camera>.png|jpg with cameras {', '.join(rig.names)}")
+    return plan
+
+
+def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike, *, alpha: float | None = None,
+                     progress: bool = True) -> dict:
+    """Undistort a folder of images with OpenCV so they compare with mvtex's renders.
+
+    Input: `IMAGES/<camera>/<name>.png|jpg` or `IMAGES/<camera>.png|jpg`, camera names of
+    the rig. Output `OUT` mirrors it (always PNG) and holds `rig.yaml`, the pinhole rig of
+    the undistorted images (render with it), and `undistort.json`. `OUT` is written whole
+    (to a temporary name first) and only replaces an earlier `mvtex undistort` output.
+
+    Returns:
+        {"num_images", "cameras": {name: count}, "rig", "alpha"}.
+    """
+    import cv2
+    from tqdm import tqdm
+
+    from mvtex.util.files import read_json, save_png, write_json
+    from mvtex.util.output import atomic_path
+
+    images, out = Path(images), Path(out)
+    if not images.is_dir():
+        raise InputError(images, "image folder not found")
+    if alpha is not None and not 0.0 <= alpha <= 1.0:
+        raise InputError(None, f"--alpha must be in [0, 1], got {alpha}")
+    if out.exists():
+        record = out / "undistort.json"
+        try:
+            ours = read_json(record).get("format") == UNDISTORT_FORMAT
+        except (InputError, AttributeError):  # missing, malformed, or not a JSON object
+            ours = False
+        if not ours:
+            raise InputError(out, "exists and was not written by mvtex undistort; not replacing it")
+    plan = _camera_images(images, rig)
+    pinhole = {cam.name: undistorted_camera(cam, alpha) for cam in rig}
+    total = sum(len(v) for v in plan.values())
+    with atomic_path(out) as tmp, tqdm(total=total, desc="undistort", unit="image", disable=not progress,
+                                       file=sys.stderr) as bar:
+        tmp.mkdir()
+        for name, files in plan.items():
+            for source, relative in files:
+                image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
+                if image is None:
+                    raise InputError(source, "cannot be read as an image")
+                try:
+                    result = undistort_image(image, rig[name], pinhole[name])
+                except ValueError as err:
+                    raise InputError(source, str(err)) from None
+                if result.ndim == 3 and result.shape[2] >= 3:  # save_png takes RGB
+                    result = cv2.cvtColor(result, cv2.COLOR_BGRA2RGB if result.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+                save_png(tmp / relative, result)
+                bar.update(1)
+        save_rig(Rig(tuple(pinhole[cam.name] for cam in rig)), tmp / "rig.yaml")
+        summary = {"format": UNDISTORT_FORMAT, "version": 1, "num_images": total,
+                   "cameras": {name: len(files) for name, files in plan.items()}, "rig": "rig.yaml",
+                   "alpha": alpha, "source": str(images)}
+        write_json(tmp / "undistort.json", summary)
+    return summary

@@ -1,0 +1,2 @@
+"""The data mvtex works on: cameras and rigs, meshes, datasets, texcoord sets.
+"""

@@ -1,0 +1,266 @@
+"""The mvtex-dataset v1 directory (DESIGN §4): load memory-mapped, validate, save, split,
+pose selection specs, and import from OBJ/PLY sequences.
+
+    dataset.json   {"format": "mvtex-dataset", "version": 1, "name", "units": "m",
+                    "num_poses": K, "num_vertices": n, "pose_dim": P}
+    mesh.npz       faces int32 (m,3), uv float32 (n,2), optional rest float32 (n,3)
+    gt.npy, inferred.npy   float32 (K,n,3)
+    poses.npy      float32 (K,P)
+    split.json     optional {"train": [...], "val": [...], "test": [...]}
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from mvtex.util.errors import InputError
+from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_rows
+from mvtex.util.output import atomic_path
+
+FORMAT = "mvtex-dataset"
+
+
+VERSION = 1
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A loaded dataset. `gt`, `inferred` are memory-mapped (K,n,3) float32 arrays.
+
+    Attributes:
+        path: the dataset directory.
+        name: free-form name.
+        faces: (m,3) int32. uv: (n,2) float32 (T_G). rest: (n,3) float32 or None.
+        gt, inferred: (K,n,3) float32 (memory-mapped). poses: (K,P) float32.
+        split: dict with "train", "val", "test" lists of pose indices.
+    """
+
+    path: Path
+    name: str
+    faces: np.ndarray
+    uv: np.ndarray
+    rest: np.ndarray | None
+    gt: np.ndarray
+    inferred: np.ndarray
+    poses: np.ndarray
+    split: dict[str, list[int]]
+
+    @property
+    def num_poses(self) -> int:
+        return int(self.gt.shape[0])
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.gt.shape[1])
+
+    def select(self, spec: str | None, default: str = "all") -> list[int]:
+        """Pose indices for a SPEC (`all`, `train`, `val`, `test`, `a:b`, `3,5,7`)."""
+        return parse_pose_spec(spec or default, self.num_poses, self.split, source=self.path)
+
+    def check_poses(self, poses) -> list[int]:
+        """Pose indices as ints; InputError (naming the dataset) when none or one out of range."""
+        poses = [int(p) for p in poses]
+        if not poses:
+            raise InputError(self.path, "no pose selected")
+        _check_range(poses, self.num_poses, self.path)
+        return poses
+
+
+def as_dataset(dataset: "Dataset | str | os.PathLike") -> Dataset:
+    """A `Dataset` as is, or the dataset directory at a path loaded (`load_dataset`)."""
+    return dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
+
+
+def reference_shape(dataset: Dataset) -> np.ndarray:
+    """The one shape in which pose-independent mesh quantities are measured: seam copies and
+    their chart orientation, the fill's Laplacian, edge breaking (`sliding.build_topology`).
+
+    It is the dataset's `rest` shape when it has one, else the gt positions of pose 0
+    (`import_sequences` makes the same choice for `rest`). It never depends on which poses
+    are processed, in which order, or by how many workers, so neither do the results.
+
+    Returns:
+        (n,3) float64.
+    """
+    shape = dataset.rest if dataset.rest is not None else dataset.gt[0]
+    return np.array(shape, dtype=np.float64)
+
+
+def reference_shape_source(dataset: Dataset) -> str:
+    """Which shape `reference_shape` takes: "rest" or "gt[0]"."""
+    return "rest" if dataset.rest is not None else "gt[0]"
+
+
+def default_split(num_poses: int, seed: int = 0) -> dict[str, list[int]]:
+    """A seeded 80/10/10 permutation split of range(num_poses) (the built-in dataset's).
+
+    With 3 or more poses, val and test hold at least one pose each (10 % rounded) and train
+    the rest; with fewer, every pose is in train.
+    """
+    order = np.random.default_rng([seed, 1]).permutation(num_poses)
+    n_val = n_test = max(1, round(0.1 * num_poses)) if num_poses >= 3 else 0
+    n_train = num_poses - n_val - n_test
+    parts = {"train": order[:n_train], "val": order[n_train:n_train + n_val], "test": order[n_train + n_val:]}
+    return {name: sorted(int(i) for i in idx) for name, idx in parts.items()}
+
+
+def _check_range(indices: list[int], num_poses: int, source) -> None:
+    bad = [i for i in indices if not 0 <= i < num_poses]
+    if bad:
+        raise InputError(source, f"pose index {bad[0]} out of range (dataset has {num_poses} poses)")
+
+
+def parse_pose_spec(spec: str, num_poses: int, split: dict[str, list[int]] | None = None,
+                    source: str | os.PathLike | None = None) -> list[int]:
+    """Resolve a pose SPEC to sorted-as-given indices; errors raise InputError."""
+    spec = str(spec).strip()
+    if spec == "all":
+        return list(range(num_poses))
+    if spec in ("train", "val", "test"):
+        split = split if split is not None else default_split(num_poses)
+        return list(split[spec])
+    try:
+        if ":" in spec:
+            parts = spec.split(":")
+            if len(parts) > 3:
+                raise ValueError
+            sl = slice(*(int(p) if p.strip() else None for p in parts))
+            indices = list(range(num_poses))[sl]
+        else:
+            indices = [int(p) for p in spec.split(",") if p.strip()]
+    except ValueError:
+        raise InputError(source, f"bad pose spec {spec!r} (use all, train, val, test, a:b or 3,5,7)") from None
+    _check_range(indices, num_poses, source)
+    if not indices:
+        raise InputError(source, f"pose spec {spec!r} selects no pose")
+    return indices
+
+
+def validate_mesh(faces: np.ndarray, uv: np.ndarray, source: str | os.PathLike | None) -> None:
+    """Faces int (m,3) in range, uv (n,2) finite."""
+    faces = np.asarray(faces)
+    uv = np.asarray(uv)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise InputError(source, f"faces must have shape (m,3), got {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise InputError(source, f"faces must be integers, got {faces.dtype}")
+    if uv.ndim != 2 or uv.shape[1] != 2:
+        raise InputError(source, f"uv must have shape (n,2), got {uv.shape}")
+    if uv.dtype.kind != "f":
+        raise InputError(source, f"uv must be floating point, got {uv.dtype}")
+    if faces.min() < 0 or faces.max() >= len(uv):
+        raise InputError(source, f"face index out of range [0, {len(uv)}): min {faces.min()}, max {faces.max()}")
+    if not np.all(np.isfinite(uv)):
+        raise InputError(source, "uv has NaN or infinite values")
+
+
+def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = None) -> None:
+    if array.dtype.kind != "f":
+        raise InputError(source, f"positions must be float32, got {array.dtype}")
+    if array.ndim != 3 or array.shape[2] != 3:
+        raise InputError(source, f"expected shape (K,{n},3), got {array.shape}")
+    if array.shape[1] != n:
+        raise InputError(source, f"vertex count {array.shape[1]} does not match mesh.npz ({n})")
+    if k is not None and array.shape[0] != k:
+        raise InputError(source, f"pose count {array.shape[0]} does not match ({k})")
+    # Chunked so a large memory-mapped array is never loaded whole (nor left resident).
+    for start in range(0, array.shape[0], 64):
+        block = read_rows(array, start, start + 64)
+        if not np.all(np.isfinite(block)):
+            bad = start + int(np.argmax(~np.isfinite(block).all(axis=(1, 2))))
+            raise InputError(source, f"NaN or infinite positions (pose {bad})")
+
+
+def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
+    """Open a dataset directory (arrays memory-mapped); problems raise InputError."""
+    path = Path(path)
+    meta = read_header(path, "dataset.json", FORMAT, VERSION, "an mvtex dataset")
+    mesh = load_npz(path / "mesh.npz")
+    for key in ("faces", "uv"):
+        if key not in mesh:
+            raise InputError(path / "mesh.npz", f"missing array '{key}'")
+    faces, uv = mesh["faces"], mesh["uv"]
+    validate_mesh(faces, uv, path / "mesh.npz")
+    n = len(uv)
+    gt = load_npy(path / "gt.npy")
+    inferred = load_npy(path / "inferred.npy")
+    poses = load_npy(path / "poses.npy")
+    rest = mesh.get("rest")
+    if validate:
+        _check_positions(gt, n, path / "gt.npy")
+        _check_positions(inferred, n, path / "inferred.npy", gt.shape[0])
+        if rest is not None and (rest.shape != (n, 3) or rest.dtype.kind != "f" or not np.all(np.isfinite(rest))):
+            raise InputError(path / "mesh.npz", f"rest must be finite with shape ({n},3), got {rest.shape}")
+        if poses.dtype.kind != "f":
+            raise InputError(path / "poses.npy", f"pose vectors must be float32, got {poses.dtype}")
+        if poses.ndim != 2 or poses.shape[0] != gt.shape[0]:
+            raise InputError(path / "poses.npy", f"expected shape ({gt.shape[0]},P), got {poses.shape}")
+        if not np.all(np.isfinite(poses)):
+            raise InputError(path / "poses.npy", "NaN or infinite values")
+        for key, expected in (("num_poses", gt.shape[0]), ("num_vertices", n), ("pose_dim", poses.shape[1])):
+            if key in meta and (type(meta[key]) is not int or meta[key] != expected):
+                raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
+    split = _load_split(path, gt.shape[0])
+    return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
+                   uv=uv.astype(np.float32), rest=None if rest is None else rest.astype(np.float32),
+                   gt=gt, inferred=inferred, poses=poses, split=split)
+
+
+def _load_split(path: Path, num_poses: int) -> dict[str, list[int]]:
+    file = path / "split.json"
+    if not file.exists():
+        return default_split(num_poses)
+    split = read_json(file)
+    if not isinstance(split, dict) or not all(k in split for k in ("train", "val", "test")):
+        raise InputError(file, "needs lists 'train', 'val' and 'test'")
+    out = {}
+    for key in ("train", "val", "test"):
+        values = split[key]
+        if not isinstance(values, list) or not all(type(i) is int for i in values):
+            raise InputError(file, f"'{key}' must be a list of integer pose indices")
+        if any(not 0 <= i < num_poses for i in values):
+            raise InputError(file, f"'{key}' has a pose index outside [0, {num_poses})")
+        out[key] = values
+    return out
+
+
+def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray,
+                 inferred: np.ndarray, poses: np.ndarray, name: str = "dataset",
+                 rest: np.ndarray | None = None, split: dict[str, Sequence[int]] | None = None,
+                 **extra_meta) -> Path:
+    """Write a dataset directory atomically (the whole directory appears at once).
+
+    Args:
+        faces: (m,3) int. uv: (n,2). gt, inferred: (K,n,3). poses: (K,P).
+        rest: optional (n,3). split: optional train/val/test lists (default 80/10/10).
+        extra_meta: extra JSON-serialisable keys for dataset.json (e.g. "stats").
+    """
+    import json
+
+    path = Path(path)
+    gt = np.asarray(gt, dtype=np.float32)
+    inferred = np.asarray(inferred, dtype=np.float32)
+    poses = np.asarray(poses, dtype=np.float32).reshape(len(gt), -1)
+    validate_mesh(faces, uv, path)
+    if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3):
+        raise InputError(path, f"gt {gt.shape} and inferred {inferred.shape} must both be (K,{len(uv)},3)")
+    split = split or default_split(len(gt))
+    meta = {"format": FORMAT, "version": VERSION, "name": name, "units": "m", "num_poses": int(gt.shape[0]),
+            "num_vertices": int(gt.shape[1]), "pose_dim": int(poses.shape[1]), **extra_meta}
+    with atomic_path(path) as tmp:
+        tmp.mkdir()
+        mesh = {"faces": np.asarray(faces, dtype=np.int32), "uv": np.asarray(uv, dtype=np.float32)}
+        if rest is not None:
+            mesh["rest"] = np.asarray(rest, dtype=np.float32)
+        np.savez_compressed(tmp / "mesh.npz", **mesh)
+        np.save(tmp / "gt.npy", gt, allow_pickle=False)
+        np.save(tmp / "inferred.npy", inferred, allow_pickle=False)
+        np.save(tmp / "poses.npy", poses, allow_pickle=False)
+        (tmp / "split.json").write_text(json.dumps({k: [int(i) for i in split[k]] for k in ("train", "val", "test")}) + "\n")
+        (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return path

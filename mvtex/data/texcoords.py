@@ -1,0 +1,293 @@
+"""The texcoord set (DESIGN §4): the hub format that slide, predict and views write and
+eval, triangulate, render, views and preview read.
+
+    texcoords.json   {"format": "mvtex-texcoords", "version": 1, "source": "ts"|"tsnn"|...,
+                      "subdiv": s, "poses": [...], "cameras": [...], ...}
+    mesh.npz         faces int32 (m',3), uv float32 (n',2) (T_G on the subdivided mesh),
+                     parent int32 (n',2)
+    <camera>/displacement.npy  float32 (len(poses), n', 2): d = T_N - T_G
+    <camera>/assigned.npy      bool (len(poses), n')
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from mvtex.data.mesh import apply_extension, extension_matrix
+from mvtex.util.errors import InputError
+from mvtex.util.files import load_npy, load_npz, read_header, read_row, read_rows
+from mvtex.util.output import atomic_path
+
+FORMAT = "mvtex-texcoords"
+
+
+VERSION = 1
+
+
+MAX_SUBDIV = 3
+
+
+MAX_DISPLACEMENT = 1.0
+
+
+"""Largest |d| accepted in a set (uv units: the whole atlas is 1 wide); larger is corrupt."""
+
+
+@dataclass(frozen=True)
+class TexcoordSet:
+    """An opened texcoord set; per-camera arrays are memory-mapped on first access.
+
+    Attributes:
+        path: the directory. meta: texcoords.json as a dict.
+        faces: (m',3) int32. uv: (n',2) float32 T_G on the (subdivided) mesh. parent: (n',2) int32.
+    """
+
+    path: Path
+    meta: dict[str, Any]
+    faces: np.ndarray
+    uv: np.ndarray
+    parent: np.ndarray
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def poses(self) -> list[int]:
+        return [int(p) for p in self.meta["poses"]]
+
+    @property
+    def cameras(self) -> list[str]:
+        return [str(c) for c in self.meta["cameras"]]
+
+    @property
+    def subdiv(self) -> int:
+        return int(self.meta.get("subdiv", 0))
+
+    @property
+    def source(self) -> str:
+        return str(self.meta.get("source", "unknown"))
+
+    @property
+    def num_base_vertices(self) -> int:
+        return int(np.sum(self.parent[:, 0] == self.parent[:, 1]))
+
+    def row(self, pose: int) -> int:
+        """Row of a dataset pose index in the per-camera arrays."""
+        try:
+            return self.poses.index(int(pose))
+        except ValueError:
+            raise InputError(self.path / "texcoords.json", f"pose {pose} is not in this texcoord set "
+                             f"(it has {len(self.poses)} poses)") from None
+
+    def _arrays(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        if camera not in self._cache:
+            if camera not in self.cameras:
+                raise InputError(self.path, f"no camera {camera!r} in this texcoord set (it has {', '.join(self.cameras)})")
+            d = load_npy(self.path / camera / "displacement.npy")
+            a = load_npy(self.path / camera / "assigned.npy")
+            shape = (len(self.poses), len(self.uv))
+            if d.shape != shape + (2,):
+                raise InputError(self.path / camera / "displacement.npy", f"shape {d.shape}, expected {shape + (2,)}")
+            if a.shape != shape or a.dtype != np.bool_:
+                raise InputError(self.path / camera / "assigned.npy", f"shape {a.shape} {a.dtype}, expected {shape} bool")
+            if d.dtype.kind != "f":
+                raise InputError(self.path / camera / "displacement.npy", f"dtype {d.dtype}, expected float32")
+            _check_displacements(d, self.path / camera / "displacement.npy")
+            self._cache[camera] = (d, a)
+        return self._cache[camera]
+
+    # Rows are read through the files (`read_rows`), not the maps: pages read through a map
+    # stay resident while it lives, so a pass over a 10,000-pose set would hold all of it.
+    def displacement(self, camera: str, pose: int) -> np.ndarray:
+        """d = T_N - T_G, (n',2) float32, for a dataset pose index (a copy)."""
+        return read_row(self._arrays(camera)[0], self.row(pose))
+
+    def assigned(self, camera: str, pose: int) -> np.ndarray:
+        """(n',) bool: True where d came from the ray (a copy)."""
+        return read_row(self._arrays(camera)[1], self.row(pose))
+
+    def fingerprint(self, camera: str) -> str:
+        """Content hash of one camera's displacement and assigned arrays (`io.fingerprint`,
+        read in blocks through the files)."""
+        from mvtex.util.fingerprint import fingerprint
+
+        return fingerprint(*self._arrays(camera))
+
+    def texcoords(self, camera: str, pose: int) -> np.ndarray:
+        """T_N = T_G + d, (n',2) float32."""
+        return self.uv + self.displacement(camera, pose)
+
+    def positions(self, positions: np.ndarray) -> np.ndarray:
+        """Extend base-mesh positions (n,3) (or (K,n,3)) to this set's subdivided mesh."""
+        if ("extension",) not in self._cache:  # camera names are strings: no clash
+            self._cache[("extension",)] = extension_matrix(self.parent)
+        return apply_extension(self._cache[("extension",)], positions)
+
+
+def _check_displacements(d: np.ndarray, source: Path) -> None:
+    """Every value finite and |d| <= MAX_DISPLACEMENT, read in blocks (d may be memory-mapped)."""
+    rows = max(1, (1 << 24) // max(1, d[0].nbytes)) if len(d) else 1
+    for start in range(0, len(d), rows):
+        block = read_rows(d, start, start + rows).astype(np.float64)
+        finite = np.isfinite(block).all(axis=(1, 2))
+        if not finite.all():
+            raise InputError(source, f"NaN or infinite displacement (row {start + int(np.argmin(finite))})")
+        norm = np.sqrt((block ** 2).sum(axis=2)).max(axis=1)
+        if np.any(norm > MAX_DISPLACEMENT):
+            row = int(np.argmax(norm > MAX_DISPLACEMENT))
+            raise InputError(source, f"displacement of length {norm[row]:.4g} uv units at row {start + row} "
+                             f"(more than {MAX_DISPLACEMENT}: not a texcoord perturbation)")
+
+
+def _int_list(meta: dict, key: str, source: Path) -> list:
+    values = meta.get(key)
+    if not isinstance(values, list):
+        raise InputError(source, f"missing list '{key}'")
+    return values
+
+
+def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
+                   num_poses: int | None = None) -> TexcoordSet:
+    """Open a texcoord set directory and validate its header and mesh.
+
+    Args:
+        path: the directory.
+        num_vertices: the dataset's vertex count, checked against the set's base mesh.
+        num_poses: the dataset's pose count: every pose of the set must be below it.
+
+    Per-camera arrays are validated (shape, dtype, finite, |d| <= MAX_DISPLACEMENT) when
+    first read.
+    """
+    from mvtex.data.camera import check_camera_name
+    from mvtex.data.dataset import validate_mesh
+
+    path = Path(path)
+    header = path / "texcoords.json"
+    meta = read_header(path, "texcoords.json", FORMAT, VERSION, "a texcoord set")
+    poses = _int_list(meta, "poses", header)
+    if not poses:
+        raise InputError(header, "'poses' is empty")
+    if not all(isinstance(p, int) and not isinstance(p, bool) for p in poses):
+        raise InputError(header, "'poses' must be a list of integer pose indices")
+    bad = [p for p in poses if p < 0 or (num_poses is not None and p >= num_poses)]
+    if bad:
+        limit = f"[0, {num_poses})" if num_poses is not None else "non-negative"
+        raise InputError(header, f"pose index {bad[0]} out of range ({limit})")
+    if len(set(poses)) != len(poses):
+        raise InputError(header, "'poses' lists a pose twice")
+    cameras = _int_list(meta, "cameras", header)
+    if not cameras:
+        raise InputError(header, "'cameras' is empty")
+    try:
+        for name in cameras:
+            check_camera_name(name)
+    except ValueError as err:
+        raise InputError(header, str(err)) from None
+    if len({c.lower() for c in cameras}) != len(cameras):
+        raise InputError(header, "'cameras' names a camera twice")
+    subdiv = meta.get("subdiv", 0)
+    if not isinstance(subdiv, int) or isinstance(subdiv, bool) or not 0 <= subdiv <= MAX_SUBDIV:
+        raise InputError(header, f"'subdiv' must be an integer in 0..{MAX_SUBDIV}, got {subdiv!r}")
+    mesh_file = path / "mesh.npz"
+    mesh = load_npz(mesh_file)
+    for key in ("faces", "uv", "parent"):
+        if key not in mesh:
+            raise InputError(mesh_file, f"missing array '{key}'")
+    validate_mesh(mesh["faces"], mesh["uv"], mesh_file)
+    parent = mesh["parent"]
+    if parent.shape != (len(mesh["uv"]), 2) or not np.issubdtype(parent.dtype, np.integer):
+        raise InputError(mesh_file, f"parent must be integers with shape ({len(mesh['uv'])},2), got "
+                         f"{parent.shape} {parent.dtype}")
+    index = np.arange(len(parent))
+    base = (parent[:, 0] == index) & (parent[:, 1] == index)
+    if len(parent) and (parent.min() < 0 or not np.all(base | (parent.max(axis=1) < index))):
+        raise InputError(mesh_file, "parent names a vertex that does not precede it")
+    tc = TexcoordSet(path=path, meta=meta, faces=mesh["faces"].astype(np.int32), uv=mesh["uv"].astype(np.float32),
+                     parent=parent.astype(np.int32))
+    if num_vertices is not None and tc.num_base_vertices != num_vertices:
+        raise InputError(mesh_file, f"made for a mesh of {tc.num_base_vertices} vertices, "
+                         f"the dataset has {num_vertices}")
+    return tc
+
+
+def write_header(path: Path, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray, source: str,
+                 subdiv: int, poses: Sequence[int], cameras: Sequence[str], **extra: Any) -> None:
+    """Write texcoords.json and mesh.npz into an existing directory `path`."""
+    np.savez_compressed(path / "mesh.npz", faces=np.asarray(faces, np.int32), uv=np.asarray(uv, np.float32),
+                        parent=np.asarray(parent, np.int32))
+    meta = {"format": FORMAT, "version": VERSION, "source": source, "subdiv": int(subdiv),
+            "poses": [int(p) for p in poses], "cameras": list(cameras), **extra}
+    (path / "texcoords.json").write_text(json.dumps(meta, indent=2) + "\n")
+
+
+def open_unfinished(partial: Path, command: str, source_prefix: str, *, faces: np.ndarray, uv: np.ndarray,
+                    parent: np.ndarray, source: str, subdiv: int, poses: Sequence[int], cameras: Sequence[str],
+                    done_masks: Sequence[str], **record: Any) -> None:
+    """Make `partial` (``OUT.partial``) the unfinished texcoord set of a `command` run that
+    streams its rows in: the one there is kept if its texcoords.json holds the same poses,
+    cameras, subdiv and `record` values (JSON-like), else deleted and started over (said
+    on stderr); a new one gets the header, zero-filled displacement / assigned arrays per
+    camera and all-False done masks at `done_masks` (paths inside the set), and is renamed
+    into place only when complete.
+
+    Raises:
+        InputError: `partial` exists and is not an unfinished set of this command (its
+            texcoords.json is not a texcoord header with a source starting `source_prefix`).
+    """
+    import shutil
+    import sys
+
+    from mvtex.util.files import create_npy, read_json
+
+    poses = [int(p) for p in poses]
+    if partial.is_dir():
+        try:
+            old = read_json(partial / "texcoords.json")
+        except InputError:
+            old = None
+        if not (isinstance(old, dict) and old.get("format") == FORMAT
+                and str(old.get("source", "")).startswith(source_prefix)):
+            raise InputError(partial, f"exists and is not an unfinished mvtex {command}; move it away and rerun")
+        if all(old.get(k) == v for k, v in record.items()) and old.get("poses") == poses \
+                and old.get("cameras") == list(cameras) and old.get("subdiv") == subdiv:
+            return
+        print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
+        shutil.rmtree(partial)
+    tmp = partial.with_name(partial.name + ".new")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses, cameras=cameras,
+                 **record)
+    for cam in cameras:
+        (tmp / cam).mkdir()
+        create_npy(tmp / cam / "displacement.npy", np.float32, (len(poses), len(uv), 2))
+        create_npy(tmp / cam / "assigned.npy", np.bool_, (len(poses), len(uv)))
+    for mask in done_masks:
+        np.save(tmp / mask, np.zeros(len(poses), bool), allow_pickle=False)
+    os.replace(tmp, partial)
+
+
+def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray,
+                   source: str, subdiv: int, poses: Sequence[int],
+                   displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray], **extra: Any) -> Path:
+    """Write a whole texcoord set atomically from in-memory arrays.
+
+    Args:
+        displacement: camera name -> (len(poses), n', 2) float32.
+        assigned: camera name -> (len(poses), n') bool.
+    """
+    path = Path(path)
+    cameras = list(displacement)
+    with atomic_path(path) as tmp:
+        tmp.mkdir()
+        write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses,
+                     cameras=cameras, **extra)
+        for cam in cameras:
+            (tmp / cam).mkdir()
+            np.save(tmp / cam / "displacement.npy", np.asarray(displacement[cam], np.float32), allow_pickle=False)
+            np.save(tmp / cam / "assigned.npy", np.asarray(assigned[cam], bool), allow_pickle=False)
+    return path

@@ -1,0 +1,2 @@
+"""Evaluation (`mvtex eval`): the per-pixel uv error and the material error.
+"""

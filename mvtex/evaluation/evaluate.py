@@ -1,0 +1,259 @@
+"""Per-pixel texture-coordinate error (DESIGN §5 "Per-pixel error", the paper's SqrtMSE).
+
+The ground-truth mesh is rendered with its uv (T_G) and the inferred mesh with the
+texcoords under test from the same camera; over the pixels covered by both,
+e = ‖uv_inferred − uv_gt‖ and an image's SqrtMSE = sqrt(mean e²). `evaluate` reports the
+mean ± std over images for the baseline (inferred mesh with T_G) and for a texcoord set.
+
+Where the two meshes show different UV charts at a pixel (a side seam near the silhouette,
+the rim of an opening), e measures the distance between charts in the atlas, not between
+material points: a handful of such pixels (e ≈ 0.5–1) can outweigh everything else. No
+texcoords can remove them, since the charts' boundaries are fixed by each mesh's geometry.
+`evaluate` therefore also reports `sqrt_mse_same_chart`: the same statistic over the pixels
+where both meshes show the same chart (the contract keys are unchanged).
+
+The *material error* needs no such exclusion: at a pixel, each mesh shows a point of the
+garment's material — for gt the barycentric combination of the rest positions (mesh.npz
+`rest`) of the triangle it shows, for the inferred mesh the point its texcoords name in the
+uv layout, mapped back to the rest shape (`MaterialMap`). Their distance on the rest
+garment, in meters, is small across a seam (both sides of it are neighbours on the
+cloth). `evaluate` reports its RMSE per image as `material_rmse_m` (null without `rest`).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
+
+from mvtex.data.rig import Rig
+from mvtex.util.parallel import ThreadState
+
+if TYPE_CHECKING:
+    from mvtex.render.context import GLContext
+from mvtex.evaluation.material import MATERIAL_HEATMAP_MAX_MM, MaterialMap, _material_error, _material_points
+from mvtex.evaluation.uv import CHART_BOUNDARY_COLOR, HEATMAP_MAX, chart_image, masked_uv_error, texcoord_image
+
+
+def _stats(values: Sequence[float]) -> dict:
+    v = np.asarray([x for x in values if np.isfinite(x)], dtype=np.float64)
+    if v.size == 0:
+        return {"mean": float("nan"), "std": float("nan")}
+    return {"mean": float(v.mean()), "std": float(v.std())}
+
+
+def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same: list[float],
+             base_material: list[float] | None = None, tc_material: list[float] | None = None) -> dict:
+    ok = [i for i in range(len(base)) if np.isfinite(base[i]) and np.isfinite(tc[i])]
+    out = {"num_images": len(ok)}
+    for key, ratio_key, (b, t) in (("sqrt_mse", "ratio", (base, tc)), ("sqrt_mse_same_chart", "ratio_same_chart",
+                                                                         (base_same, tc_same)),
+                                   ("material_rmse_m", "ratio_material", (base_material, tc_material))):
+        if b is None:
+            out[key] = out[ratio_key] = None
+            continue
+        sb, st = _stats([b[i] for i in ok]), _stats([t[i] for i in ok])
+        out[key] = {"inferred": sb, "texcoords": st}
+        out[ratio_key] = sb["mean"] / st["mean"] if ok and st["mean"] > 0 else float("nan")
+    return out
+
+
+@dataclass(frozen=True)
+class _EvalSpec:
+    """What a worker needs to evaluate images: picklable; its opened inputs are kept per thread by key."""
+
+    dataset: str
+    texcoords: str
+    rig: Rig
+    heatmaps: str | None
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.dataset, self.texcoords
+
+
+@dataclass
+class _EvalState:
+    """A thread's opened inputs and GL context for one `_EvalSpec`."""
+
+    dataset: Any
+    texcoord_set: Any
+    charts: np.ndarray
+    charts_tc: np.ndarray
+    ctx: Any
+    material_map: MaterialMap | None
+    owns_ctx: bool
+
+    def release(self) -> None:
+        if self.owns_ctx:
+            self.ctx.release()
+
+
+_EVAL_STATE = ThreadState()  # each thread's _EvalState, one set at a time
+
+
+def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool) -> _EvalState:
+    from mvtex.data.mesh import charts_through_parent, uv_charts
+
+    charts = uv_charts(ds.faces, ds.num_vertices)
+    material_map = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=ctx) if ds.rest is not None else None
+    return _EvalState(ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)), ctx, material_map,
+                      owns_ctx)
+
+
+def _eval_state(spec: _EvalSpec) -> _EvalState:
+    """A worker's state for an evaluation (one in this process puts its own in place up front)."""
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.render.context import GLContext
+    from mvtex.util.parallel import single_thread_gl
+
+    single_thread_gl()
+    ds = load_dataset(spec.dataset, validate=False)
+    tc = open_texcoords(spec.texcoords, ds.num_vertices)
+    return _open_eval_state(ds, tc, GLContext(), True)
+
+
+def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:
+    """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b,
+    same_t, material_b, material_t) each (NaN material without a rest shape)."""
+    from mvtex.render.pictures import colorbar, heatmap, side_by_side
+    from mvtex.util.files import read_row, save_png
+
+    state = _EVAL_STATE.get(spec.key, lambda: _eval_state(spec))
+    ds, tc, ctx, material_map = state.dataset, state.texcoord_set, state.ctx, state.material_map
+    charts, charts_tc = state.charts, state.charts_tc
+    out = []
+    for index, k, name in jobs:
+        cam = spec.rig[name]
+        # Through the files (`read_row`): rows read through the dataset's maps stay resident.
+        gt = read_row(ds.gt, k).astype(np.float64)
+        inferred = read_row(ds.inferred, k).astype(np.float64)
+        uv_g, raster_g = texcoord_image(ctx, gt, ds.faces, ds.uv, cam)
+        uv_b, raster_b = texcoord_image(ctx, inferred, ds.faces, ds.uv, cam)
+        uv_t, raster_t = texcoord_image(ctx, tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam)
+        chart_g, chart_b = chart_image(raster_g, ds.faces, charts), chart_image(raster_b, ds.faces, charts)
+        chart_t = chart_image(raster_t, tc.faces, charts_tc)
+        err_b, s_b = masked_uv_error(uv_b, chart_b >= 0, uv_g, chart_g >= 0)
+        err_t, s_t = masked_uv_error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
+        same_b = masked_uv_error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
+        same_t = masked_uv_error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]
+        mat_err_b = mat_err_t = None
+        m_b = m_t = float("nan")
+        if material_map is not None:
+            m_g = _material_points(raster_g, ds.faces, ds.rest)
+            mat_err_b, m_b = _material_error(_material_points(raster_b, ds.faces, ds.rest), raster_b.mask, m_g,
+                                             raster_g.mask)
+            mat_err_t, m_t = _material_error(material_map(uv_t[raster_t.mask]), raster_t.mask, m_g, raster_g.mask)
+        out.append((index, s_b, s_t, same_b, same_t, m_b, m_t))
+        if spec.heatmaps is not None:
+            panels = []
+            for err, chart, total, same in ((err_b, chart_b, s_b, same_b), (err_t, chart_t, s_t, same_t)):
+                image = heatmap(err, HEATMAP_MAX)
+                image[(chart >= 0) & (chart_g >= 0) & (chart != chart_g)] = CHART_BOUNDARY_COLOR
+                panels.append((image, f"{total * 1e3:.2f}e-3, same chart {same * 1e3:.2f}e-3"))
+            picture = side_by_side([panels[0][0], panels[1][0], colorbar(cam.height, HEATMAP_MAX, unit="uv")],
+                                   [f"inferred {panels[0][1]}", f"{tc.source} {panels[1][1]}", ""])
+            if material_map is not None:
+                row = side_by_side([heatmap(mat_err_b * 1e3, MATERIAL_HEATMAP_MAX_MM),
+                                    heatmap(mat_err_t * 1e3, MATERIAL_HEATMAP_MAX_MM),
+                                    colorbar(cam.height, MATERIAL_HEATMAP_MAX_MM, unit="mm")],
+                                   [f"inferred material {m_b * 1e3:.2f} mm", f"{tc.source} material {m_t * 1e3:.2f} mm",
+                                    ""])
+                picture = np.concatenate([picture, np.full((4, picture.shape[1], 3), 255, np.uint8), row])
+            save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", picture)
+    return out
+
+
+def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
+             heatmaps: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
+             scheduler: str | None = None, ctx: GLContext | None = None) -> dict:
+    """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
+
+    "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
+    (subdivided) inferred mesh with the set's T_N for that camera. Images where the two
+    meshes share no pixel are skipped.
+
+    Args:
+        dataset: `Dataset` or dataset directory.
+        rig: `Rig` or rig path / built-in name. A rig whose cameras are all in the set
+            selects those cameras; otherwise it must contain every camera of the set.
+        texcoord_set: `TexcoordSet` or its directory.
+        poses: dataset pose indices (default: the set's poses).
+        heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
+            baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
+            the two meshes show different UV charts) and, when the dataset has `rest`, a
+            second row with the material error in millimetres (red >= 20 mm).
+        progress: progress bar on stderr.
+        workers: local processes (1: this process), see `mvtex.util.parallel.map_unordered`.
+        scheduler: Dask scheduler address (overrides `workers`); its workers must read the
+            same dataset and texcoord paths.
+        ctx: the GL context for work in this process (one is created, and released, for this
+            call if None); worker processes create their own.
+        The result does not depend on `workers` or `scheduler`: images are gathered back
+        into (pose, camera) order before any statistic is taken.
+
+    Returns:
+        {"num_images", "sqrt_mse": {"inferred": {"mean", "std"}, "texcoords": {...}},
+         "ratio": inferred mean / texcoords mean, "sqrt_mse_same_chart": {...},
+         "ratio_same_chart", "material_rmse_m": {"inferred": {"mean", "std"}, "texcoords": {...}}
+         (meters; None when the dataset has no `rest`), "ratio_material" (None likewise),
+         "per_camera": {name: same keys}}.
+    """
+    from tqdm import tqdm
+
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import TexcoordSet, open_texcoords
+    from mvtex.render.context import GLContext
+    from mvtex.util.parallel import map_unordered
+
+    ds = as_dataset(dataset)
+    tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
+    if tc.num_base_vertices != ds.num_vertices:
+        from mvtex.util.errors import InputError
+
+        raise InputError(tc.path / "mesh.npz", f"made for {tc.num_base_vertices} vertices, the dataset has {ds.num_vertices}")
+    rig, rig_source = as_rig(rig)
+    if not set(rig.names) <= set(tc.cameras):
+        rig = rig.select(tc.cameras, source=rig_source)
+    poses = tc.poses if poses is None else [int(p) for p in poses]
+    for p in poses:
+        tc.row(p)  # InputError for a pose the set does not have
+    for name in rig.names:
+        tc.displacement(name, poses[0])  # validates the camera's arrays once, here
+    out_dir = Path(heatmaps) if heatmaps is not None else None
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    spec = _EvalSpec(dataset=str(Path(ds.path).resolve()), texcoords=str(Path(tc.path).resolve()), rig=rig,
+                     heatmaps=None if out_dir is None else str(out_dir.resolve()))
+    local = workers <= 1 and not scheduler
+    if local:  # this process: reuse what is open
+        own = GLContext() if ctx is None else None
+        _EVAL_STATE.set(spec.key, _open_eval_state(ds, tc, own or ctx, own is not None))
+    jobs = [(i, k, name) for i, (k, name) in enumerate((k, c.name) for k in poses for c in rig)]
+    chunk = max(1, min(8, len(jobs) // (4 * max(1, workers))))
+    tasks = [(spec, jobs[i:i + chunk]) for i in range(0, len(jobs), chunk)]
+    values: list = [None] * len(jobs)
+    try:
+        with tqdm(total=len(jobs), desc="eval", unit="image", disable=not progress, file=sys.stderr) as bar:
+            for results in map_unordered(_eval_images, tasks, workers=workers, scheduler=scheduler):
+                for index, *image in results:
+                    values[index] = image
+                bar.update(len(results))
+    finally:
+        if local:
+            _EVAL_STATE.set(None, None)
+    has_rest = ds.rest is not None
+    per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], [], [], []) for c in rig}
+    for (_, _, name), image in zip(jobs, values):
+        for column, value in zip(per_cam[name], image):
+            column.append(value)
+    result = _summary(*([v for c in per_cam.values() for v in c[i]] if i < 4 or has_rest else None for i in range(6)))
+    result["per_camera"] = {name: _summary(*lists[:4], *(lists[4:] if has_rest else (None, None)))
+                            for name, lists in per_cam.items()}
+    return result

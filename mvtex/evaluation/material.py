@@ -1,0 +1,185 @@
+"""The material error: at a pixel, the distance on the rest garment between the material
+points the two meshes show (texcoords located in the uv layout and mapped back to `rest`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+
+if TYPE_CHECKING:
+    from mvtex.render.context import GLContext
+
+
+MATERIAL_HEATMAP_MAX_MM = 20.0  # material error drawn fully red, millimetres
+
+
+class MaterialMap:
+    """Texture coordinates -> the material point they name on the rest garment.
+
+    The uv layout (faces, uv) is rasterized once in UV space into a triangle-id buffer;
+    a query point's candidates are the id of its texel, else the ids of the 3x3 texels
+    around it; exact float64 barycentrics decide, and the material point is the same
+    barycentric combination of the rest positions. Points the candidates do not contain
+    are retried with the triangles sharing a vertex with them (slivers thinner than a
+    texel); points outside every triangle (off the charts) map to the nearest point of the
+    layout's boundary edges. The layout is assumed not to overlap itself (one material
+    point per uv), as a texture atlas is.
+
+    Args:
+        faces: (m,3) int triangles of the base mesh.
+        uv: (n,2) float texture coordinates T_G (the layout).
+        rest: (n,3) float rest positions in meters.
+        resolution: texels per side of the id buffer.
+        ctx: the GL context for the one UV rasterization (a new one when None).
+    """
+
+    def __init__(self, faces: np.ndarray, uv: np.ndarray, rest: np.ndarray, resolution: int = 2048, *,
+                 ctx: GLContext | None = None):
+        import scipy.sparse as sp
+
+        from mvtex.render.context import context_or_new
+        from mvtex.render.raster import rasterize_uv
+
+        self.faces = np.asarray(faces, dtype=np.int64)
+        self.uv = np.asarray(uv, dtype=np.float64)
+        self.rest = np.asarray(rest, dtype=np.float64)
+        if self.rest.shape != (len(self.uv), 3):
+            raise ValueError(f"rest must be ({len(self.uv)}, 3), got {self.rest.shape}")
+        self.resolution = int(resolution)
+        with context_or_new(ctx) as gl:
+            self.ids = rasterize_uv(gl, self.uv, self.faces, self.resolution, self.resolution, attributes=False).tri_id
+        m, n = len(self.faces), len(self.uv)
+        incidence = sp.csr_matrix((np.ones(3 * m), (np.repeat(np.arange(m), 3), self.faces.ravel())), shape=(m, n))
+        self.face_ring = (incidence @ incidence.T).tocsr()
+        e = np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        edges, count = np.unique(e, axis=0, return_counts=True)
+        self.boundary = edges[count == 1]
+
+    def _barycentric(self, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+        """(k,3) barycentrics of points (k,2) in uv triangles tri (k,)."""
+        a, b, c = (self.uv[self.faces[tri, i]] for i in range(3))
+        v0, v1, v2 = b - a, c - a, points - a
+        det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
+            w2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
+        bary = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+        bary[~np.isfinite(bary).all(axis=1)] = -np.inf  # degenerate triangle: never contains
+        return bary
+
+    def _best(self, points: np.ndarray, point_index: np.ndarray, tri: np.ndarray, k: int):
+        """Per point, the candidate triangle it is most inside of: (tri (k,), bary (k,3), inside (k,))."""
+        bary = self._barycentric(points[point_index], tri)
+        score = bary.min(axis=1)
+        order = np.lexsort((-score, point_index))
+        first = np.ones(len(order), bool)
+        first[1:] = point_index[order][1:] != point_index[order][:-1]
+        best = order[first]
+        out_tri = np.full(k, -1, np.int64)
+        out_bary = np.zeros((k, 3))
+        inside = np.zeros(k, bool)
+        p = point_index[best]
+        out_tri[p], out_bary[p], inside[p] = tri[best], bary[best], score[best] >= -1e-9
+        return out_tri, out_bary, inside
+
+    def _nearest_on_boundary(self, points: np.ndarray) -> np.ndarray:
+        """Rest positions of the nearest points on the layout's boundary edges, (k,3)."""
+        a, b = self.uv[self.boundary[:, 0]], self.uv[self.boundary[:, 1]]
+        ab = b - a
+        length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+        out = np.empty((len(points), 3))
+        for start in range(0, len(points), 256):
+            q = points[start:start + 256, None, :]
+            t = np.clip(np.einsum("kej,ej->ke", q - a, ab) / length2, 0.0, 1.0)
+            dist2 = np.sum((a + t[..., None] * ab - q) ** 2, axis=-1)
+            e = np.argmin(dist2, axis=1)
+            te = t[np.arange(len(e)), e][:, None]
+            out[start:start + 256] = (1.0 - te) * self.rest[self.boundary[e, 0]] + te * self.rest[self.boundary[e, 1]]
+        return out
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Rest positions (k,3) float64 of the material points named by uv points (k,2)."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        k, R = len(points), self.resolution
+        col = np.clip(np.floor(points[:, 0] * R).astype(np.int64), 0, R - 1)
+        row = np.clip(np.floor(points[:, 1] * R).astype(np.int64), 0, R - 1)
+        # Most points lie in the triangle of their own texel: try that one first.
+        tri = self.ids[row, col].astype(np.int64)
+        bary = np.zeros((k, 3))
+        has = np.flatnonzero(tri >= 0)
+        bary[has] = self._barycentric(points[has], tri[has])
+        inside = np.zeros(k, bool)
+        inside[has] = bary[has].min(axis=1) >= -1e-9
+        retry = np.flatnonzero(~inside)
+        if retry.size:  # near an edge of the layout's raster: the 3x3 texels around
+            offsets = np.arange(-1, 2)
+            rows = np.clip(row[retry, None, None] + offsets[None, :, None], 0, R - 1)
+            cols = np.clip(col[retry, None, None] + offsets[None, None, :], 0, R - 1)
+            cand = self.ids[rows, cols].reshape(len(retry), -1)
+            pi, slot = np.nonzero(cand >= 0)
+            t2, b2, in2 = self._best(points[retry], pi, cand[pi, slot].astype(np.int64), len(retry))
+            tri[retry], bary[retry], inside[retry] = t2, b2, in2
+        retry = np.flatnonzero(~inside & (tri >= 0))
+        if retry.size:  # slivers thinner than a texel: the triangles around the candidate
+            ring = self.face_ring[tri[retry]].tocoo()
+            t2, b2, in2 = self._best(points[retry], ring.row.astype(np.int64), ring.col.astype(np.int64), len(retry))
+            better = in2 | (b2.min(axis=1) > bary[retry].min(axis=1))
+            tri[retry[better]], bary[retry[better]], inside[retry[better]] = t2[better], b2[better], in2[better]
+        out = np.empty((k, 3))
+        ok = np.flatnonzero(inside)
+        out[ok] = np.einsum("kj,kjc->kc", bary[ok], self.rest[self.faces[tri[ok]]])
+        off = np.flatnonzero(~inside)
+        if off.size:
+            out[off] = self._nearest_on_boundary(points[off])
+        return out
+
+
+def _material_points(raster, faces: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """Rest positions (k,3) float64 of the material each covered pixel shows (row-major order)."""
+    mask = raster.mask
+    corners = np.asarray(rest, np.float64)[np.asarray(faces)[raster.tri_id[mask]]]
+    return np.einsum("kj,kjc->kc", raster.bary[mask].astype(np.float64), corners)
+
+
+def _material_error(points_a: np.ndarray, mask_a: np.ndarray, points_b: np.ndarray,
+                    mask_b: np.ndarray) -> tuple[np.ndarray, float]:
+    """Per-pixel distance of two material-point images given on their masks' pixels."""
+    full_a = np.zeros(mask_a.shape + (3,))
+    full_b = np.zeros(mask_b.shape + (3,))
+    full_a[mask_a], full_b[mask_b] = points_a, points_b
+    both = mask_a & mask_b
+    err = np.full(mask_a.shape, np.nan, np.float32)
+    e = np.linalg.norm(full_a[both] - full_b[both], axis=1)
+    err[both] = e
+    return err, float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
+
+
+def material_error_image(ctx: GLContext, gt_positions: np.ndarray, faces_gt: np.ndarray, rest: np.ndarray,
+                         inf_positions: np.ndarray, faces_inf: np.ndarray, texcoords_inf: np.ndarray, camera: Camera,
+                         material_map: MaterialMap) -> tuple[np.ndarray, float]:
+    """Per-pixel material error of an inferred mesh with given texcoords against the gt mesh.
+
+    Args:
+        ctx: the GL context.
+        gt_positions: (n,3) gt positions; faces_gt (m,3); rest (n,3) rest positions (m).
+        inf_positions: (n',3) inferred positions (subdivided when the texcoords are);
+            faces_inf (m',3); texcoords_inf (n',2) (T_G for the baseline, T_N otherwise).
+        camera: zero-distortion camera.
+        material_map: `MaterialMap` of the dataset's uv layout (faces_gt, T_G, rest).
+
+    Returns:
+        error: (H,W) float32 distance on the rest garment between the material points the
+            two meshes show, in meters; NaN where not covered by both meshes.
+        rmse: sqrt(mean error²) over the covered pixels, meters (NaN if none).
+    """
+    from mvtex.render.raster import interpolate, rasterize
+
+    r_g = rasterize(ctx, np.asarray(gt_positions, np.float64), np.asarray(faces_gt), camera)
+    r_i = rasterize(ctx, np.asarray(inf_positions, np.float64), np.asarray(faces_inf), camera)
+    uv_i = interpolate(np.asarray(texcoords_inf, np.float64), r_i, faces_inf)
+    # float32 pixel uv, as `texcoord_image` gives it: the same texcoords the uv error measures.
+    return _material_error(material_map(uv_i[r_i.mask]), r_i.mask, _material_points(r_g, faces_gt, rest), r_g.mask)

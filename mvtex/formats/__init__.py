@@ -1,0 +1,2 @@
+"""File formats at the boundary: COLMAP models, PLY and GLB meshes.
+"""

@@ -1,0 +1,2 @@
+"""Multi-view reconstruction of the gt geometry from texcoord sets (`mvtex triangulate`).
+"""

@@ -1,0 +1,241 @@
+"""Where each camera shows each gt vertex's material: step 1 of the reconstruction.
+
+Camera p sees the inferred mesh with texture coordinates T_N^p, so it shows material
+T_G[i] at the projection of the inferred-surface point whose T_N^p equals T_G[i]:
+
+- `locate_uv` finds every triangle whose T_N^p contains T_G[i] (UV-space id rasters in
+  both orientations and drawing orders, so fold-overs give several hypotheses; exact
+  float64 barycentrics decide);
+- `collect_hypotheses` turns each into a 3-D point on the inferred mesh (same
+  barycentrics of X_N), keeps it where the camera sees it (depth test against a raster of
+  the inferred mesh) and records its pixel.
+
+The GL rasters come from `mvtex.render.raster`; the rest of the reconstruction (`mvtex.recon.triangulate`)
+needs no GL.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from mvtex.data.camera import Camera
+from mvtex.data.mesh import barycentric_2d
+from mvtex.recon.geometry import in_image
+from mvtex.util.checks import check_shape
+
+if TYPE_CHECKING:
+    from mvtex.render.context import GLContext
+
+
+# Barycentric slack for "contains": points on a shared edge belong to both triangles
+# (the duplicate 3-D points are merged afterwards).
+_INSIDE_EPS = 1e-7
+
+
+# Two hypotheses of one (vertex, camera) closer than this (m) are the same point.
+_SAME_POINT_M = 1e-8
+
+
+def locate_uv(points: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, resolution: int = 1024,
+              radius: int = 1, *, ctx: GLContext | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every triangle of a UV mesh that contains each query point.
+
+    The mesh is rasterized in UV space into triangle-id buffers, each orientation (CCW and
+    flipped triangles) separately and in both drawing orders (the last drawn triangle wins
+    a texel), so the three layers of a fold-over all leave ids; the ids of the (2*radius+1)² texels
+    around a point are the candidates, and exact barycentrics (float64) decide. A point
+    with candidates but no containing one (a sliver smaller than a texel) is retried
+    with the triangles sharing a vertex with the candidates.
+
+    Args:
+        points: (k,2) query uv.
+        faces: (m,3) int triangles.
+        texcoords: (n,2) per-vertex uv of the mesh (may fold over).
+        resolution: texels per side of the id buffer.
+        radius: neighbourhood radius in texels.
+        ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
+
+    Returns:
+        point_index (h,) int64, face_index (h,) int64, bary (h,3) float64: one row per
+        (point, containing triangle) pair, sorted by point.
+    """
+    from mvtex.render.context import context_or_new
+    from mvtex.render.raster import rasterize_uv
+
+    points = np.asarray(points, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    texcoords = np.asarray(texcoords, dtype=np.float64)
+    m = len(faces)
+    R = int(resolution)
+    # A fold-over covers its region three times (+, -, + orientation): rasterizing each
+    # orientation in both drawing orders keeps ids of up to two layers of each.
+    t = texcoords[faces]
+    area = (t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1]) - (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0])
+    buffers = []
+    with context_or_new(ctx) as ctx:
+        for group in (np.flatnonzero(area >= 0), np.flatnonzero(area < 0)):
+            if not len(group):
+                continue
+            for order in (group, group[::-1]):
+                ids = rasterize_uv(ctx, texcoords, faces[order], R, R, attributes=False).tri_id
+                buffers.append(np.where(ids >= 0, order[np.maximum(ids, 0)], -1))
+
+    col = np.clip(np.floor(points[:, 0] * R).astype(np.int64), 0, R - 1)
+    row = np.clip(np.floor(points[:, 1] * R).astype(np.int64), 0, R - 1)
+    offsets = np.arange(-radius, radius + 1)
+    rows = np.clip(row[:, None, None] + offsets[None, :, None], 0, R - 1)
+    cols = np.clip(col[:, None, None] + offsets[None, None, :], 0, R - 1)
+    rows, cols = np.broadcast_arrays(rows, cols)
+    cand = np.concatenate([ids[rows, cols].reshape(len(points), -1) for ids in buffers], axis=1)
+    cand.sort(axis=1)
+    keep = cand >= 0
+    keep[:, 1:] &= cand[:, 1:] != cand[:, :-1]
+    pi, slot = np.nonzero(keep)
+    fi = cand[pi, slot]
+
+    def contained(pi: np.ndarray, fi: np.ndarray):
+        bary = barycentric_2d(points[pi], texcoords[faces[fi]])
+        inside = np.all(bary >= -_INSIDE_EPS, axis=1) & np.all(np.isfinite(bary), axis=1)
+        return pi[inside], fi[inside], bary[inside]
+
+    hit_p, hit_f, hit_b = contained(pi, fi)
+    # Slivers: grow the candidate set of unresolved points by the triangles around it.
+    unresolved = np.setdiff1d(np.unique(pi), hit_p)
+    if unresolved.size:
+        n = int(faces.max()) + 1 if m else 0
+        incidence = sp.csr_matrix((np.ones(3 * m), (np.repeat(np.arange(m), 3), faces.ravel())), shape=(m, n))
+        face_ring = (incidence @ incidence.T).tocsr()
+        sel = np.isin(pi, unresolved)
+        local = np.searchsorted(unresolved, pi[sel])
+        current = sp.csr_matrix((np.ones(sel.sum()), (local, fi[sel])), shape=(len(unresolved), m))
+        for _ in range(2):
+            current = (current @ face_ring).tocsr()
+            lp, lf = current.nonzero()
+            p2, f2, b2 = contained(unresolved[lp], lf.astype(np.int64))
+            hit_p, hit_f, hit_b = np.concatenate([hit_p, p2]), np.concatenate([hit_f, f2]), np.concatenate([hit_b, b2])
+            still = ~np.isin(unresolved, p2)
+            if not still.any():
+                break
+            unresolved = unresolved[still]
+            current = current[np.flatnonzero(still)]
+    order = np.argsort(hit_p, kind="stable")
+    return hit_p[order], hit_f[order], hit_b[order]
+
+
+def _dedupe(vertex: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Mask keeping one of several hypotheses of a vertex at the same 3-D point."""
+    order = np.lexsort((points[:, 0], vertex))
+    v, p = vertex[order], points[order]
+    same = np.zeros(len(order), bool)
+    same[1:] = (v[1:] == v[:-1]) & (np.linalg.norm(p[1:] - p[:-1], axis=1) < _SAME_POINT_M)
+    keep = np.ones(len(order), bool)
+    keep[order[same]] = False
+    return keep
+
+
+def _visible(camera: Camera, raster, points: np.ndarray, face: np.ndarray, tolerance: float):
+    """Which surface points a camera sees, and their pixels.
+
+    A point is seen if one of the 2x2 pixels around its projection shows its own triangle,
+    or if it is no deeper than the farthest surface those pixels show (relative slack):
+    permissive at occlusion boundaries, where the observation is within a pixel of visible
+    material anyway.
+    """
+    pixels, z = camera.project(points)
+    W, H = camera.width, camera.height
+    ok = (z > 0) & np.all(np.isfinite(pixels), axis=1) & in_image(pixels, W, H)
+    u0 = np.floor(np.where(ok, pixels[:, 0], 0)).astype(np.int64)
+    v0 = np.floor(np.where(ok, pixels[:, 1], 0)).astype(np.int64)
+    own = np.zeros(len(points), bool)
+    front = np.zeros(len(points))
+    covered = np.zeros(len(points), bool)
+    for du in (0, 1):
+        for dv in (0, 1):
+            u = np.clip(u0 + du, 0, W - 1)
+            v = np.clip(v0 + dv, 0, H - 1)
+            tri = raster.tri_id[v, u]
+            cov = tri >= 0
+            own |= tri == face
+            covered |= cov
+            front = np.maximum(front, np.where(cov, raster.depth[v, u], 0.0))
+    seen = ok & (own | (covered & (z <= front * (1 + tolerance))))
+    return seen, pixels
+
+
+@dataclass(frozen=True)
+class Hypotheses:
+    """Candidate observations of gt vertices, one row per (vertex, camera, located triangle).
+
+    Attributes:
+        vertex: (h,) int64 gt vertex index.
+        camera: (h,) int64 index into the reconstruction's camera list.
+        pixel: (h,2) float64 OpenCV pixel of the located surface point in that camera.
+    """
+
+    vertex: np.ndarray
+    camera: np.ndarray
+    pixel: np.ndarray
+
+
+def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray,
+                       texcoords: dict[str, np.ndarray], cameras: Sequence[Camera], *, uv_resolution: int = 1024,
+                       depth_tolerance: float = 0.005, assigned: dict[str, np.ndarray] | None = None,
+                       require_assigned: bool = True, progress: bool = False, ctx: GLContext | None = None
+                       ) -> tuple[Hypotheses, dict[str, int]]:
+    """Per camera, the surface points showing each gt vertex's material, where visible.
+
+    Args:
+        gt_uv: (n,2) T_G of the gt vertices.
+        inferred_positions: (n',3) X_N; faces: (m',3) int of the texcoord set's mesh.
+        texcoords: camera name -> (n',2) T_N of that camera (every camera of `cameras`).
+        cameras: the C cameras.
+        uv_resolution: texels per side of the UV lookup buffer (`locate_uv`).
+        depth_tolerance: relative depth slack of the visibility test.
+        assigned: optional camera name -> (n',) bool (which vertices' T_N were assigned
+            rather than extrapolated).
+        require_assigned: with `assigned`, drop hypotheses in triangles with an
+            unassigned corner.
+        progress: progress bar over cameras on stderr.
+        ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
+
+    Returns:
+        The visible hypotheses, and counts {"hypotheses", "occluded", "unassigned"}.
+    """
+    from tqdm import tqdm
+
+    from mvtex.render.context import GLContext
+    from mvtex.render.raster import rasterize
+
+    if ctx is None:
+        with GLContext() as own:
+            return collect_hypotheses(gt_uv, inferred_positions, faces, texcoords, cameras, uv_resolution=uv_resolution,
+                                      depth_tolerance=depth_tolerance, assigned=assigned,
+                                      require_assigned=require_assigned, progress=progress, ctx=own)
+    X_N = np.asarray(inferred_positions, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    counts = {"hypotheses": 0, "occluded": 0, "unassigned": 0}
+    hyp_v, hyp_c, hyp_px = [], [], []
+    for c, cam in enumerate(tqdm(cameras, desc="locate", unit="camera", disable=not progress, leave=False)):
+        T = np.asarray(texcoords[cam.name], dtype=np.float64)
+        check_shape(T, f"texcoords[{cam.name!r}]", (len(X_N), 2))
+        vi, fi, bary = locate_uv(gt_uv, faces, T, uv_resolution, ctx=ctx)
+        counts["hypotheses"] += len(vi)
+        if require_assigned and assigned is not None and cam.name in assigned:
+            ok = np.all(np.asarray(assigned[cam.name], bool)[faces[fi]], axis=1)
+            counts["unassigned"] += int((~ok).sum())
+            vi, fi, bary = vi[ok], fi[ok], bary[ok]
+        P = np.einsum("hk,hkj->hj", bary, X_N[faces[fi]])
+        keep = _dedupe(vi, P)
+        vi, fi, P = vi[keep], fi[keep], P[keep]
+        raster = rasterize(ctx, X_N, faces, cam)
+        seen, pixels = _visible(cam, raster, P, fi, depth_tolerance)
+        counts["occluded"] += int((~seen).sum())
+        hyp_v.append(vi[seen])
+        hyp_c.append(np.full(int(seen.sum()), c))
+        hyp_px.append(pixels[seen])
+    return Hypotheses(np.concatenate(hyp_v), np.concatenate(hyp_c), np.concatenate(hyp_px)), counts

@@ -1,0 +1,80 @@
+"""`mvtex triangulate`: the reconstruction of one dataset pose from a texcoord set, its report
+and its output directory.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mvtex.data.rig import Rig
+from mvtex.util.errors import InputError
+
+if TYPE_CHECKING:
+    from mvtex.render.context import GLContext
+from mvtex.recon.report import reconstruction_report
+from mvtex.recon.triangulate import ReconOptions, reconstruct
+
+
+def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike | None,
+                     options: ReconOptions = ReconOptions(), progress: bool = True, *,
+                     ctx: GLContext | None = None) -> dict:
+    """`mvtex triangulate`: reconstruct one pose of a dataset from a texcoord set.
+
+    Args:
+        dataset: a `mvtex.data.dataset.Dataset`.
+        rig: the cameras; those of the texcoord set are used (≥ 2 needed).
+        texcoords: a `mvtex.data.texcoords.TexcoordSet` for this dataset.
+        pose: dataset pose index (must be one of the texcoord set's poses).
+        out: output directory (written atomically by `mvtex.recon.export.export_reconstruction`),
+            or None for the numbers only.
+        options: see ReconOptions.
+        progress: progress bars on stderr.
+        ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
+
+    Returns:
+        The report (DESIGN §7): pose, num_vertices, num_triangulated, rmse_m{inferred,
+        reconstructed}, rmse_triangulated_m{...}, mean_reprojection_error_px, plus
+        cameras, rejected (vertex counts by reason), stats, strain_energy{gt, inferred,
+        reconstructed} (None without a rest shape), smooth{...}, options.
+
+    Raises:
+        InputError: a pose outside the dataset or the texcoord set, a texcoord set made
+            for another mesh, fewer than 2 cameras shared by rig and texcoord set.
+    """
+    if ctx is None:
+        from mvtex.render.context import GLContext
+
+        with GLContext() as own:
+            return triangulate_pose(dataset, rig, texcoords, pose, out, options, progress, ctx=own)
+    pose = int(pose)
+    if not 0 <= pose < dataset.num_poses:
+        raise InputError(dataset.path, f"pose {pose} is outside [0, {dataset.num_poses})")
+    texcoords.row(pose)  # InputError if the set lacks this pose
+    if texcoords.num_base_vertices != dataset.num_vertices:
+        raise InputError(texcoords.path / "mesh.npz", f"made for a mesh of {texcoords.num_base_vertices} vertices, "
+                         f"the dataset has {dataset.num_vertices}")
+    names = [c for c in texcoords.cameras if c in rig.names]
+    if len(names) < 2:
+        raise InputError(texcoords.path, f"triangulation needs ≥ 2 cameras present in both the texcoord set "
+                         f"({', '.join(texcoords.cameras)}) and the rig ({', '.join(rig.names)})")
+    sub_rig = rig.select(names)
+    X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
+    T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}
+    assigned = {c: texcoords.assigned(c, pose) for c in names}
+    rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
+                      gt_faces=dataset.faces, assigned=assigned, progress=progress, ctx=ctx)
+    gt = np.asarray(dataset.gt[pose], np.float64)
+    rest = None if dataset.rest is None else np.asarray(dataset.rest, np.float64)
+    report = reconstruction_report(rec, gt, dataset.faces, rest, pose, options)
+    report.update(cameras=names, texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)
+    if out is not None:
+        # The command's one edge up the layers: its output directory is the export module's.
+        from mvtex.recon.export import export_reconstruction
+
+        export_reconstruction(out, rec, sub_rig, faces=dataset.faces, uv=dataset.uv, gt=gt, rest=rest,
+                              inferred_mesh=(X_N, texcoords.faces, T), report=report, options=options,
+                              progress=progress, ctx=ctx)
+    return report

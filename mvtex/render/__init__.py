@@ -1,0 +1,2 @@
+"""Rendering with moderngl (headless EGL): rasterization into triangle ids, textured pictures.
+"""

@@ -1,0 +1,112 @@
+"""`mvtex render`: textured pictures of gt and inferred meshes per camera, and raster dumps.
+
+Output layout (DESIGN §4):
+    OUT/<camera>/gt.png, OUT/<camera>/inferred.png     textured renders
+    OUT/<camera>/gt_raster.npz, inferred_raster.npz     with raster=True: tri_id, bary, depth, uv
+    OUT/overview.png                                    all cameras, gt above inferred
+    OUT/render.json                                     the options that made it
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+from mvtex.data.dataset import Dataset
+from mvtex.data.rig import Rig
+from mvtex.data.texcoords import TexcoordSet
+from mvtex.util.errors import InputError
+from mvtex.util.files import save_png, write_json
+from mvtex.util.output import atomic_path
+
+if TYPE_CHECKING:
+    from mvtex.render.context import GLContext
+
+
+@dataclass(frozen=True)
+class MeshView:
+    """What to draw for one camera: positions (n,3), faces (m,3), texcoords (n,2)."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    texcoords: np.ndarray
+
+
+def pose_views(dataset: Dataset, pose: int, camera: str,
+               texcoord_set: TexcoordSet | None = None) -> dict[str, MeshView]:
+    """The gt mesh (with T_G) and the inferred mesh (with T_G, or the set's T_N on its mesh)."""
+    gt = MeshView(np.asarray(dataset.gt[pose], np.float64), dataset.faces, dataset.uv)
+    inferred_pos = np.asarray(dataset.inferred[pose], np.float64)
+    if texcoord_set is None:
+        inferred = MeshView(inferred_pos, dataset.faces, dataset.uv)
+    else:
+        inferred = MeshView(texcoord_set.positions(inferred_pos), texcoord_set.faces,
+                            texcoord_set.texcoords(camera, pose))
+    return {"gt": gt, "inferred": inferred}
+
+
+def check_sees_mesh(raster, camera: Camera, rig_path, pose: int, what: str) -> None:
+    if not np.any(raster.tri_id >= 0):
+        raise InputError(rig_path, f"camera {camera.name!r} sees nothing of the {what} mesh at pose {pose}")
+
+
+def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *,
+                texcoord_set: TexcoordSet | None = None, raster: bool = False, rig_path: str | None = None,
+                progress: bool = True, ctx: GLContext | None = None) -> dict:
+    """Render one pose from every camera of a rig into `out` (see module docstring).
+
+    Args:
+        ctx: the GL context (one is created, and released, for this call if None).
+
+    Returns:
+        {"pose": k, "cameras": [...], "files": [...]} (paths relative to out).
+    """
+    from mvtex.render import raster as gl
+    from mvtex.render.context import GLContext
+    from mvtex.render.shading import render_textured
+
+    if not 0 <= pose < dataset.num_poses:
+        raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
+    for cam in rig:
+        cam.require_pinhole(rig_path)
+    if ctx is None:
+        with GLContext() as own:
+            return render_pose(dataset, rig, pose, out, texcoord_set=texcoord_set, raster=raster,
+                               rig_path=rig_path, progress=progress, ctx=own)
+    from tqdm import tqdm
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files, tiles = [], []
+    for cam in tqdm(list(rig), desc=f"render pose {pose}", unit="camera", disable=not progress):
+        views = pose_views(dataset, pose, cam.name, texcoord_set)
+        row = []
+        for what, view in views.items():
+            r = gl.rasterize(ctx, view.positions, view.faces, cam)
+            check_sees_mesh(r, cam, rig_path, pose, what)
+            image = render_textured(ctx, view.positions, view.faces, view.texcoords, cam)
+            save_png(out / cam.name / f"{what}.png", image)
+            files.append(f"{cam.name}/{what}.png")
+            row.append(image)
+            if raster:
+                uv = gl.interpolate(view.texcoords, r, view.faces)
+                with atomic_path(out / cam.name / f"{what}_raster.npz") as tmp:
+                    with open(tmp, "wb") as f:
+                        np.savez_compressed(f, tri_id=r.tri_id, bary=r.bary, depth=r.depth, uv=uv)
+                files.append(f"{cam.name}/{what}_raster.npz")
+        tiles.append(row)
+    from mvtex.render.pictures import grid_image
+
+    save_png(out / "overview.png", grid_image([[t[0] for t in tiles], [t[1] for t in tiles]],
+                                              col_labels=rig.names, row_labels=["gt", "inferred"]))
+    files.append("overview.png")
+    summary = {"pose": int(pose), "cameras": rig.names, "dataset": str(dataset.path),
+               "texcoords": None if texcoord_set is None else str(texcoord_set.path), "raster": bool(raster),
+               "files": files}
+    write_json(out / "render.json", summary)
+    return summary

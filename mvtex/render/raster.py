@@ -1,0 +1,288 @@
+"""Rasterization on moderngl, headless (EGL): triangle ids, perspective-correct
+barycentrics and depth per pixel; the same in UV space; two meshes in one pass; textured
+shading. This is the only module that talks to OpenGL.
+
+All GL state lives in a `GLContext` that the caller creates once and passes first
+(as nvdiffrast's `RasterizeGLContext`): `ctx = GLContext(); rasterize(ctx, ...)`. Nothing
+is kept at module level; a worker process creates its own context.
+
+GL's bottom-up rows are undone once, in the projection (`clip_from_camera`): readback row
+r, column c is OpenCV pixel (u=c, v=r). Triangle ids are stored +1 in GL (0 = clear) and
+the offset is removed here: `tri_id == -1` is background. Images over uv (`rasterize_uv`,
+`fabric_texture`) follow DESIGN §3: texel (row r, column c) has centre
+((c + 0.5)/W, (r + 0.5)/H), row 0 at v ≈ 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+from mvtex.render.context import GLContext
+
+
+def clip_from_camera(camera: Camera, near: float, far: float) -> np.ndarray:
+    """(4,4) float64 matrix from OpenCV camera coordinates to GL clip coordinates.
+
+    Maps pixel (u, v) to GL window (u + 0.5, v + 0.5): with window rows read back bottom-up
+    this makes readback row = v and column = u, the OpenCV image, with no flip. It mirrors
+    triangle winding, so culling stays off.
+    """
+    W, H = camera.width, camera.height
+    K = camera.K
+    return np.array([
+        [2 * K[0, 0] / W, 2 * K[0, 1] / W, (2 * K[0, 2] + 1) / W - 1, 0],
+        [0, 2 * K[1, 1] / H, (2 * K[1, 2] + 1) / H - 1, 0],
+        [0, 0, (far + near) / (far - near), -2 * far * near / (far - near)],
+        [0, 0, 1, 0],
+    ])
+
+
+def _uv_clip() -> np.ndarray:
+    # (u, v, 0) -> clip (2u-1, 2v-1): window row r (read back as row r) has centre v = (r+0.5)/H.
+    return np.array([[2, 0, 0, -1], [0, 2, 0, -1], [0, 0, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Raster:
+    """Per-pixel result of `rasterize` / `rasterize_uv`.
+
+    Attributes:
+        tri_id: (H,W) int32 index into `faces` of the visible triangle; -1 on background.
+        bary: (H,W,3) float32 perspective-correct barycentrics of the pixel centre in that
+            triangle (weights of faces[tri_id, 0..2]); 0 on background. None if not requested.
+        depth: (H,W) float32 camera-space z in meters; 0 on background (and in UV space).
+            None if not requested.
+    """
+
+    tri_id: np.ndarray
+    bary: np.ndarray | None
+    depth: np.ndarray | None
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H,W) bool, True where a triangle covers the pixel centre."""
+        return self.tri_id >= 0
+
+
+def _deindexed(points: np.ndarray, faces: np.ndarray) -> bytes:
+    corners = points[faces.reshape(-1)].astype(np.float32)
+    onehot = np.tile(np.eye(3, dtype=np.float32), (len(faces), 1))
+    return np.hstack([corners, onehot]).tobytes()
+
+
+def _draw_ids(ctx: GLContext, points3: np.ndarray, faces: np.ndarray, width: int, height: int, clip: np.ndarray,
+              depth_test: bool, attributes: bool) -> Raster:
+    import moderngl
+
+    if len(faces) == 0:
+        empty = np.full((height, width), -1, np.int32)
+        return Raster(empty, np.zeros((height, width, 3), np.float32) if attributes else None,
+                      np.zeros((height, width), np.float32) if attributes else None)
+    gl = ctx.mgl
+    with gl:
+        prog = ctx._program("raster.vert.glsl", "raster.frag.glsl")
+        prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())  # GLSL mat4 is column-major
+        vbo = gl.buffer(_deindexed(points3, faces))
+        vao = gl.vertex_array(prog, [(vbo, "3f 3f", "in_cam", "in_bary")])
+        fbo = ctx._target("ids", width, height)
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        gl.disable(moderngl.CULL_FACE)
+        if depth_test:
+            gl.enable(moderngl.DEPTH_TEST)
+        else:
+            gl.disable(moderngl.DEPTH_TEST)
+        vao.render(moderngl.TRIANGLES)
+        ids = np.frombuffer(fbo.read(attachment=0, components=1, dtype="i4"), dtype=np.int32)
+        tri_id = ids.reshape(height, width) - 1
+        bary = depth = None
+        if attributes:
+            attrs = np.frombuffer(fbo.read(attachment=1, components=4, dtype="f4"), dtype=np.float32)
+            attrs = attrs.reshape(height, width, 4)
+            bary = np.ascontiguousarray(attrs[..., :3])
+            depth = np.ascontiguousarray(attrs[..., 3])
+        vao.release()
+        vbo.release()
+    return Raster(tri_id=tri_id, bary=bary, depth=depth)
+
+
+def depth_range(points_cam: np.ndarray) -> tuple[float, float]:
+    """Near/far planes that bracket the points in front of the camera."""
+    z = points_cam[:, 2]
+    z = z[z > 0]
+    if z.size == 0:
+        return 0.01, 1.0
+    return float(max(z.min() * 0.5, 1e-4)), float(z.max() * 2.0)
+
+
+def rasterize(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, camera: Camera, *,
+              attributes: bool = True) -> Raster:
+    """Rasterize a mesh from a camera at its resolution.
+
+    Args:
+        ctx: the GL context.
+        positions: (n,3) world positions (meters).
+        faces: (m,3) int vertex indices.
+        camera: pinhole camera with zero distortion (else InputError).
+        attributes: also read back barycentrics and depth (False: tri_id only, faster).
+
+    Returns:
+        Raster with (H,W) fields; pixel centres are sampled (OpenCV convention).
+    """
+    camera.require_pinhole()
+    cam = camera.to_camera(positions)
+    near, far = depth_range(cam)
+    clip = clip_from_camera(camera, near, far)
+    return _draw_ids(ctx, cam, np.asarray(faces), camera.width, camera.height, clip, True, attributes)
+
+
+def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, height: int, *,
+                 attributes: bool = True) -> Raster:
+    """Rasterize a mesh in texture space: positions are per-vertex uv in [0,1]².
+
+    Texel (row r, column c) has centre (u, v) = ((c + 0.5)/W, (r + 0.5)/H): row 0 is v ≈ 0
+    (DESIGN §3). Only texels whose centre is inside a triangle are written; where
+    triangles overlap in uv, the last drawn wins. `depth` is 0.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    points = np.hstack([uv, np.zeros((len(uv), 1))])
+    return _draw_ids(ctx, points, np.asarray(faces), width, height, _uv_clip(), False, attributes)
+
+
+class _PairBuffers:
+    """Program and buffers of `rasterize_pair` for one face list (made with the context current)."""
+
+    def __init__(self, ctx: GLContext, faces: np.ndarray, num_vertices: int, levels: int):
+        gl = ctx.mgl
+        # The base mesh needs only ids: a program that interpolates nothing draws it faster
+        # (same coverage, same ids).
+        self.prog_ids = ctx._program("ids.vert.glsl", "ids.frag.glsl")
+        self.prog = ctx._program("raster.vert.glsl", "subface.frag.glsl")
+        self.n = int(num_vertices)
+        self.m = len(faces)
+        self.levels = int(levels)
+        self.faces = np.asarray(faces, dtype=np.int32)
+        self.ibo = gl.buffer(self.faces.tobytes())
+        self.vbo = gl.buffer(reserve=self.n * 12)
+        self.vao = gl.vertex_array(self.prog_ids, [(self.vbo, "3f", "in_cam")], index_buffer=self.ibo,
+                                   index_element_size=4)
+        # The subdivided-id mesh de-indexed: each corner carries a one-hot barycentric.
+        self.vbo_sub = gl.buffer(reserve=3 * self.m * 12)
+        self.bary = gl.buffer(np.tile(np.eye(3, dtype=np.float32), (self.m, 1)).tobytes())
+        self.vao_sub = gl.vertex_array(self.prog, [(self.vbo_sub, "3f", "in_cam"), (self.bary, "3f", "in_bary")])
+
+    def release(self) -> None:
+        for obj in (self.vao, self.vbo, self.ibo, self.vao_sub, self.vbo_sub, self.bary):
+            obj.release()
+
+
+def _pair_buffers(ctx: GLContext, faces: np.ndarray, num_vertices: int, levels: int) -> _PairBuffers:
+    # The few cached face lists are compared element by element: cheaper than hashing them.
+    for key, pair in ctx._pairs.items():
+        if pair.n == num_vertices and pair.levels == levels and pair.faces.shape == np.shape(faces) \
+                and np.array_equal(pair.faces, faces):
+            ctx._pairs.move_to_end(key)
+            return pair
+    if len(ctx._pairs) >= 4:
+        ctx._pairs.popitem(last=False)[1].release()
+    pair = _PairBuffers(ctx, faces, num_vertices, levels)
+    ctx._pairs[id(pair)] = pair
+    return pair
+
+
+def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positions: np.ndarray,
+                   faces: np.ndarray, camera: Camera, *, levels: int = 0,
+                   pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle ids of two meshes with the same faces (e.g. gt and inferred) from one camera,
+    drawn side by side in one framebuffer: one upload, one readback.
+
+    The second mesh reports ids of its `levels`-times midpoint subdivision
+    (`mesh.subdivide` numbering) while only its base faces are drawn: the child face of
+    each pixel follows from the pixel's barycentrics in the base face (midpoint subdivision
+    does not move the surface, and barycentrics are perspective-correct). That equals
+    `rasterize` of the subdivided mesh up to pixel centres exactly on a child edge, at the
+    cost of a base raster. Projection and ids are those of `rasterize(..., attributes=False)`.
+
+    Args:
+        ctx: the GL context.
+        base_positions: (n,3) world positions of the mesh reported with base face ids.
+        subdivided_positions: (n,3) world positions of the mesh reported with subdivided ids.
+        faces: (m,3) int base faces of both.
+        camera: pinhole camera with zero distortion.
+        levels: subdivision levels of the second mesh's ids.
+        pixels: optional (k,2) projections of every vertex of both meshes: they bound the
+            region read back (faster); ids outside it are -1.
+
+    Returns:
+        base_tri_id (H,W) int32 in [0, m), subdivided_tri_id (H,W) int32 in [0, 4^levels m);
+        -1 = background.
+    """
+    import moderngl
+
+    camera.require_pinhole()
+    base_positions = np.asarray(base_positions, np.float64)
+    cam = camera.to_camera(np.concatenate([base_positions, np.asarray(subdivided_positions, np.float64)]))
+    cam = cam.astype(np.float32)
+    near, far = depth_range(cam)
+    W, H = camera.width, camera.height
+    n = len(base_positions)
+    gl = ctx.mgl
+    with gl:
+        pair = _pair_buffers(ctx, faces, n, levels)
+        clip = clip_from_camera(camera, near, far).T.astype("f4").tobytes()
+        pair.prog_ids["clip_from_cam"].write(clip)
+        pair.prog["clip_from_cam"].write(clip)
+        pair.vbo.write(cam[:n].tobytes())
+        pair.vbo_sub.write(cam[n:][pair.faces].tobytes())
+        # A triangle covers only pixel centres inside the box of its projected corners, so
+        # the box of all projections (one pixel margin) holds every id: only the box is
+        # cleared and read back. With a vertex behind the camera the projection says
+        # nothing: the whole image.
+        c0, r0, c1, r1 = 0, 0, W, H
+        if pixels is not None and len(pixels) and bool(np.all(cam[:, 2] > 0)):
+            # Column by column: NumPy reduces a (k,2) array along axis 0 far slower.
+            lo = np.floor([pixels[:, 0].min(), pixels[:, 1].min()]).astype(np.int64) - 1
+            hi = np.ceil([pixels[:, 0].max(), pixels[:, 1].max()]).astype(np.int64) + 2
+            c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
+            c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
+        w, h = c1 - c0, r1 - r0
+        fbo = ctx._target("pair", W, H)
+        fbo.use()
+        if w > 0 and h > 0:
+            for x0 in (c0, W + c0):
+                fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(x0, r0, w, h))
+        gl.disable(moderngl.CULL_FACE)
+        gl.enable(moderngl.DEPTH_TEST)
+        # The viewport clips in clip space: nothing of one mesh can spill into the other half.
+        gl.viewport = (0, 0, W, H)
+        pair.vao.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        gl.viewport = (W, 0, W, H)
+        pair.prog["num_faces"].value = pair.m
+        pair.prog["levels"].value = pair.levels
+        pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        base_ids = np.full((H, W), -1, np.int32)
+        sub_ids = np.full((H, W), -1, np.int32)
+        if w > 0 and h > 0:
+            # GL window row y is image row v (the projection flips once), so no flip here.
+            for out, x0 in ((base_ids, c0), (sub_ids, W + c0)):
+                data = fbo.read(attachment=0, components=1, dtype="i4", viewport=(x0, r0, w, h))
+                # gl_PrimitiveID restarts at 0 on each draw call; ids are stored +1.
+                out[r0:r1, c0:c1] = np.frombuffer(data, np.int32).reshape(h, w) - 1
+        gl.viewport = (0, 0, W, H)
+    return base_ids, sub_ids
+
+
+def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.ndarray:
+    """Per-vertex values (n,C) interpolated at every pixel, (H,W,C) float32; 0 on background."""
+    values = np.asarray(values)
+    if raster.bary is None:
+        raise ValueError("interpolate needs a raster with barycentrics (attributes=True)")
+    mask = raster.mask
+    out = np.zeros(raster.tri_id.shape + (values.shape[1],), dtype=np.float32)
+    f = np.asarray(faces)[raster.tri_id[mask]]
+    b = raster.bary[mask].astype(np.float64)
+    out[mask] = np.einsum("kj,kjc->kc", b, values[f].astype(np.float64))
+    return out

@@ -1,0 +1,131 @@
+"""Shaded pictures of meshes: the built-in fabric texture and textured renders
+(`render_textured`), drawn through the same projection as the rasterizer.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+from mvtex.render.context import GLContext
+from mvtex.render.raster import clip_from_camera, depth_range
+
+
+@lru_cache(maxsize=4)
+def fabric_texture(size: int = 1024, seed: int = 7) -> np.ndarray:
+    """A fabric-like RGB texture (size,size,3) uint8 over uv; row 0 at v ≈ 0 (DESIGN §3:
+    texel (r, c) has centre ((c + 0.5)/size, (r + 0.5)/size); flip rows to show v up).
+
+    A printed plaid with fine threads (period 1/128 of the atlas), a coarser check and
+    small dots: dense enough that sliding by a fraction of a centimetre shows.
+    """
+    rng = np.random.default_rng(seed)
+    t = (np.arange(size) + 0.5) / size
+    u, v = np.meshgrid(t, t)
+    base = np.array([0.82, 0.78, 0.70])
+    img = np.ones((size, size, 3)) * base
+    # Coarse check in two colours.
+    check = ((np.floor(u * 16) + np.floor(v * 16)) % 2)[..., None]
+    img = img * (1 - 0.18 * check) + 0.18 * check * np.array([0.35, 0.45, 0.75])
+    # Plaid bands.
+    for period, width, color, strength in ((1 / 8, 0.012, (0.75, 0.2, 0.2), 0.7), (1 / 32, 0.002, (0.15, 0.25, 0.15), 0.5)):
+        for coord in (u, v):
+            d = np.abs((coord + period / 2) % period - period / 2)
+            band = np.clip(1 - d / width, 0, 1)[..., None]
+            img = img * (1 - strength * band) + strength * band * np.array(color)
+    # Fine threads.
+    threads = 0.5 + 0.5 * np.cos(2 * np.pi * u * 128) * np.cos(2 * np.pi * v * 128)
+    img *= (0.88 + 0.12 * threads)[..., None]
+    # Small dots on a jittered grid, each a little different in colour.
+    grid = 64
+    cu, cv = np.floor(u * grid), np.floor(v * grid)
+    jitter = rng.uniform(0.3, 0.7, size=(grid, grid, 2))
+    du = u * grid - cu - jitter[cv.astype(int), cu.astype(int), 0]
+    dv = v * grid - cv - jitter[cv.astype(int), cu.astype(int), 1]
+    dot = (du ** 2 + dv ** 2 < 0.12 ** 2)[..., None]
+    hue = rng.uniform(0, 1, size=(grid, grid, 3))[cv.astype(int), cu.astype(int)]
+    img = np.where(dot, 0.15 + 0.5 * hue, img)
+    return np.clip(img * 255, 0, 255).astype(np.uint8)
+
+
+def fabric_colors(uv: np.ndarray, size: int = 1024) -> np.ndarray:
+    """The fabric texture's colour at texture coordinates (n,2) -> (n,3) uint8 (nearest texel)."""
+    tex = fabric_texture(size)
+    uv = np.asarray(uv, np.float64)
+    col = np.clip(np.floor(uv[:, 0] * size), 0, size - 1).astype(np.int64)
+    row = np.clip(np.floor(uv[:, 1] * size), 0, size - 1).astype(np.int64)
+    return tex[row, col]
+
+
+def _fabric_gl(ctx: GLContext, size: int):
+    import moderngl
+
+    if size not in ctx._fabric:
+        # GL texture row 0 is v = 0: the same order as `fabric_texture`, uploaded as is.
+        tex = ctx.mgl.texture((size, size), 3, np.ascontiguousarray(fabric_texture(size)).tobytes())
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        tex.anisotropy = 8.0
+        tex.repeat_x = tex.repeat_y = True
+        ctx._fabric[size] = tex
+    return ctx._fabric[size]
+
+
+def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray,
+                    camera: Camera, *, normals: np.ndarray | None = None,
+                    background: tuple[int, int, int] = (40, 40, 46), supersample: int = 2,
+                    texture_size: int = 1024) -> np.ndarray:
+    """Shade a mesh with the fabric texture at any per-vertex texcoords.
+
+    Args:
+        ctx: the GL context.
+        positions: (n,3) world positions. faces: (m,3). texcoords: (n,2) per-vertex uv.
+        camera: pinhole camera with zero distortion.
+        normals: (n,3) vertex normals (computed with seam copies welded if None).
+        supersample: render at this factor and downsample (anti-aliasing).
+
+    Returns:
+        (H,W,3) uint8 RGB image, OpenCV row order.
+    """
+    import cv2
+    import moderngl
+
+    from mvtex.data.mesh import vertex_normals, weld_groups
+
+    camera.require_pinhole()
+    positions = np.asarray(positions, dtype=np.float64)
+    if normals is None:
+        normals = vertex_normals(positions, faces, weld_groups(positions))
+    cam = camera.to_camera(positions)
+    near, far = depth_range(cam)
+    s = max(1, int(supersample))
+    big = Camera(camera.name, camera.width * s, camera.height * s,
+                 K=np.diag([s, s, 1.0]) @ camera.K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]]),
+                 R=camera.R, t=camera.t)
+    clip = clip_from_camera(big, near, far)
+    data = np.hstack([cam, normals @ camera.R.T, np.asarray(texcoords, dtype=np.float64)]).astype("f4")
+    gl = ctx.mgl
+    with gl:
+        prog = ctx._program("textured.vert.glsl", "textured.frag.glsl")
+        prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())
+        prog["fabric"].value = 0
+        vbo = gl.buffer(data.tobytes())
+        ibo = gl.buffer(np.asarray(faces, dtype=np.int32).tobytes())
+        vao = gl.vertex_array(prog, [(vbo, "3f 3f 2f", "in_cam", "in_normal", "in_texcoord")], index_buffer=ibo,
+                              index_element_size=4)
+        fbo = ctx._target("color", big.width, big.height)
+        fbo.use()
+        bg = np.asarray(background, dtype=np.float64) / 255
+        fbo.clear(*bg, 1.0, depth=1.0)
+        gl.disable(moderngl.CULL_FACE)
+        gl.enable(moderngl.DEPTH_TEST)
+        _fabric_gl(ctx, texture_size).use(0)
+        vao.render(moderngl.TRIANGLES)
+        img = np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(big.height, big.width, 3)
+        for obj in (vao, vbo, ibo):
+            obj.release()
+    if s > 1:
+        img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img)

@@ -1,0 +1,252 @@
+"""Texture sliding (DESIGN §5 steps 1-7): per (pose, camera), new texture coordinates T_N
+for the smooth inferred mesh so that, seen from the camera, it shows the ground-truth
+cloth's material at the right pixels.
+
+For each vertex of the (subdivided) inferred mesh the ray from the camera centre through
+it is intersected with the ground-truth mesh; T_N is the gt uv at the first hit and the
+stored displacement is d = T_N - T_G. The search for the hit triangle uses rasterization
+instead of a BVH: the gt triangle ids rendered around the vertex's projection are the
+candidates, and the exact float64 ray is intersected with each (Möller–Trumbore), so the
+answer is that of an exact ray cast. The same candidate trick gives the depth test that
+decides whether the vertex itself is visible.
+
+`slide_pose` does one (pose, camera); `mvtex.sliding.dataset.slide_dataset` streams a whole
+dataset into a texcoord set (DESIGN §4). Rasterization goes through `mvtex.render.raster` with a
+`GLContext` the caller passes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+
+if TYPE_CHECKING:
+    from mvtex.render.context import GLContext
+from mvtex.sliding.options import SlideOptions
+from mvtex.sliding.topology import SlideTopology
+
+_BARY_EPS = 1e-9
+
+
+def intersect_pairs(origin: np.ndarray, dirs: np.ndarray, positions: np.ndarray, faces: np.ndarray,
+                    tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Möller–Trumbore in float64, ray k against triangle tri[k], for k in range(p).
+
+    Args:
+        origin: (3,) common ray origin (the camera centre).
+        dirs: (p,3) ray directions; t is measured in units of each direction's length.
+        positions: (n,3) mesh positions. faces: (m,3) triangles. tri: (p,) triangle ids (>= 0).
+
+    Returns:
+        t (p,) (inf where the ray misses the triangle or hits it at t <= 0),
+        b1, b2 (p,) barycentric weights of corners 1 and 2 at the hit,
+        facing (p,) float: (face normal) · dir, > 0 for a triangle facing away from the ray.
+    """
+    f = faces[tri]
+    p0 = positions[f[:, 0]]
+    e1 = positions[f[:, 1]] - p0
+    e2 = positions[f[:, 2]] - p0
+    dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    px = dy * e2[:, 2] - dz * e2[:, 1]
+    py = dz * e2[:, 0] - dx * e2[:, 2]
+    pz = dx * e2[:, 1] - dy * e2[:, 0]
+    det = e1[:, 0] * px + e1[:, 1] * py + e1[:, 2] * pz
+    s = origin - p0
+    qx = s[:, 1] * e1[:, 2] - s[:, 2] * e1[:, 1]
+    qy = s[:, 2] * e1[:, 0] - s[:, 0] * e1[:, 2]
+    qz = s[:, 0] * e1[:, 1] - s[:, 1] * e1[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / det
+        b1 = (s[:, 0] * px + s[:, 1] * py + s[:, 2] * pz) * inv
+        b2 = (dx * qx + dy * qy + dz * qz) * inv
+        t = (e2[:, 0] * qx + e2[:, 1] * qy + e2[:, 2] * qz) * inv
+    hit = (det != 0) & (b1 >= -_BARY_EPS) & (b2 >= -_BARY_EPS) & (b1 + b2 <= 1 + _BARY_EPS) & (t > 0)
+    # (e1 x e2) · d = -det (scalar triple product): the sign tells the facing for free.
+    return np.where(hit, t, np.inf), b1, b2, -det
+
+
+def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
+                  neighbours: np.ndarray | None = None, modulo: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct triangle ids in the (2r+1)² window around each pixel (and their edge
+    neighbours if given), as (ray, tri) pairs sorted by ray. With `modulo`, the raster's
+    ids (>= 0) are taken modulo it first (subdivided face ids -> base face ids)."""
+    H, W = tri_id.shape
+    col = np.rint(pixels[:, 0]).astype(np.int64)
+    row = np.rint(pixels[:, 1]).astype(np.int64)
+    off = np.arange(-radius, radius + 1)
+    rr = np.clip(row[:, None, None] + off[None, :, None], 0, H - 1)
+    cc = np.clip(col[:, None, None] + off[None, None, :], 0, W - 1)
+    ids = tri_id[rr, cc].reshape(len(pixels), -1)
+    if modulo is not None:
+        ids = np.where(ids >= 0, ids % modulo, -1)
+    if neighbours is not None:
+        ids = np.sort(ids, axis=1)
+        ids[:, 1:][ids[:, 1:] == ids[:, :-1]] = -1
+        # Each distinct id with its edge neighbours, looked up in one table whose last row
+        # (index -1) is all -1: background and repeated ids add nothing.
+        closed = np.full((len(neighbours) + 1, 4), -1, np.int64)
+        closed[:-1, 0] = np.arange(len(neighbours))
+        closed[:-1, 1:] = neighbours
+        ids = closed[ids].reshape(len(pixels), -1)
+    ids = np.sort(ids, axis=1)
+    keep = ids >= 0
+    keep[:, 1:] &= ids[:, 1:] != ids[:, :-1]
+    ray = np.broadcast_to(np.arange(len(pixels))[:, None], ids.shape)[keep]
+    return ray, ids[keep]
+
+
+def _first_per_ray(ray: np.ndarray, key: np.ndarray, num_rays: int) -> tuple[np.ndarray, np.ndarray]:
+    """For pairs sorted by ray: per ray, the index of the first pair with the smallest key.
+
+    Returns (best (num_rays,) pair index or -1, best_key (num_rays,) inf where none)."""
+    best_key = np.full(num_rays, np.inf)
+    best = np.full(num_rays, -1)
+    if len(ray) == 0:
+        return best, best_key
+    starts = np.flatnonzero(np.r_[True, ray[1:] != ray[:-1]])
+    best_key[ray[starts]] = np.minimum.reduceat(key, starts)
+    idx = np.flatnonzero((key == best_key[ray]) & np.isfinite(key))
+    r = ray[idx]
+    first = idx[np.r_[True, r[1:] != r[:-1]]] if len(idx) else idx
+    best[ray[first]] = first
+    return best, best_key
+
+
+@dataclass
+class Hits:
+    """Result of the hit search for the subdivided inferred vertices (n').
+
+    Attributes:
+        visible: (n',) bool, the vertex passed both visibility rules.
+        tri: (n',) int64 gt triangle of the first hit (-1 if none).
+        bary: (n',3) float64 barycentrics of the hit in `tri`.
+        back: (n',) bool, the hit triangle faces away from the camera.
+        from_inside: (n',) bool, the inferred vertex itself is seen from the garment's
+            inside (its normal faces away from the camera, e.g. looking into a collar).
+    """
+
+    visible: np.ndarray
+    tri: np.ndarray
+    bary: np.ndarray
+    back: np.ndarray
+    from_inside: np.ndarray
+
+
+def seen_from_inside(X: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """(n,) bool: the area-weighted vertex normal of X (faces CCW from outside) points away
+    from the camera at `origin`."""
+    from mvtex.data.mesh import vertex_normals
+
+    return np.einsum("ij,ij->i", vertex_normals(X, faces), X - origin) > 0
+
+
+def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: np.ndarray, ray: np.ndarray,
+                tri: np.ndarray, vert_chart: np.ndarray, gt_chart: np.ndarray, vert_uv: np.ndarray | None = None,
+                gt_uv: np.ndarray | None = None):
+    """Nearest hit per ray among its candidate (ray, tri) pairs. Exact ties (a ray through
+    a gt vertex or edge) prefer a triangle of the vertex's own chart, then one facing the
+    camera, then (given `vert_uv` (k,2) and `gt_uv` (n,2)) the one whose uv at the hit is
+    nearest the vertex's own T_G: where a chart meets itself along a seam, both sides name
+    the same material and the vertex keeps its own side's coordinates.
+    Returns tri (k,) (-1 = no hit), bary (k,3), back (k,) bool."""
+    k = len(dirs)
+    t, b1, b2, facing = intersect_pairs(origin, dirs[ray], gt, gt_faces, tri)
+    _, t_min = _first_per_ray(ray, t, k)
+    # Only the pairs tied for the nearest hit compete on the tie-break key; they keep their
+    # order, so the first best pair is the same as over all pairs.
+    near = np.flatnonzero(np.isfinite(t) & (t <= t_min[ray] * (1 + 1e-9)))
+    ray, tri, b1, b2 = ray[near], tri[near], b1[near], b2[near]
+    back = facing[near] > 0
+    other = gt_chart[tri] != vert_chart[ray]
+    key = 4.0 * other + 2.0 * back
+    if vert_uv is not None and gt_uv is not None:
+        corners = gt_uv[gt_faces[tri]]
+        w = np.stack([1 - b1 - b2, b1, b2], axis=1)
+        hit_uv = np.einsum("kj,kjc->kc", w, corners)
+        key = key + np.minimum(np.linalg.norm(hit_uv - vert_uv[ray], axis=1), 1.0)
+    best, _ = _first_per_ray(ray, key, k)
+    found = best >= 0
+    sel = best[found]
+    out_tri = np.full(k, -1, np.int64)
+    out_tri[found] = tri[sel]
+    bary = np.zeros((k, 3))
+    bary[found] = np.stack([1 - b1[sel] - b2[sel], b1[sel], b2[sel]], axis=1)
+    out_back = np.zeros(k, bool)
+    out_back[found] = back[sel]
+    return out_tri, bary, out_back
+
+
+def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray,
+                     topo: SlideTopology, camera: Camera, options: SlideOptions, *, compiled: bool = True) -> Hits:
+    """Visibility and first gt hits by rasterization + exact candidate intersection.
+
+    Args:
+        ctx: the GL context.
+        gt, inferred: (n,3) float64 base positions. faces: (m,3) base faces.
+        X: (n',3) float64 subdivided inferred positions.
+        compiled: search the candidates with the compiled kernels of `mvtex.sliding.kernels`
+            (the default); False runs the NumPy formulation (`_window_pairs`,
+            `intersect_pairs`, `choose_hits`), which gives the same answer, slower.
+    """
+    from mvtex.render.raster import rasterize_pair
+
+    n = len(X)
+    m = len(faces)
+    origin = camera.center
+    pixels, z = camera.project(X)
+    gt_pixels = camera.project(gt)[0]
+    # Ids of the subdivided inferred faces (they give rule 1 directly); the base face of
+    # subdivided face k is k % m (children keep their parent modulo m). Both corners sets
+    # bound the read-back region (the inferred base vertices are among X's first n).
+    gt_ids, sub_ids = rasterize_pair(ctx, gt, inferred, faces, camera, levels=len(topo.levels) - 1,
+                                     pixels=np.concatenate([gt_pixels, pixels]))
+    # Rule 1 (the paper's): an incident (subdivided) triangle owns at least one pixel.
+    covered = sub_ids[sub_ids >= 0]
+    owned = np.zeros(len(topo.faces), bool)
+    owned[covered] = True
+    touched = np.zeros(n, bool)
+    touched[topo.faces[owned].ravel()] = True
+    cand = np.flatnonzero(touched & camera.in_image(pixels, z))
+    # Rule 2: nothing of the inferred mesh in front of the vertex along its ray (t = 1 at the
+    # vertex). Candidate occluders: the base inferred triangles drawn around its projection
+    # (the same surface as their subdivided children).
+    dirs = X[cand] - origin
+    if compiled:
+        from mvtex.sliding.kernels import first_hits, nearest_occluder
+        from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
+
+        faces64 = np.ascontiguousarray(faces, dtype=np.int64)
+        origin64 = np.ascontiguousarray(origin, dtype=np.float64)
+        t_first = nearest_occluder(origin64, dirs, pixels[cand], sub_ids, options.radius, topo.face_neighbours, m,
+                                   topo.host_keys, cand, np.ascontiguousarray(inferred, dtype=np.float64), faces64)
+    else:
+        ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, topo.face_neighbours, modulo=m)
+        keys = cand[ray] * len(faces) + tri
+        pos = np.minimum(np.searchsorted(topo.host_keys, keys), len(topo.host_keys) - 1)
+        other = topo.host_keys[pos] != keys
+        ray, tri = ray[other], tri[other]
+        t_occ = intersect_pairs(origin, dirs[ray], inferred, faces, tri)[0]
+        _, t_first = _first_per_ray(ray, t_occ, len(cand))
+    front = t_first >= 1 - options.depth_tolerance
+    cand, dirs = cand[front], dirs[front]
+    visible = np.zeros(n, bool)
+    visible[cand] = True
+    tri_hit = np.full(n, -1, np.int64)
+    bary = np.zeros((n, 3))
+    back = np.zeros(n, bool)
+    if compiled:
+        tri_hit[cand], bary[cand], back[cand] = first_hits(
+            origin64, dirs, pixels[cand], gt_ids, options.radius, topo.face_neighbours,
+            np.ascontiguousarray(gt, dtype=np.float64), faces64, topo.chart[cand], topo.gt_chart, topo.uv[cand],
+            np.ascontiguousarray(topo.uv[:len(gt)]))
+        from_inside = compiled_seen_from_inside(np.ascontiguousarray(X, dtype=np.float64), topo.faces, origin64)
+    else:
+        ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, topo.face_neighbours)
+        tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt, faces, ray, tri, topo.chart[cand],
+                                                            topo.gt_chart, topo.uv[cand], topo.uv[:len(gt)])
+        from_inside = seen_from_inside(X, topo.faces, origin)
+    return Hits(visible=visible, tri=tri_hit, bary=bary, back=back, from_inside=from_inside)

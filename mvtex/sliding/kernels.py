@@ -1,0 +1,257 @@
+"""Compiled kernels of the raster hit search (`mvtex.sliding.hits.find_hits_raster`).
+
+The raster path tests each vertex ray against the triangles drawn in a small pixel window
+around the vertex's projection (and their edge neighbours), exactly, in float64. Written
+with NumPy array operations this builds a (rays, window) table, sorts it twice, expands it
+four-fold and keeps every temporary; per ray in a compiled loop (numba) the same work is
+a few dozen candidates in a small buffer, deduplicated with a per-face mark, each
+intersected as it is found against the face's first corner and edges, computed once per
+call. Nothing about the answer changes: the candidates, the
+Möller–Trumbore arithmetic (operation for operation, no fast-math contraction) and the
+tie-break keys are those of `sliding._window_pairs`, `sliding.intersect_pairs` and
+`sliding.choose_hits`, which stay as the reference the tests compare with. The candidates
+are not sorted: the nearest t does not depend on their order, and equal tie-break keys go
+to the smaller face id, which is what the reference's ascending order gives.
+
+Three kernels:
+
+- `nearest_occluder`: the nearest hit t of each vertex's ray on the inferred base mesh,
+  leaving out the base faces the vertex itself lies on (rule 2, the depth test).
+- `first_hits`: the first gt hit of each ray with its tie-break (own chart, then facing
+  the camera, then uv nearest the vertex's own T_G).
+- `seen_from_inside`: `sliding.seen_from_inside` (area-weighted vertex normals, summed in
+  the same order as `mesh.vertex_normals`, against the view direction) without its
+  (m,3) and (n,3) temporaries.
+
+numba is imported with this module; `mvtex.sliding.hits` imports it when it first runs a job.
+The kernels are compiled on first use and cached by numba beside this module (as Python
+caches bytecode in `__pycache__`): a few seconds once per installation, then a fraction of
+a second per process.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_BARY_EPS = 1e-9  # the same as sliding._BARY_EPS
+
+
+def _compiled(fn):
+    """numba-compile `fn` (no GIL, NumPy's division semantics), cached on disk where numba
+    finds a writable place for its cache, compiled in every process where it finds none."""
+    try:
+        return njit(cache=True, nogil=True, error_model="numpy")(fn)
+    except RuntimeError:  # numba's "cannot cache function ...: no locator available"
+        return njit(nogil=True, error_model="numpy")(fn)
+
+
+@_compiled
+def _window(tri_id, col, row, radius, neighbours, modulo, buf, mark, stamp):
+    """Distinct ids >= 0 of the (2r+1)² window at (row, col) (clipped to the image) taken
+    modulo `modulo` (> 0) and closed under `neighbours`, into buf[:count], in no particular
+    order (every caller's answer is independent of it). mark: (m,) int64 scratch, one
+    entry per face id; an id is taken once per distinct `stamp` (a value mark never held
+    for this ray: the ray's index + 1 for marks starting at 0)."""
+    h, w = tri_id.shape
+    count = 0
+    for dr in range(-radius, radius + 1):
+        r = min(max(row + dr, 0), h - 1)
+        for dc in range(-radius, radius + 1):
+            c = min(max(col + dc, 0), w - 1)
+            f = tri_id[r, c]
+            if f < 0:
+                continue
+            if modulo > 0:
+                f = f % modulo
+            if mark[f] != stamp:
+                mark[f] = stamp
+                buf[count] = f
+                count += 1
+    drawn = count
+    for i in range(drawn):
+        for k in range(3):
+            f = neighbours[buf[i], k]
+            if f >= 0 and mark[f] != stamp:
+                mark[f] = stamp
+                buf[count] = f
+                count += 1
+    return count
+
+
+@_compiled
+def _corner_edges(positions, faces):
+    """(m,9) float64 per face: its first corner p0 and edges e1 = p1 - p0, e2 = p2 - p0 (the
+    subtractions `_intersect` would repeat for every ray that tests the face)."""
+    m = len(faces)
+    out = np.empty((m, 9))
+    for f in range(m):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        for k in range(3):
+            out[f, k] = positions[a, k]
+            out[f, 3 + k] = positions[b, k] - positions[a, k]
+            out[f, 6 + k] = positions[c, k] - positions[a, k]
+    return out
+
+
+@_compiled
+def _intersect(ox, oy, oz, dx, dy, dz, corner_edges, f):
+    """`sliding.intersect_pairs` for one (ray, triangle): (t or inf, b1, b2, facing);
+    corner_edges from `_corner_edges`."""
+    p0x, p0y, p0z = corner_edges[f, 0], corner_edges[f, 1], corner_edges[f, 2]
+    e1x, e1y, e1z = corner_edges[f, 3], corner_edges[f, 4], corner_edges[f, 5]
+    e2x, e2y, e2z = corner_edges[f, 6], corner_edges[f, 7], corner_edges[f, 8]
+    px = dy * e2z - dz * e2y
+    py = dz * e2x - dx * e2z
+    pz = dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    sx, sy, sz = ox - p0x, oy - p0y, oz - p0z
+    qx = sy * e1z - sz * e1y
+    qy = sz * e1x - sx * e1z
+    qz = sx * e1y - sy * e1x
+    inv = 1.0 / det
+    b1 = (sx * px + sy * py + sz * pz) * inv
+    b2 = (dx * qx + dy * qy + dz * qz) * inv
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    hit = det != 0 and b1 >= -_BARY_EPS and b2 >= -_BARY_EPS and b1 + b2 <= 1 + _BARY_EPS and t > 0
+    return (t if hit else np.inf), b1, b2, -det
+
+
+@_compiled
+def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, host_keys, vertices,
+                     positions, faces):
+    """Per ray k: the smallest t > 0 at which dirs[k] (from `origin`) hits a base face of
+    the window around pixels[k] in `tri_id` (subdivided ids, taken modulo `modulo`), other
+    than the faces hosting vertices[k] (key vertex * modulo + face in sorted `host_keys`).
+
+    Args:
+        origin: (3,) float64. dirs: (k,3) float64, t = 1 at the vertex. pixels: (k,2) float64.
+        tri_id: (H,W) int ids (-1 background). radius: window half-size. neighbours: (m,3)
+        int64 base face neighbours (-1 none). modulo: m, the number of base faces.
+        host_keys: sorted int64. vertices: (k,) int64. positions: (n,3) float64 base
+        inferred positions. faces: (m,3) int64 base faces.
+
+    Returns:
+        (k,) float64 t (inf where nothing is hit).
+    """
+    k = len(dirs)
+    out = np.full(k, np.inf)
+    buf = np.empty(4 * (2 * radius + 1) ** 2, np.int64)
+    mark = np.zeros(len(neighbours), np.int64)
+    hosted = np.zeros(len(neighbours), np.int64)
+    corner_edges = _corner_edges(positions, faces)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(k):
+        count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
+                        neighbours, modulo, buf, mark, i + 1)
+        # The vertex's host keys are one sorted run of host_keys: mark its host faces.
+        lo = np.searchsorted(host_keys, vertices[i] * modulo)
+        hi = np.searchsorted(host_keys, (vertices[i] + 1) * modulo)
+        for h in range(lo, hi):
+            hosted[host_keys[h] - vertices[i] * modulo] = i + 1
+        best = np.inf
+        for j in range(count):
+            f = buf[j]
+            if hosted[f] == i + 1:
+                continue
+            t = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2], corner_edges, f)[0]
+            if t < best:
+                best = t
+        out[i] = best
+    return out
+
+
+@_compiled
+def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, faces, vert_chart, face_chart,
+               vert_uv, face_uv):
+    """Per ray k: the nearest hit of dirs[k] on the faces of the window around pixels[k]
+    in `tri_id`, ties broken as `sliding.choose_hits` does with uv given.
+
+    Args:
+        origin, dirs, pixels, tri_id, radius, neighbours: as `nearest_occluder` (ids are
+        base face ids, no modulo). positions: (n,3) float64 gt positions. faces: (m,3)
+        int64. vert_chart: (k,) int64 chart of each ray's vertex. face_chart: (m,) int64.
+        vert_uv: (k,2) float64 the vertex's T_G. face_uv: (n,2) float64 gt uv.
+
+    Returns:
+        tri (k,) int64 (-1 = no hit), bary (k,3) float64, back (k,) bool.
+    """
+    k = len(dirs)
+    tri = np.full(k, -1, np.int64)
+    bary = np.zeros((k, 3))
+    back = np.zeros(k, np.bool_)
+    size = 4 * (2 * radius + 1) ** 2
+    buf = np.empty(size, np.int64)
+    ts = np.empty(size)
+    b1s = np.empty(size)
+    b2s = np.empty(size)
+    facing = np.empty(size)
+    mark = np.zeros(len(neighbours), np.int64)
+    corner_edges = _corner_edges(positions, faces)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(k):
+        count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
+                        neighbours, 0, buf, mark, i + 1)
+        t_min = np.inf
+        for j in range(count):
+            ts[j], b1s[j], b2s[j], facing[j] = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2],
+                                                          corner_edges, buf[j])
+            if ts[j] < t_min:
+                t_min = ts[j]
+        if t_min == np.inf:
+            continue
+        limit = t_min * (1 + 1e-9)
+        best_key = np.inf
+        best = -1
+        for j in range(count):
+            t = ts[j]
+            if not (t < np.inf and t <= limit):
+                continue
+            f = buf[j]
+            b1, b2 = b1s[j], b2s[j]
+            key = 4.0 * (face_chart[f] != vert_chart[i]) + 2.0 * (facing[j] > 0)
+            w0 = 1 - b1 - b2
+            a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+            u = w0 * face_uv[a, 0] + b1 * face_uv[b, 0] + b2 * face_uv[c, 0] - vert_uv[i, 0]
+            v = w0 * face_uv[a, 1] + b1 * face_uv[b, 1] + b2 * face_uv[c, 1] - vert_uv[i, 1]
+            key = key + min(np.sqrt(u * u + v * v), 1.0)
+            # Equal keys go to the smaller face id, as in `choose_hits`' ascending order.
+            if key < best_key or (key == best_key and f < buf[best]):
+                best_key = key
+                best = j
+        if best < 0:
+            continue
+        tri[i] = buf[best]
+        b1, b2 = b1s[best], b2s[best]
+        bary[i, 0] = 1 - b1 - b2
+        bary[i, 1] = b1
+        bary[i, 2] = b2
+        back[i] = facing[best] > 0
+    return tri, bary, back
+
+
+@_compiled
+def seen_from_inside(positions, faces, origin):
+    """(n,) bool: the area-weighted vertex normal of `positions` ((n,3) float64; `faces`
+    (m,3) int64, CCW from outside) points away from `origin` ((3,) float64)."""
+    n = len(positions)
+    acc = np.zeros((n, 3))
+    for f in range(len(faces)):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        ux, uy, uz = positions[b, 0] - positions[a, 0], positions[b, 1] - positions[a, 1], positions[b, 2] - positions[a, 2]
+        vx, vy, vz = positions[c, 0] - positions[a, 0], positions[c, 1] - positions[a, 1], positions[c, 2] - positions[a, 2]
+        nx = uy * vz - uz * vy
+        ny = uz * vx - ux * vz
+        nz = ux * vy - uy * vx
+        for k in range(3):
+            v = faces[f, k]
+            acc[v, 0] += nx
+            acc[v, 1] += ny
+            acc[v, 2] += nz
+    out = np.zeros(n, np.bool_)
+    for i in range(n):
+        x, y, z = acc[i, 0], acc[i, 1], acc[i, 2]
+        norm = max(np.sqrt(x * x + y * y + z * z), 1e-300)
+        out[i] = ((x / norm) * (positions[i, 0] - origin[0]) + (y / norm) * (positions[i, 1] - origin[1])
+                  + (z / norm) * (positions[i, 2] - origin[2])) > 0
+    return out

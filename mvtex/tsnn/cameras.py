@@ -1,0 +1,94 @@
+"""One model per camera, trained side by side on local processes or a Dask cluster,
+resumable (a model trained from the same inputs is kept).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+from mvtex.tsnn.modeldir import _kept_model
+from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, train
+from mvtex.util.errors import InputError
+
+
+def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
+    """In a worker: one camera's model from paths (torch on one thread: the workers already
+    fill the cores)."""
+    import torch
+
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.texcoords import open_texcoords
+
+    torch.set_num_threads(1)
+    ds = load_dataset(dataset, validate=False)
+    return train(ds, open_texcoords(texcoords, ds.num_vertices), out, camera=camera, options=options, progress=False)
+
+
+def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.PathLike,
+                  options: TrainOptions = TrainOptions(), *, workers: int = 1, scheduler: str | None = None,
+                  progress: bool = True) -> dict[str, Any]:
+    """One model per camera, OUT/<camera>/ (each a model directory as `train` writes it),
+    trained side by side on local processes or a Dask cluster (`mvtex.util.parallel`).
+
+    Each model is `train` with that camera, written atomically. A rerun keeps the model of
+    every camera whose config.json records the inputs it would be trained from now (see
+    `_inputs_key`), so an interrupted run continues with the cameras it had not finished,
+    and trains the others again. On workers torch runs one thread per process (the workers
+    fill the cores), which can change a network's last bits against a multi-threaded run,
+    not a `gp` model's (tested bit for bit).
+
+    Returns:
+        {"out", "cameras", "arch", "models": {camera: the `train` summary}, "kept": the
+        cameras whose models were kept}.
+    """
+    from mvtex.util.parallel import map_unordered
+
+    out = Path(out)
+    cameras = list(cameras)
+    missing = [c for c in cameras if c not in texcoords.cameras]
+    if missing:
+        raise InputError(texcoords.path, f"no camera {missing[0]!r} in this texcoord set "
+                         f"(it has {', '.join(texcoords.cameras)})")
+    if len(set(cameras)) != len(cameras):
+        raise InputError(None, f"cameras listed twice: {cameras}")
+    for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
+        texcoords.displacement(c, texcoords.poses[0])
+    try:
+        resolved = _resolve(options, cameras[0])
+    except ValueError as err:
+        raise InputError(None, f"training options: {err}") from None
+    split = _split(dataset, texcoords)
+    dataset_hash = None
+    models: dict[str, Any] = {}
+    for c in cameras:
+        if not (out / c / "config.json").is_file():
+            continue
+        if dataset_hash is None:
+            from mvtex.util.fingerprint import fingerprint
+
+            dataset_hash = fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv)
+        kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
+        if kept is not None:
+            models[c] = kept
+            if progress:
+                print(f"{out / c}: trained before from the same inputs; kept", file=sys.stderr)
+    todo = [c for c in cameras if c not in models]
+    tasks = [(str(Path(dataset.path).resolve()), str(Path(texcoords.path).resolve()), c, str(out / c), options)
+             for c in todo]
+    if workers <= 1 and not scheduler:
+        for c in todo:
+            models[c] = train(dataset, texcoords, out / c, camera=c, options=options, progress=progress)
+    else:
+        from tqdm import tqdm
+
+        with tqdm(total=len(cameras), initial=len(cameras) - len(todo), desc="train", unit="camera",
+                  disable=not progress, file=sys.stderr) as bar:
+            for summary in map_unordered(_train_camera_task, tasks, workers=workers, scheduler=scheduler):
+                models[summary["camera"]] = summary
+                bar.update(1)
+    arch = {m["arch"] for m in models.values()}
+    return {"out": str(out), "cameras": cameras, "arch": arch.pop() if len(arch) == 1 else sorted(arch),
+            "models": {c: models[c] for c in cameras}, "kept": [c for c in cameras if c not in todo]}

@@ -1,0 +1,115 @@
+"""The model directory a TSNN or `gp` model lives in (model.safetensors, config.json, a
+picture): written once here and read back here, so its keys are known in one place.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mvtex.data.mesh import apply_parent, subdivide
+from mvtex.util.output import atomic_path
+
+MODEL_FORMAT = "mvtex-tsnn"
+
+
+MODEL_VERSION = 2
+
+
+READABLE_VERSIONS = (1, 2)  # version 1: paper architecture, one camera, no "arch" key
+
+
+def mesh_fingerprint(faces: np.ndarray, uv: np.ndarray) -> str:
+    """SHA-256 of a base mesh's faces (int32) and uv (float32): ties a model to its mesh."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(faces, dtype=np.int32).tobytes())
+    h.update(np.ascontiguousarray(uv, dtype=np.float32).tobytes())
+    return h.hexdigest()
+
+
+def rebuild_mesh(faces: np.ndarray, uv: np.ndarray, subdiv: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The texcoord-set mesh made from a dataset mesh: (faces (m',3) int32, uv (n',2) float32,
+    parent (n',2) int32) after `subdiv` midpoint subdivisions."""
+    sub = subdivide(faces, len(uv), int(subdiv))
+    return sub.faces, apply_parent(np.asarray(uv, np.float32), sub.parent).astype(np.float32), sub.parent
+
+
+def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, title: str) -> None:
+    # The object-oriented API with an Agg canvas: no global backend switch, no display.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 4), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    epochs = np.arange(1, len(history["train"]) + 1)
+    ax.semilogy(epochs, history["train"], label="train")
+    if history.get("val"):
+        ax.semilogy(epochs, history["val"], label="validation")
+    ax.axvline(best_epoch, color="gray", linestyle=":", label=f"best (epoch {best_epoch})")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("weighted MSE of d (uv²)")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, format="png")
+
+
+def _kept_model(path: Path, key: str) -> dict[str, Any] | None:
+    """The `train` summary of the finished model directory at `path` if its config.json
+    records inputs `key`; None if there is none, it is unreadable or it was trained from
+    other inputs."""
+    try:
+        meta = json.loads((path / "config.json").read_text())
+        if not (isinstance(meta, dict) and meta.get("inputs") == key and (path / "model.safetensors").is_file()):
+            return None
+        return {"camera": meta["camera"], "cameras": list(meta["cameras"]), "arch": meta["options"]["arch"],
+                "out": str(path), "device": meta["device"], "resolution": meta["architecture"].get("resolution"),
+                "epochs_run": meta["epochs_run"], "best_epoch": meta["best_epoch"], "seconds": meta["seconds"],
+                "num_poses": {k: len(v) for k, v in meta["split"].items()}, "losses": meta["losses"]}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
+def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
+    """Heatmap of a `gp` model's inverse lengthscales: component (rows) x pose coordinate."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    c, p = relevance.shape
+    fig = Figure(figsize=(min(12.0, 2.0 + 0.45 * p), min(8.0, 1.6 + 0.3 * c)), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    image = ax.imshow(relevance, cmap="viridis", aspect="auto", interpolation="nearest")
+    ax.set_xlabel("pose coordinate")
+    ax.set_ylabel("principal component of d")
+    ax.set_xticks(range(p))
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(image, ax=ax, label="1 / lengthscale (standardised pose)")
+    fig.tight_layout()
+    fig.savefig(path, format="png")
+
+
+def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
+    from safetensors.torch import save_file
+
+    with atomic_path(out) as tmp:
+        tmp.mkdir()
+        state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+        # One metadata entry: safetensors writes its metadata map in hash order, which varies
+        # from process to process, and a model's bytes should not (the cameras are in config.json).
+        save_file(state, str(tmp / "model.safetensors"), metadata={"format": MODEL_FORMAT})
+        (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
+        if meta["architecture"]["arch"] == "gp":
+            _relevance_plot(tmp / "relevance.png", model.relevance(),
+                            f"gp {meta['camera']}: relevance of the pose coordinates "
+                            f"({meta['architecture']['num_train']} training poses)")
+        else:
+            _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
+                       f"TSNN {meta['architecture']['arch']} {meta['camera'] or 'all cameras'} "
+                       f"({meta['architecture']['resolution']}², best epoch {meta['best_epoch']})")

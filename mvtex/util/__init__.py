@@ -1,0 +1,2 @@
+"""Foundations every stage uses: errors, safe file input and output, fingerprints, parallel maps.
+"""

@@ -1,0 +1,177 @@
+"""Run independent tasks in this process, on a local process pool, or on a Dask cluster.
+
+Every backend calls the same module-level function with the same picklable arguments and
+yields results as they complete (unordered), with a bounded number of tasks in flight so
+results stream instead of piling up. Worker processes are started with "spawn": each
+one creates its own OpenGL context (a context never survives a fork), and each dies with
+the process that started it (even when that one is killed with SIGKILL).
+
+    for result in map_unordered(fn, tasks, workers=2):
+        ...
+
+`scheduler` is a Dask scheduler address ("tcp://host:8786"); dask.distributed is imported
+only then. Workers there must be able to import mvtex and read the same dataset path.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+
+def map_unordered(fn: Callable[..., Any], tasks: Sequence[tuple], *, workers: int = 1, scheduler: str | None = None,
+                  max_in_flight: int | None = None) -> Iterator[Any]:
+    """Yield fn(*task) for every task, in completion order.
+
+    Args:
+        fn: a module-level (picklable) function.
+        tasks: argument tuples.
+        workers: local processes (1 = run here, in this process, in order).
+        scheduler: Dask scheduler address; takes precedence over `workers`.
+        max_in_flight: tasks submitted ahead of the consumer (default 4 per worker).
+
+    Exceptions raised by a task propagate to the caller (remaining tasks are cancelled).
+    """
+    tasks = list(tasks)
+    if scheduler:
+        yield from _dask(fn, tasks, scheduler, max_in_flight)
+    elif workers <= 1:
+        for task in tasks:
+            yield fn(*task)
+    else:
+        yield from _processes(fn, tasks, workers, max_in_flight or 4 * workers)
+
+
+class ThreadState:
+    """What a worker keeps between the tasks of one run (dataset, topology, GL context), one
+    per thread: a Dask worker runs tasks in several threads at once (`dask worker` starts one
+    per core by default), and a GL context is used by the thread that made it.
+
+    `get(key, make)` returns this thread's value for run `key`, made by `make()` the first
+    time; `set(key, value)` puts one in place (a value None drops it). A value replaced or
+    dropped is released (`value.release()`).
+    """
+
+    def __init__(self) -> None:
+        import threading
+
+        self._local = threading.local()
+
+    def get(self, key: Any, make: Callable[[], Any]) -> Any:
+        held = getattr(self._local, "held", None)
+        if held is None or held[0] != key:
+            self.set(None, None)  # the previous run's state goes before the next one is made
+            held = self._local.held = (key, make())
+        return held[1]
+
+    def set(self, key: Any, value: Any) -> None:
+        old = getattr(self._local, "held", None)
+        self._local.held = None if value is None else (key, value)
+        if old is not None and old[1] is not value:
+            old[1].release()
+
+
+def _processes(fn, tasks: list, workers: int, max_in_flight: int) -> Iterator[Any]:
+    import multiprocessing as mp
+    import os
+    import threading
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    parent_death_signal = threading.current_thread() is threading.main_thread()
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_die_with_parent,
+                             initargs=(os.getpid(), parent_death_signal)) as pool:
+        pending: set = set()
+        it = iter(tasks)
+        try:
+            for task in it:
+                pending.add(pool.submit(fn, *task))
+                if len(pending) >= max_in_flight:
+                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        yield fut.result()
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    yield fut.result()
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+
+def _die_with_parent(parent_pid: int, parent_death_signal: bool) -> None:
+    """Worker initializer: end this worker when the process that started it dies.
+
+    A killed parent (SIGKILL, OOM killer) runs no cleanup, and its pool's workers would
+    live on as orphans. On Linux the kernel sends SIGKILL on the parent's death
+    (`prctl(PR_SET_PDEATHSIG)`; only when the pool was started from the parent's main
+    thread, since the signal follows the *thread* that started the worker). Everywhere, a
+    daemon thread also checks twice a second that the parent is still this process's
+    parent and exits if not.
+    """
+    import os
+    import signal
+    import threading
+    import time
+
+    if parent_death_signal and sys.platform.startswith("linux"):
+        import ctypes
+
+        PR_SET_PDEATHSIG = 1
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # died before the signal was armed
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="mvtex-parent-watch", daemon=True).start()
+
+
+def _dask(fn, tasks: list, address: str, max_in_flight: int | None) -> Iterator[Any]:
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError as err:  # the original error, with the extra that provides it
+        raise ImportError(f"{err}; a Dask scheduler needs `pip install mvtex[dist]`") from err
+
+    with Client(address) as client:
+        limit = max_in_flight or 4 * max(1, sum(client.nthreads().values()))
+        it = iter(tasks)
+        # range first: zip would take (and drop) one task more from `it` when range runs out
+        pending = {client.submit(fn, *task, pure=False) for _, task in zip(range(limit), it)}
+        queue = as_completed(list(pending))
+        try:
+            for fut in queue:
+                result = fut.result()
+                pending.discard(fut)
+                fut.release()
+                for task in _take(it, 1):
+                    new = client.submit(fn, *task, pure=False)
+                    pending.add(new)
+                    queue.add(new)
+                yield result
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+
+def _take(it: Iterable, k: int) -> list:
+    out = []
+    for item in it:
+        out.append(item)
+        if len(out) == k:
+            break
+    return out
+
+
+def single_thread_gl() -> None:
+    """In a worker (a local worker process or a Dask worker), before its GL context is
+    created: let llvmpipe rasterize in the calling thread (fewer CPU cycles per draw). The
+    workers' processes and threads already fill the cores, so llvmpipe's own rasterizer
+    threads would only compete with them. An LP_NUM_THREADS set by the user is kept."""
+    os.environ.setdefault("LP_NUM_THREADS", "0")

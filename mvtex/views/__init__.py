@@ -1,0 +1,2 @@
+"""Novel views between array cameras and stereo previews (`mvtex views`, `mvtex preview`).
+"""

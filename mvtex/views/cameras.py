@@ -1,0 +1,152 @@
+"""Novel cameras between the cameras of an array: view weights (parsed, checked, along a
+segment or over a 2x2 grid) and the camera they make (centre and K blended, orientation by
+weighted quaternion averaging).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig
+from mvtex.util.errors import InputError
+
+WEIGHT_TOLERANCE = 1e-6
+
+
+def parse_weights(text: str) -> dict[str, float]:
+    """`"A=0.3,B=0.7"` -> {"A": 0.3, "B": 0.7}; InputError on malformed text."""
+    weights: dict[str, float] = {}
+    for item in str(text).split(","):
+        item = item.strip()
+        if not item:
+            continue
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        try:
+            w = float(value) if sep else float("nan")
+        except ValueError:
+            w = float("nan")
+        if not name or not sep or not np.isfinite(w):
+            raise InputError(None, f"--weights: {item!r} is not NAME=NUMBER (e.g. \"left=0.5,right=0.5\")")
+        if name in weights:
+            raise InputError(None, f"--weights: camera {name!r} given twice")
+        weights[name] = w
+    if not weights:
+        raise InputError(None, "--weights: no camera given")
+    return weights
+
+
+def check_weights(weights: Mapping[str, float], rig: Rig, source: str | os.PathLike | None = None) -> dict[str, float]:
+    """Weights of a view, validated: known cameras, finite, ≥ 0, summing to 1 (±1e-6)."""
+    rig.select(list(weights), source)  # InputError naming unknown cameras
+    values = np.array([float(w) for w in weights.values()], np.float64)
+    if not np.all(np.isfinite(values)):
+        raise InputError(None, f"weights must be finite numbers, got {dict(weights)}")
+    if np.any(values < 0):
+        raise InputError(None, f"weights must be >= 0, got {dict(weights)}")
+    if abs(values.sum() - 1.0) > WEIGHT_TOLERANCE:
+        raise InputError(None, f"weights must sum to 1 (within {WEIGHT_TOLERANCE:g}), they sum to {values.sum():.9g}")
+    return {str(k): float(v) for k, v in weights.items()}
+
+
+def between_weights(a: str, b: str, steps: int) -> list[dict[str, float]]:
+    """`steps` views evenly along the segment a -> b, both ends included (t = i/(steps-1))."""
+    if int(steps) < 2:
+        raise InputError(None, f"--steps must be at least 2, got {steps}")
+    if a == b:
+        raise InputError(None, f"--between needs two different cameras, got {a},{b}")
+    out = []
+    for i in range(int(steps)):
+        t = i / (int(steps) - 1)
+        out.append({a: 1.0 - t, b: t})
+    return out
+
+
+def grid_weights(a: str, b: str, c: str, d: str, steps: int) -> list[dict[str, float]]:
+    """steps × steps views bilinear over a 2×2 array, row-major from `a`.
+
+    Corners: a at (row 0, column 0), b at (row 0, last column), c at (last row, column 0),
+    d at (last row, last column); view (i, j) has s = j/(steps-1) along a->b and
+    t = i/(steps-1) along a->c.
+    """
+    if int(steps) < 2:
+        raise InputError(None, f"--steps must be at least 2, got {steps}")
+    if len({a, b, c, d}) != 4:
+        raise InputError(None, f"--grid needs four different cameras, got {a},{b},{c},{d}")
+    out = []
+    n = int(steps)
+    for i in range(n):
+        t = i / (n - 1)
+        for j in range(n):
+            s = j / (n - 1)
+            out.append({a: (1 - s) * (1 - t), b: s * (1 - t), c: (1 - s) * t, d: s * t})
+    return out
+
+
+def view_names(count: int) -> list[str]:
+    """view_000, view_001, ..."""
+    return [f"view_{i:03d}" for i in range(count)]
+
+
+def _single(weights: Mapping[str, float]) -> str | None:
+    """The camera with weight exactly 1 (all others 0), if any."""
+    ones = [k for k, w in weights.items() if w == 1.0]
+    if len(ones) == 1 and all(w == 0.0 for k, w in weights.items() if k != ones[0]):
+        return ones[0]
+    return None
+
+
+def interpolate_camera(rig: Rig, weights: Mapping[str, float], name: str) -> Camera:
+    """The novel camera of `weights` over cameras of `rig` (see the module docstring).
+
+    Args:
+        rig: the array; weights: camera name -> weight (validated with `check_weights`).
+        name: the new camera's name.
+
+    Returns:
+        Camera: width/height of the array cameras, K and centre blended, R averaged.
+
+    Raises:
+        InputError: the cameras' image sizes differ, or the weights are invalid.
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    weights = check_weights(weights, rig)
+    one = _single(weights)
+    if one is not None:
+        return rig[one].with_name(name)
+    used = [(rig[k], w) for k, w in weights.items() if w > 0]
+    sizes = {(c.width, c.height) for c, _ in used}
+    if len(sizes) > 1:
+        raise InputError(None, "cameras " + ", ".join(c.name for c, _ in used) +
+                         f" have different image sizes {sorted(sizes)}: a view can only blend cameras of one size")
+    w = np.array([x for _, x in used], np.float64)
+    w = w / w.sum()
+    cams = [c for c, _ in used]
+    centre = np.einsum("p,pi->i", w, np.stack([c.center for c in cams]))
+    K = np.einsum("p,pij->ij", w, np.stack([c.K for c in cams]))
+    dist = np.einsum("p,pi->i", w, np.stack([c.dist for c in cams]))
+    rotations = Rotation.from_matrix(np.stack([c.R for c in cams]))
+    if len(cams) == 2:
+        R = Slerp([0.0, 1.0], rotations)([w[1]]).as_matrix()[0]
+    else:
+        R = rotations.mean(weights=w).as_matrix()
+    return Camera(name=name, width=cams[0].width, height=cams[0].height, K=K, R=R, t=-R @ centre, dist=dist)
+
+
+def weights_for_centre(rig: Rig, names: Sequence[str], centre: np.ndarray) -> dict[str, float]:
+    """Weights ≥ 0 summing to 1 over cameras `names` whose blended centre is nearest `centre`
+    (non-negative least squares with the sum as a heavily weighted extra row)."""
+    from scipy.optimize import nnls
+
+    C = np.stack([rig[n].center for n in names], axis=1)  # (3,p)
+    scale = 1e3 * max(1.0, float(np.abs(C).max()))
+    A = np.vstack([C, np.full((1, len(names)), scale)])
+    b = np.concatenate([np.asarray(centre, np.float64), [scale]])
+    w, _ = nnls(A, b)
+    w = w / w.sum()
+    return {n: float(x) for n, x in zip(names, w)}

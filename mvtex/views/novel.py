@@ -1,0 +1,188 @@
+"""`mvtex views`: a texcoord set whose cameras are novel views of an array, built block by
+block of poses, resumable, on local processes or a Dask cluster.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import uuid
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from mvtex.data.camera import Camera, check_camera_name
+from mvtex.data.rig import Rig
+from mvtex.util.errors import InputError
+from mvtex.util.parallel import ThreadState
+from mvtex.views.cameras import check_weights, interpolate_camera
+from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
+
+_WRITE_BLOCK = 32  # poses computed between two writes of the output arrays
+
+
+@dataclass(frozen=True)
+class _ViewSpec:
+    """What a worker needs to compute views (picklable): paths, not open files."""
+
+    dataset: str
+    rig: Rig
+    texcoords: str
+    options: ViewOptions
+    rig_source: str | None
+    cameras: tuple
+    weights: tuple
+    key: str  # one run: a worker keeps its synthesizer between the run's tasks
+
+
+_VIEW_STATE = ThreadState()  # each thread's synthesizer for the run it serves
+
+
+def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
+    """A worker's synthesizer for a run."""
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.util.parallel import single_thread_gl
+
+    single_thread_gl()
+    ds = load_dataset(spec.dataset, validate=False)
+    return ViewSynthesizer(ds, spec.rig, open_texcoords(spec.texcoords, ds.num_vertices), spec.options,
+                           spec.rig_source)
+
+
+def _views_of_poses(synth: "ViewSynthesizer", cameras: Sequence[Camera], weights: Sequence[Mapping[str, float]],
+                    poses: Sequence[int]) -> tuple[dict, dict]:
+    """Every view of `poses`: ({name: (p,n',2) float32}, {name: (p,n') bool})."""
+    n_sub = len(synth.texcoords.uv)
+    disp = {c.name: np.empty((len(poses), n_sub, 2), np.float32) for c in cameras}
+    asg = {c.name: np.empty((len(poses), n_sub), bool) for c in cameras}
+    for row, pose in enumerate(poses):
+        state = synth.prepare(pose)
+        for cam, w in zip(cameras, weights):
+            disp[cam.name][row], asg[cam.name][row] = synth.view(state, cam, w)
+    return disp, asg
+
+
+def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
+    """In a worker: the views of one block of poses; returns (start, disp, asg)."""
+    synth = _VIEW_STATE.get(spec.key, lambda: _view_state(spec))
+    return (start, *_views_of_poses(synth, spec.cameras, spec.weights, poses))
+
+
+def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
+                names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
+                rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
+                scheduler: str | None = None) -> dict:
+    """`mvtex views`: a texcoord set whose cameras are novel views of an array.
+
+    Args:
+        dataset: `Dataset`. rig: the array's `Rig`. texcoords: the array's `TexcoordSet`.
+        out: the directory to write: a texcoord set (DESIGN §4) with source
+            "views-<method>" and `rig.yaml` holding the novel cameras. It is built in
+            ``OUT.partial`` beside it, block by block of poses with a done mask, and renamed
+            into place when complete; a rerun with the same inputs (content fingerprints)
+            and settings continues where an interrupted run stopped.
+        weights: one weight map per view (array camera -> weight). names: the views' names.
+        poses: dataset pose indices (default: the set's poses).
+        options: ViewOptions.
+        workers: local worker processes (1: this process), see `mvtex.util.parallel.map_unordered`.
+        scheduler: Dask scheduler address (overrides `workers`). Workers compute blocks of
+            `_WRITE_BLOCK` poses; the result does not depend on where they ran.
+
+    Returns:
+        {"out", "method", "views": {name: weights}, "poses": [...], "cameras": {name: centre}}.
+    """
+    from tqdm import tqdm
+
+    from mvtex.data.rig import save_rig
+    from mvtex.data.texcoords import open_unfinished
+    from mvtex.util.files import dumps_strict, load_npy, save_npy, write_npy_rows
+    from mvtex.util.fingerprint import fingerprint
+    from mvtex.util.output import remove_leftovers, replace_path
+
+    if len(weights) != len(names) or not names:
+        raise ValueError("one name per view is needed")
+    if len(set(names)) != len(names):
+        raise InputError(None, f"view names must be unique, got {list(names)}")
+    for name in names:  # they become folder names
+        try:
+            check_camera_name(name)
+        except ValueError as err:
+            raise InputError(None, str(err)) from None
+    weights = [check_weights(w, rig, rig_source) for w in weights]
+    synth = ViewSynthesizer(dataset, rig, texcoords, options, rig_source)
+    for w in weights:
+        absent = [c for c in w if c not in texcoords.cameras]
+        if absent:
+            raise InputError(texcoords.path, f"no texcoords for camera {', '.join(absent)} in this set "
+                             f"(it has {', '.join(texcoords.cameras)})")
+    cameras = [interpolate_camera(rig, w, name) for w, name in zip(weights, names)]
+    poses = texcoords.poses if poses is None else [int(p) for p in poses]
+    for p in poses:
+        texcoords.row(p)
+    if poses:  # reading a row checks the camera's whole arrays: here, before any worker starts
+        for c in synth.array:
+            texcoords.displacement(c, poses[0])
+    out = Path(out)
+    record = {"views": {name: dict(w) for name, w in zip(names, weights)}, "method": options.method,
+              "view_options": asdict(options), "from": {"texcoords": str(Path(texcoords.path).resolve()),
+                                                        "source": texcoords.source, "cameras": texcoords.cameras},
+              # Content, not only paths: a rerun continues only from the same inputs.
+              "inputs": {"dataset": fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
+                         "texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
+                         "rig": {c.name: [c.width, c.height, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in rig}}}
+    record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
+    partial = out.with_name(out.name + ".partial")
+    with synth:
+        open_unfinished(partial, "views", "views-", faces=texcoords.faces, uv=texcoords.uv,
+                        parent=texcoords.parent, source=f"views-{options.method}", subdiv=texcoords.subdiv,
+                        poses=poses, cameras=list(names), done_masks=["done.npy"], **record)
+        # A run killed while saving the done mask leaves its hidden temporary and aside
+        # copies; without the mask every block is computed again.
+        remove_leftovers(partial, "done.npy")
+        done = np.zeros(len(poses), bool)
+        if (partial / "done.npy").is_file():
+            done = np.array(load_npy(partial / "done.npy", mmap=False), dtype=bool)
+
+        def write(start: int, disp: dict, asg: dict) -> None:
+            # Through the files, not maps: pages written through a map stay in the process's
+            # resident memory while it is open, which would grow with the run. The rows are
+            # on disk before the done mask says so.
+            count = len(next(iter(asg.values())))
+            for name in names:
+                for file, values in (("displacement.npy", disp[name]), ("assigned.npy", asg[name])):
+                    write_npy_rows(partial / name / file, range(start, start + count), values)
+            done[start:start + count] = True
+            save_npy(partial / "done.npy", done)
+            bar.update(count * len(names))
+
+        size = _WRITE_BLOCK
+        if workers > 1 or scheduler:  # blocks small enough that every worker gets several
+            size = max(1, min(_WRITE_BLOCK, -(-len(poses) // (4 * max(workers, 2)))))
+        starts = [start for start in range(0, len(poses), size) if not done[start:start + size].all()]
+        bar = tqdm(total=len(poses) * len(names), initial=int(done.sum()) * len(names),
+                   desc=f"views ({options.method})", unit="view", disable=not progress, file=sys.stderr)
+        if workers <= 1 and not scheduler:
+            for start in starts:
+                write(start, *_views_of_poses(synth, cameras, weights, poses[start:start + size]))
+        else:
+            from mvtex.util.parallel import map_unordered
+
+            spec = _ViewSpec(dataset=str(Path(dataset.path).resolve()), rig=rig,
+                             texcoords=str(Path(texcoords.path).resolve()), options=options,
+                             rig_source=None if rig_source is None else str(rig_source), cameras=tuple(cameras),
+                             weights=tuple(dict(w) for w in weights), key=uuid.uuid4().hex)
+            tasks = [(spec, start, poses[start:start + size]) for start in starts]
+            for start, disp, asg in map_unordered(_view_block, tasks, workers=workers, scheduler=scheduler):
+                write(start, disp, asg)
+        bar.close()
+    save_rig(Rig(tuple(cameras)), partial / "rig.yaml")
+    # Rename the finished set in (an older `out` aside first), then drop the done mask: a
+    # stop in between leaves either a resumable partial or a complete set.
+    replace_path(partial, out)
+    (out / "done.npy").unlink(missing_ok=True)
+    return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,
+            "cameras": {c.name: c.center.tolist() for c in cameras}}

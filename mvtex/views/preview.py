@@ -1,0 +1,255 @@
+"""`mvtex preview`: a stereo pair of the texture-corrected cloth for an AR/VR viewer
+(DESIGN §7), with numbers that say whether it looks like the real cloth.
+
+A viewpoint inside the array's span is given by weights over array cameras (default: equal
+weights over the rig's cameras that the texcoord set has); it is the novel camera of
+`mvtex.views.cameras.interpolate_camera`. The two eyes sit at its centre ± ipd/2 along its x axis
+(image right), with its orientation and intrinsics. Each eye's texcoords are computed like
+`mvtex views` computes a view: "reconstruct" slides from the eye camera itself; "blend"
+uses the weights whose blended centre is nearest the eye (`views.weights_for_centre`).
+
+Per eye three renders (`raster.render_textured`, the fabric texture): the gt cloth with
+T_G, the inferred cloth with T_G ("inferred": what the predictor alone gives) and the
+(subdivided) inferred cloth with the eye's texcoords ("texcoords"). SSIM and PSNR
+(scikit-image) of each inferred render against the gt render are computed over the
+garment's bounding box (the pixels that differ from the background in any of the three
+renders, grown by 4 px): the constant background would otherwise inflate both.
+
+Output (OUT, written atomically as a whole):
+    stereo.png       left eye | right eye, the inferred cloth with the eyes' texcoords
+    anaglyph.png     red-cyan: red from the left eye, green and blue from the right
+    comparison.png   rows gt / inferred (T_G) / texcoords, columns left / right
+    preview.json     {"pose", "eyes": {"left": {"ssim": {"inferred", "texcoords"},
+                      "psnr": {...}}, "right": {...}}, "viewpoint", "ipd", "method", ...}
+    path.gif         with `path`: the viewpoint moving through the array's cameras
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig
+from mvtex.util.errors import InputError
+
+BACKGROUND = (40, 40, 46)
+
+
+@dataclass(frozen=True)
+class PreviewOptions:
+    """Options of `stereo_preview` (the `mvtex preview` flags mirror them).
+
+    Attributes:
+        ipd: distance between the eyes (m).
+        method: "blend" or "reconstruct" (as in `mvtex.views.synthesizer`).
+        path: also write path.gif.
+        frames_per_segment: GIF frames between two consecutive array cameras.
+        margin: pixels added around the garment's bounding box for SSIM/PSNR.
+    """
+
+    ipd: float = 0.064
+    method: str = "reconstruct"
+    path: bool = False
+    frames_per_segment: int = 6
+    margin: int = 4
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.ipd) and 0 <= self.ipd < 10):
+            raise ValueError(f"ipd must be in [0, 10) m, got {self.ipd!r}")
+
+
+def eye_cameras(viewpoint: Camera, ipd: float) -> tuple[Camera, Camera]:
+    """The left and right eyes: the viewpoint moved by ∓ipd/2 along its x axis (image right)."""
+    from dataclasses import replace
+
+    x_axis = viewpoint.R[0]  # camera x in world coordinates
+    eyes = []
+    for name, sign in (("left", -1.0), ("right", 1.0)):
+        centre = viewpoint.center + sign * 0.5 * ipd * x_axis
+        eyes.append(replace(viewpoint, name=name, t=-viewpoint.R @ centre))
+    return eyes[0], eyes[1]
+
+
+def _render(ctx, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera) -> np.ndarray:
+    """The one place this module draws: (H,W,3) uint8 textured render in GL context `ctx`."""
+    from mvtex.render.shading import render_textured
+
+    return render_textured(ctx, positions, faces, texcoords, camera, background=BACKGROUND)
+
+
+def garment_box(images, margin: int = 4) -> tuple[slice, slice]:
+    """Row and column slices of the bounding box of the non-background pixels of any image."""
+    fg = np.zeros(images[0].shape[:2], bool)
+    for im in images:
+        fg |= np.any(im != np.asarray(BACKGROUND, np.uint8), axis=2)
+    if not fg.any():
+        return slice(None), slice(None)
+    rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
+    H, W = fg.shape
+    return (slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, H)),
+            slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, W)))
+
+
+def image_scores(reference: np.ndarray, image: np.ndarray, box: tuple[slice, slice]) -> tuple[float, float]:
+    """SSIM and PSNR (dB) of an RGB uint8 image against a reference, inside `box`
+    (PSNR of identical images, infinite, is reported as 99)."""
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    a, b = reference[box], image[box]
+    ssim = structural_similarity(a, b, channel_axis=2, data_range=255)
+    with np.errstate(divide="ignore"):
+        psnr = peak_signal_noise_ratio(a, b, data_range=255)
+    return float(ssim), float(psnr) if np.isfinite(psnr) else 99.0
+
+
+def anaglyph(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Red-cyan anaglyph (H,W,3) uint8: red from the left eye, green and blue from the right."""
+    out = np.array(right, np.uint8, copy=True)
+    out[..., 0] = left[..., 0]
+    return out
+
+
+class _Eyes:
+    """Renders both eyes of one pose; texcoords through a `views.ViewSynthesizer`."""
+
+    def __init__(self, dataset, rig: Rig, texcoords, pose: int, method: str, array: list[str], progress: bool):
+        from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
+
+        self.dataset, self.rig, self.tc, self.pose, self.array = dataset, rig, texcoords, int(pose), array
+        self.synth = ViewSynthesizer(dataset, rig, texcoords, ViewOptions(method=method))
+        self.state = self.synth.prepare(pose, progress=progress)
+        self.gt = np.asarray(dataset.gt[pose], np.float64)
+        self.inferred = np.asarray(dataset.inferred[pose], np.float64)
+        self.inferred_sub = texcoords.positions(self.inferred)
+
+    def release(self) -> None:
+        self.synth.release()
+
+    def texcoords(self, eye: Camera) -> tuple[np.ndarray, dict[str, float]]:
+        from mvtex.views.cameras import weights_for_centre
+
+        weights = weights_for_centre(self.rig, self.array, eye.center)
+        d, _ = self.synth.view(self.state, eye, weights)
+        return self.tc.uv + d, weights
+
+    def render(self, eye: Camera, with_references: bool = True) -> dict:
+        T, weights = self.texcoords(eye)
+        out = {"weights": weights, "texcoords": _render(self.synth.gl, self.inferred_sub, self.tc.faces, T, eye)}
+        if with_references:
+            out["gt"] = _render(self.synth.gl, self.gt, self.dataset.faces, self.dataset.uv, eye)
+            out["inferred"] = _render(self.synth.gl, self.inferred, self.dataset.faces, self.dataset.uv, eye)
+        return out
+
+
+def _path_weights(names: list[str], per_segment: int) -> list[dict[str, float]]:
+    """Weights moving linearly through the cameras in order and back to the first."""
+    loop = names + [names[0]] if len(names) > 2 else names + names[-2::-1]
+    out = []
+    for a, b in zip(loop[:-1], loop[1:]):
+        for i in range(per_segment):
+            t = i / per_segment
+            w = {n: 0.0 for n in names}
+            w[a] += 1 - t
+            w[b] += t
+            out.append(w)
+    return out
+
+
+def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike, *,
+                   weights: Mapping[str, float] | None = None, options: PreviewOptions = PreviewOptions(),
+                   rig_source: str | os.PathLike | None = None, progress: bool = True,
+                   overwrite: bool = False) -> dict:
+    """`mvtex preview`: the stereo pair of one pose (see the module docstring).
+
+    Args:
+        dataset: `Dataset` (gt is read for the reference renders and the scores).
+        rig: the array. texcoords: the array's `TexcoordSet`.
+        pose: dataset pose index (one of the set's poses).
+        out: output directory; an existing one must be an earlier preview (it is replaced),
+            or empty, unless `overwrite` (`mvtex.util.output.check_output`).
+        weights: the viewpoint (array camera -> weight); default equal over the array.
+
+    Returns:
+        The preview.json object.
+    """
+    from mvtex.render.pictures import grid_image, side_by_side
+    from mvtex.util.files import save_png, write_json
+    from mvtex.util.output import atomic_path, check_output
+    from mvtex.views.cameras import check_weights, interpolate_camera
+    from mvtex.views.synthesizer import check_texcoords_rig
+
+    pose = int(pose)
+    if not 0 <= pose < dataset.num_poses:
+        raise InputError(dataset.path, f"pose {pose} is outside [0, {dataset.num_poses})")
+    texcoords.row(pose)
+    check_texcoords_rig(texcoords, rig, rig_source)
+    out = check_output(out, "preview", overwrite=overwrite)
+    array = [c for c in rig.names if c in texcoords.cameras]
+    if weights is None:
+        weights = {c: 1.0 / len(array) for c in array}
+    weights = check_weights(weights, rig, rig_source)
+    absent = [c for c in weights if c not in texcoords.cameras]
+    if absent:
+        raise InputError(texcoords.path, f"no texcoords for camera {', '.join(absent)} in this set")
+    if options.method == "reconstruct" and len(array) < 2:
+        raise InputError(texcoords.path, "method reconstruct needs texcoords of at least 2 rig cameras")
+    viewpoint = interpolate_camera(rig, weights, "viewpoint")
+    left, right = eye_cameras(viewpoint, options.ipd)
+    eyes = _Eyes(dataset, rig, texcoords, pose, options.method, array, progress)
+    try:
+        renders = {"left": eyes.render(left), "right": eyes.render(right)}
+        report: dict = {"pose": pose, "eyes": {}}
+        for name, r in renders.items():
+            box = garment_box([r["gt"], r["inferred"], r["texcoords"]], options.margin)
+            s_inf, p_inf = image_scores(r["gt"], r["inferred"], box)
+            s_tc, p_tc = image_scores(r["gt"], r["texcoords"], box)
+            report["eyes"][name] = {"ssim": {"inferred": s_inf, "texcoords": s_tc},
+                                    "psnr": {"inferred": p_inf, "texcoords": p_tc},
+                                    "weights": r["weights"],
+                                    "box": [int(box[0].start or 0), int(box[0].stop or r["gt"].shape[0]), int(box[1].start or 0), int(box[1].stop or r["gt"].shape[1])]}
+        report.update(viewpoint={"weights": weights, "centre": viewpoint.center.tolist()}, ipd=options.ipd,
+                      method=options.method, source=texcoords.source, texcoords=str(texcoords.path),
+                      scores_over="garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)",
+                      options=asdict(options), files=["stereo.png", "anaglyph.png", "comparison.png", "preview.json"])
+        with atomic_path(out) as tmp:
+            tmp.mkdir()
+            L, R = renders["left"], renders["right"]
+            save_png(tmp / "stereo.png", side_by_side([L["texcoords"], R["texcoords"]], gap=0))
+            save_png(tmp / "anaglyph.png", anaglyph(L["texcoords"], R["texcoords"]))
+            rows = [[L[k], R[k]] for k in ("gt", "inferred", "texcoords")]
+            labels = ["gt", "inferred T_G", f"{texcoords.source} {options.method}"]
+            save_png(tmp / "comparison.png", grid_image(rows, col_labels=["left", "right"], row_labels=labels))
+            if options.path:
+                report["files"].append("path.gif")
+                _write_path_gif(tmp / "path.gif", eyes, rig, array, options, progress)
+            write_json(tmp / "preview.json", report)
+    finally:
+        eyes.release()
+    return report
+
+
+def _write_path_gif(path: Path, eyes: _Eyes, rig: Rig, array: list[str], options: PreviewOptions,
+                    progress: bool) -> None:
+    import cv2
+    import imageio.v3 as iio
+    from tqdm import tqdm
+
+    from mvtex.render.pictures import label, side_by_side
+    from mvtex.views.cameras import interpolate_camera
+
+    frames = []
+    for w in tqdm(_path_weights(array, options.frames_per_segment), desc="path", unit="frame",
+                  disable=not progress, file=sys.stderr):
+        viewpoint = interpolate_camera(rig, w, "viewpoint")
+        pair = [eyes.render(eye, with_references=False)["texcoords"] for eye in eye_cameras(viewpoint, options.ipd)]
+        frame = side_by_side(pair, gap=0)
+        frame = cv2.resize(frame, (frame.shape[1] // 2, frame.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        text = " ".join(f"{k}={v:.2f}" for k, v in w.items() if v > 0)
+        frames.append(label(frame, text, scale=0.4))
+    iio.imwrite(path, np.stack(frames), extension=".gif", duration=120, loop=0)
