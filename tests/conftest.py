@@ -1,16 +1,14 @@
-"""Shared fixtures: the one GL context, a small wavy cloth sheet, a dataset and a rig.
-
-The sheet is made here from closed forms (no mvtex code involved) so tests can compare
-mvtex against independent computations.
-"""
+"""The fixtures every test folder shares: the one GL context, a small wavy cloth sheet, its
+dataset, a two-camera rig file and texcoord sets slid from it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import grid_mesh, wave
 
 from mvtex.data.camera import look_at
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, save_rig
 
 
 @pytest.fixture(scope="session")
@@ -23,30 +21,6 @@ def gl():
     yield ctx
     assert ctx.error == "GL_NO_ERROR"
     ctx.release()
-
-
-def grid_mesh(nx: int = 24, ny: int = 20, size: float = 0.6):
-    """A flat (nx x ny)-vertex sheet in the z=0 plane, CCW seen from +z, uv = normalised xy.
-
-    Returns faces (m,3) int32, uv (n,2) float32, rest (n,3) float64.
-    """
-    xs = np.linspace(-size / 2, size / 2, nx)
-    ys = np.linspace(-size / 2, size / 2, ny)
-    X, Y = np.meshgrid(xs, ys)
-    rest = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], axis=1)
-    uv = ((rest[:, :2] + size / 2) / size).astype(np.float32)
-    idx = np.arange(nx * ny).reshape(ny, nx)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int32)
-    return faces, uv, rest
-
-
-def wave(rest: np.ndarray, amplitude: float, phase: float, wavelength: float = 0.15) -> np.ndarray:
-    """Fold the sheet along x with a sinusoid in z (a closed form)."""
-    out = rest.copy()
-    out[:, 2] = amplitude * np.sin(2 * np.pi * rest[:, 0] / wavelength + phase) + 0.3 * amplitude * np.cos(
-        2 * np.pi * rest[:, 1] / (1.7 * wavelength))
-    return out
 
 
 @pytest.fixture(scope="session")
@@ -80,19 +54,39 @@ def tiny_dataset(tmp_path_factory, sheet):
     return path
 
 
-def fail_slide_pose(monkeypatch, first_failure: int, error: BaseException) -> dict:
-    """Make `mvtex.sliding.dataset.slide_pose` raise `error` from its `first_failure`-th call on
-    (1-based). Returns the call counter {"n": calls so far}; lowering it postpones failures."""
-    import mvtex.sliding.dataset as jobs
+@pytest.fixture(scope="session")
+def rig_file(tmp_path_factory, front_rig):
+    """The front rig as a rig YAML file (read only)."""
+    path = tmp_path_factory.mktemp("rig") / "rig.yaml"
+    save_rig(front_rig, path)
+    return path
 
-    original = jobs.slide_pose
-    calls = {"n": 0}
 
-    def failing(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] >= first_failure:
-            raise error
-        return original(*args, **kwargs)
+def _slid(tmp_path_factory, tiny_dataset, front_rig, poses, subdiv):
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
 
-    monkeypatch.setattr(jobs, "slide_pose", failing)
-    return calls
+    root = tmp_path_factory.mktemp("slid")
+    save_rig(front_rig, root / "rig.yaml")
+    slide_dataset(tiny_dataset, front_rig, root / "tc", poses=poses, options=SlideOptions(subdiv=subdiv), workers=1,
+                  progress=False)
+    return root / "tc"
+
+
+@pytest.fixture(scope="session")
+def slid_sheet(tmp_path_factory, tiny_dataset, front_rig, gl):
+    """The tiny dataset slid from the front rig, poses 0, 2, 4, one subdivision (its rig is
+    ../rig.yaml beside it; read only)."""
+    return _slid(tmp_path_factory, tiny_dataset, front_rig, [0, 2, 4], 1)
+
+
+@pytest.fixture(scope="session")
+def slid_sheet0(tmp_path_factory, tiny_dataset, front_rig, gl):
+    """The tiny dataset slid from the front rig, poses 0, 1, 2, no subdivision (read only)."""
+    return _slid(tmp_path_factory, tiny_dataset, front_rig, [0, 1, 2], 0)
+
+
+@pytest.fixture(scope="session")
+def sheet_set(tiny_dataset, slid_sheet):
+    """(dataset, rig file, texcoord set) of `slid_sheet`."""
+    return tiny_dataset, slid_sheet.parent / "rig.yaml", slid_sheet

@@ -18,7 +18,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mvtex.cli import main
-from mvtex.data.rig import save_rig
 
 FUZZ = settings(max_examples=25, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -94,27 +93,12 @@ def sandbox(*sources: Path):
         yield root
 
 
-@pytest.fixture(scope="module")
-def rig_yaml(tmp_path_factory, front_rig):
-    path = tmp_path_factory.mktemp("rig") / "rig.yaml"
-    save_rig(front_rig, path)
-    return path
-
-
-@pytest.fixture(scope="module")
-def texcoord_set(tmp_path_factory, tiny_dataset, rig_yaml, gl):
-    out = tmp_path_factory.mktemp("tcset") / "tc"
-    assert main(["slide", str(tiny_dataset), "--rig", str(rig_yaml), "--out", str(out), "--poses", "0:2",
-                 "--subdiv", "0", "--quiet"]) == 0
-    return out
-
-
 @pytest.mark.gl
 @FUZZ
 @given(name=st.sampled_from(["mesh.npz", "gt.npy", "inferred.npy", "poses.npy", "dataset.json", "split.json"]),
        how=damage)
-def test_damaged_dataset_files(tiny_dataset, rig_yaml, gl, name, how):
-    with sandbox(tiny_dataset, rig_yaml) as root:
+def test_damaged_dataset_files(tiny_dataset, rig_file, gl, name, how):
+    with sandbox(tiny_dataset, rig_file) as root:
         damage_file(root / "sheet" / name, how)
         inputs = snapshot(root)
         check(["render", root / "sheet", "--rig", root / "rig.yaml", "--pose", 1, "--cameras", "a",
@@ -125,8 +109,8 @@ def test_damaged_dataset_files(tiny_dataset, rig_yaml, gl, name, how):
 @FUZZ
 @given(field=st.sampled_from(["name", "width", "height", "format", "version"]), value=st.one_of(hostile_text, number_text),
        cut=st.one_of(st.none(), st.floats(0, 1)))
-def test_damaged_rig_yaml(tiny_dataset, rig_yaml, gl, field, value, cut):
-    with sandbox(tiny_dataset, rig_yaml) as root:
+def test_damaged_rig_yaml(tiny_dataset, rig_file, gl, field, value, cut):
+    with sandbox(tiny_dataset, rig_file) as root:
         lines = (root / "rig.yaml").read_text().splitlines()
         i = next(i for i, line in enumerate(lines) if line.strip().startswith(f"{field}:"))
         lines[i] = lines[i].split(":")[0] + ": " + json.dumps(value)
@@ -148,8 +132,8 @@ json_value = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-10**2
 @FUZZ
 @given(key=st.sampled_from(["poses", "cameras", "subdiv", "format", "version"]), value=json_value,
        array=st.sampled_from([None, "nan", "inf", "huge", "float64", "int32", "shape", "truncate"]))
-def test_damaged_texcoord_sets(tiny_dataset, rig_yaml, texcoord_set, gl, key, value, array):
-    with sandbox(tiny_dataset, rig_yaml, texcoord_set) as root:
+def test_damaged_texcoord_sets(tiny_dataset, rig_file, slid_sheet0, gl, key, value, array):
+    with sandbox(tiny_dataset, rig_file, slid_sheet0) as root:
         tc = root / "tc"
         meta = json.loads((tc / "texcoords.json").read_text())
         meta[key] = value
@@ -173,14 +157,13 @@ def test_damaged_texcoord_sets(tiny_dataset, rig_yaml, texcoord_set, gl, key, va
        line=st.one_of(st.none(), st.tuples(st.floats(0, 1), st.sampled_from(
            ["v nan 0 0", "v 1e400 0 0", "vt x y", "f 1 2 999999", "f -5 -6 -7", "v 1 2", "f 1/1", "o ../x"]))))
 def test_damaged_obj_imports(which, how, line):
-    from conftest import grid_mesh, wave
-    from test_dataset import _write_obj
+    from helpers import grid_mesh, wave, write_obj
 
     with sandbox() as root:
         faces, uv, rest = grid_mesh(4, 4)
         for k in range(2):
-            _write_obj(root / f"g{k}.obj", wave(rest, 0.01, k), uv, faces)
-            _write_obj(root / f"i{k}.obj", wave(rest, 0.003, k), uv, faces)
+            write_obj(root / f"g{k}.obj", wave(rest, 0.01, k), uv, faces)
+            write_obj(root / f"i{k}.obj", wave(rest, 0.003, k), uv, faces)
         if line is not None:
             lines = (root / which).read_text().splitlines()
             lines.insert(int(line[0] * len(lines)), line[1])
@@ -202,10 +185,10 @@ def test_damaged_obj_imports(which, how, line):
        value=json_value, weights=st.one_of(st.none(), damage))
 def test_damaged_model_directories(tiny_dataset, path, value, weights):
     pytest.importorskip("torch")
-    from test_safety import _fake_model
+    from helpers import fake_model
 
     with sandbox(tiny_dataset) as root:
-        model = _fake_model(root / "m", root / "sheet")
+        model = fake_model(root / "m", root / "sheet")
         config = json.loads((model / "config.json").read_text())
         target = config
         for key in path[:-1]:
@@ -227,11 +210,11 @@ def test_damaged_model_directories(tiny_dataset, path, value, weights):
                                ("train", "--workers"), ("eval", "--workers"), ("eval", "--poses"),
                                ("views", "--workers"), ("synth", "--poses")]),
        value=st.one_of(number_text, hostile_text))
-def test_option_values(tiny_dataset, rig_yaml, texcoord_set, option, value):
+def test_option_values(tiny_dataset, rig_file, slid_sheet0, option, value):
     """Every option value is either refused in one line or accepted; the run then stops at
     a foreign --out (so a valid value costs nothing)."""
     command, flag = option
-    with sandbox(tiny_dataset, rig_yaml, texcoord_set) as root:
+    with sandbox(tiny_dataset, rig_file, slid_sheet0) as root:
         out = root / "mine"
         out.mkdir()
         (out / "keep.txt").write_text("x")

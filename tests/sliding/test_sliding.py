@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import fail_slide_pose
+from helpers import fail_slide_pose
 
 from mvtex.data.camera import look_at
 from mvtex.data.mesh import apply_parent, subdivide

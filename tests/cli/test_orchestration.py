@@ -11,27 +11,10 @@ import json
 
 import numpy as np
 import pytest
-from conftest import fail_slide_pose
+from helpers import fail_slide_pose, run, run_json
 
 from mvtex.cli import build_parser, main
 from mvtex.data.camera import look_at
-from mvtex.data.rig import save_rig
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def run_json(capsys, *argv) -> dict:
-    code, out, err = run(capsys, *argv, "--json")
-    assert code == 0, err
-    lines = out.strip().splitlines()
-    assert len(lines) == 1, out  # exactly one JSON object on stdout
-    result = json.loads(lines[0])
-    assert isinstance(result, dict)
-    return result
 
 
 def test_every_option_has_a_help_line():
@@ -74,16 +57,9 @@ def norest(tmp_path_factory, tiny_dataset):
     return path
 
 
-@pytest.fixture(scope="module")
-def rig_path(tmp_path_factory, front_rig):
-    path = tmp_path_factory.mktemp("rig") / "rig.yaml"
-    save_rig(front_rig, path)
-    return path
-
-
 @pytest.mark.slow
 @pytest.mark.gl
-def test_slide_is_independent_of_workers_and_pose_subset(gl, norest, rig_path, tmp_path, capsys):
+def test_slide_is_independent_of_workers_and_pose_subset(gl, norest, rig_file, tmp_path, capsys):
     """Without a rest shape the topology, seam groups, fill Laplacian and edge breaking are
     measured on gt of pose 0 in every process: pose 3 gets bit-identical d and assigned
     flags with 1 or 2 worker processes and in two different pose subsets."""
@@ -92,7 +68,7 @@ def test_slide_is_independent_of_workers_and_pose_subset(gl, norest, rig_path, t
     runs = {"one": ("1,3,4", 1), "two": ("1,3,4", 2), "other": ("3,5", 1)}
     sets = {}
     for name, (poses, workers) in runs.items():
-        code, _, err = run(capsys, "slide", norest, "--rig", rig_path, "--out", tmp_path / name, "--poses", poses,
+        code, _, err = run(capsys, "slide", norest, "--rig", rig_file, "--out", tmp_path / name, "--poses", poses,
                            "--workers", workers, "--quiet")
         assert code == 0, err
         sets[name] = open_texcoords(tmp_path / name)
@@ -110,7 +86,7 @@ def test_slide_is_independent_of_workers_and_pose_subset(gl, norest, rig_path, t
 
 
 @pytest.mark.gl
-def test_resume_starts_over_when_the_reference_shape_changed(gl, norest, rig_path, tmp_path, monkeypatch, capsys):
+def test_resume_starts_over_when_the_reference_shape_changed(gl, norest, rig_file, tmp_path, monkeypatch, capsys):
     import mvtex.sliding.dataset as jobs
     from mvtex.data.dataset import load_dataset
     from mvtex.sliding.options import SlideOptions
@@ -120,37 +96,29 @@ def test_resume_starts_over_when_the_reference_shape_changed(gl, norest, rig_pat
     fail_slide_pose(monkeypatch, 2, KeyboardInterrupt())
     ds = load_dataset(norest)
     with pytest.raises(KeyboardInterrupt):
-        jobs.slide_dataset(ds, rig_path, tmp_path / "tc", poses=[1, 2], options=SlideOptions(subdiv=0), progress=False)
+        jobs.slide_dataset(ds, rig_file, tmp_path / "tc", poses=[1, 2], options=SlideOptions(subdiv=0), progress=False)
     monkeypatch.setattr(jobs, "slide_pose", original)
     # The same dataset with a rest shape: another reference shape, so the partial result is stale.
     moved = dataclasses.replace(ds, rest=np.asarray(ds.gt[5]))
-    jobs.slide_dataset(moved, rig_path, tmp_path / "tc", poses=[1, 2], options=SlideOptions(subdiv=0), progress=False)
+    jobs.slide_dataset(moved, rig_file, tmp_path / "tc", poses=[1, 2], options=SlideOptions(subdiv=0), progress=False)
     assert "starting over" in capsys.readouterr().err
 
 
-@pytest.fixture(scope="module")
-def slid(tmp_path_factory, tiny_dataset, rig_path):
-    out = tmp_path_factory.mktemp("slid") / "ts"
-    assert main(["slide", str(tiny_dataset), "--rig", str(rig_path), "--out", str(out), "--poses", "0,2,4",
-                 "--workers", "1", "--quiet"]) == 0
-    return out
-
-
 @pytest.mark.gl
-def test_eval_json_matches_the_library(gl, tiny_dataset, rig_path, slid, capsys):
+def test_eval_json_matches_the_library(gl, tiny_dataset, rig_file, slid_sheet, capsys):
     from mvtex.evaluation.evaluate import evaluate
 
-    result = run_json(capsys, "eval", tiny_dataset, "--rig", rig_path, "--texcoords", slid, "--poses", "0,4", "--quiet")
+    result = run_json(capsys, "eval", tiny_dataset, "--rig", rig_file, "--texcoords", slid_sheet, "--poses", "0,4", "--quiet")
     assert result["num_images"] == 4 and set(result["per_camera"]) == {"a", "b"}
     assert result["ratio"] > 1 and result["ratio_same_chart"] > 1
-    assert result == json.loads(json.dumps(evaluate(tiny_dataset, rig_path, slid, poses=[0, 4], progress=False,
+    assert result == json.loads(json.dumps(evaluate(tiny_dataset, rig_file, slid_sheet, poses=[0, 4], progress=False,
                                                     ctx=gl)))
 
 
 @pytest.mark.gl
-def test_triangulate_json(gl, tiny_dataset, rig_path, slid, tmp_path, capsys):
+def test_triangulate_json(gl, tiny_dataset, rig_file, slid_sheet, tmp_path, capsys):
     out = tmp_path / "rec"
-    result = run_json(capsys, "triangulate", tiny_dataset, "--rig", rig_path, "--texcoords", slid, "--pose", 2,
+    result = run_json(capsys, "triangulate", tiny_dataset, "--rig", rig_file, "--texcoords", slid_sheet, "--pose", 2,
                       "--out", out, "--quiet")
     assert result["pose"] == 2 and 0 < result["num_triangulated"] <= result["num_vertices"] == 480
     assert result == json.loads((out / "report.json").read_text())
@@ -158,14 +126,14 @@ def test_triangulate_json(gl, tiny_dataset, rig_path, slid, tmp_path, capsys):
 
 
 @pytest.mark.gl
-def test_train_json_then_predict(gl, tiny_dataset, slid, tmp_path, capsys):
+def test_train_json_then_predict(gl, tiny_dataset, slid_sheet, tmp_path, capsys):
     pytest.importorskip("torch")
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.predict import load_model, predict_displacements
 
     out = tmp_path / "model"
-    result = run_json(capsys, "train", tiny_dataset, "--texcoords", slid, "--camera", "a", "--out", out,
+    result = run_json(capsys, "train", tiny_dataset, "--texcoords", slid_sheet, "--camera", "a", "--out", out,
                       "--arch", "paper", "--epochs", 1, "--resolution", 32, "--device", "cpu", "--quiet")
     assert result["camera"] == "a" and result["resolution"] == 32
     code, _, err = run(capsys, "predict", tiny_dataset, "--model", out, "--out", tmp_path / "pred", "--poses", "1,5",
@@ -179,15 +147,14 @@ def test_train_json_then_predict(gl, tiny_dataset, slid, tmp_path, capsys):
 
 
 def test_import_through_main(tmp_path, capsys):
-    from conftest import grid_mesh, wave
-    from test_dataset import _write_obj
+    from helpers import grid_mesh, wave, write_obj
 
     from mvtex.data.dataset import load_dataset
 
     faces, uv, rest = grid_mesh(6, 5)
     for k in range(2):
-        _write_obj(tmp_path / f"gt_{k}.obj", wave(rest, 0.01, k), uv, faces)
-        _write_obj(tmp_path / f"inf_{k}.obj", wave(rest, 0.003, k), uv, faces)
+        write_obj(tmp_path / f"gt_{k}.obj", wave(rest, 0.01, k), uv, faces)
+        write_obj(tmp_path / f"inf_{k}.obj", wave(rest, 0.003, k), uv, faces)
     code, out, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "gt_*.obj", "--inferred",
                          tmp_path / "inf_*.obj", "--name", "sheet", "--quiet")
     assert code == 0, err
@@ -198,11 +165,11 @@ def test_import_through_main(tmp_path, capsys):
 
 
 @pytest.mark.gl
-def test_bench_json_both_paths_agree(gl, tiny_dataset, rig_path, capsys):
+def test_bench_json_both_paths_agree(gl, tiny_dataset, rig_file, capsys):
     """`bench` claims the raster path and the Embree ray-cast path agree: d to 1e-5 uv on
     vertices both assign, the same assigned flags almost everywhere."""
     pytest.importorskip("embreex")
-    result = run_json(capsys, "bench", tiny_dataset, "--rig", rig_path, "--poses", "0:2", "--workers", 1, "--quiet")
+    result = run_json(capsys, "bench", tiny_dataset, "--rig", rig_file, "--poses", "0:2", "--workers", 1, "--quiet")
     assert result["jobs"] == 4 and result["cameras"] == ["a", "b"]
     assert result["agreement"]["displacement"] >= 0.999
     assert result["agreement"]["assigned_flags"] >= 0.99
@@ -212,7 +179,7 @@ def test_bench_json_both_paths_agree(gl, tiny_dataset, rig_path, capsys):
 # -- options of sliding ------------------------------------------------------------------------
 
 def _two_chart_scene():
-    from test_metrics import two_chart_sheet
+    from helpers import two_chart_sheet
 
     faces, uv, rest, face_chart = two_chart_sheet()
     camera = look_at("c", (0.0, 0.05, 1.2), (0, 0, 0), width=160, height=120, focal=260.0)

@@ -5,26 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import run
 from scipy.spatial.transform import Rotation, Slerp
 
-from mvtex.cli import main
 from mvtex.data.rig import builtin_rig_path, load_rig, save_rig
 from mvtex.views.cameras import between_weights, grid_weights, interpolate_camera
 from mvtex.views.synthesizer import blend_displacement
-
-
-@pytest.fixture(scope="module")
-def sheet_set(tmp_path_factory, tiny_dataset, front_rig, gl):
-    """The wavy sheet slid from the two-camera front rig (3 poses)."""
-    from mvtex.sliding.dataset import slide_dataset
-    from mvtex.sliding.options import SlideOptions
-
-    root = tmp_path_factory.mktemp("views")
-    rig_path = root / "rig.yaml"
-    save_rig(front_rig, rig_path)
-    slide_dataset(tiny_dataset, front_rig, root / "ts", poses=[0, 2, 4], options=SlideOptions(subdiv=1),
-                  workers=1, progress=False)
-    return tiny_dataset, rig_path, root / "ts"
 
 
 @pytest.fixture(scope="module")
@@ -42,12 +28,6 @@ def garment(tmp_path_factory, gl):
     slide_dataset(ds, load_rig(builtin_rig_path("stereo")), root / "ts", poses=poses, options=SlideOptions(subdiv=1),
                   workers=1, progress=False)
     return ds, root / "ts", poses
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
 
 
 def _slerp_closed_form(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:

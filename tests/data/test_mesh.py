@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from conftest import grid_mesh, wave
+from helpers import grid_mesh, wave
 
 from mvtex.data.mesh import apply_extension, apply_parent, extension_matrix, face_neighbours, rms_distance, subdivide
 

@@ -18,7 +18,7 @@ from mvtex.cli import main
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig, load_rig, save_rig
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def _example():

@@ -206,7 +206,7 @@ def test_least_disagreement_picks_the_consistent_candidate():
 
 def test_surface_distance_matches_brute_force(sheet):
     import trimesh.triangles
-    from conftest import wave
+    from helpers import wave
 
     from mvtex.recon.geometry import surface_distance
 

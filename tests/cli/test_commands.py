@@ -7,23 +7,11 @@ import shutil
 
 import numpy as np
 import pytest
+from helpers import run
 
 from mvtex.cli import main
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig, save_rig
-
-
-@pytest.fixture()
-def rig_file(tmp_path, front_rig):
-    path = tmp_path / "rig.yaml"
-    save_rig(front_rig, path)
-    return path
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_help_and_version(capsys):
@@ -101,15 +89,14 @@ def test_bad_inputs_exit_2_naming_the_file(tmp_path, tiny_dataset, rig_file, cap
 
 
 def test_import_mismatched_vertex_counts(tmp_path, capsys):
-    from conftest import grid_mesh
-    from test_dataset import _write_obj
+    from helpers import grid_mesh, write_obj
 
     faces, uv, rest = grid_mesh(5, 5)
     f2, uv2, rest2 = grid_mesh(6, 5)
-    _write_obj(tmp_path / "g0.obj", rest, uv, faces)
-    _write_obj(tmp_path / "g1.obj", rest2, uv2, f2)
-    _write_obj(tmp_path / "i0.obj", rest, uv, faces)
-    _write_obj(tmp_path / "i1.obj", rest, uv, faces)
+    write_obj(tmp_path / "g0.obj", rest, uv, faces)
+    write_obj(tmp_path / "g1.obj", rest2, uv2, f2)
+    write_obj(tmp_path / "i0.obj", rest, uv, faces)
+    write_obj(tmp_path / "i1.obj", rest, uv, faces)
     code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred", tmp_path / "i*.obj",
                        "--quiet")
     _assert_one_line_error(code, err, f"{tmp_path / 'g1.obj'}: 30 vertices, expected 25")

@@ -7,17 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from helpers import run
 
-from mvtex.cli import main
-from mvtex.data.rig import builtin_rig_path, load_rig, save_rig
+from mvtex.data.rig import builtin_rig_path, load_rig
 from mvtex.views.cameras import interpolate_camera
 from mvtex.views.preview import anaglyph, eye_cameras, garment_box, image_scores
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
 
 
 def test_eyes_are_ipd_apart_and_see_the_expected_disparity():
@@ -54,31 +48,19 @@ def test_scores_and_anaglyph_closed_forms():
     assert (rows.start, rows.stop, cols.start, cols.stop) == (8, 22, 28, 37)
 
 
-@pytest.fixture(scope="module")
-def sheet_set(tmp_path_factory, tiny_dataset, front_rig, gl):
-    from mvtex.sliding.dataset import slide_dataset
-    from mvtex.sliding.options import SlideOptions
-
-    root = tmp_path_factory.mktemp("preview")
-    save_rig(front_rig, root / "rig.yaml")
-    slide_dataset(tiny_dataset, front_rig, root / "ts", poses=[1, 3], options=SlideOptions(subdiv=1), workers=1,
-                  progress=False)
-    return tiny_dataset, root / "rig.yaml", root / "ts"
-
-
 @pytest.mark.parametrize("method", ["blend", "reconstruct"])
 def test_preview_command(tmp_path, sheet_set, capsys, method):
     import imageio.v3 as iio
 
     dataset, rig_path, ts = sheet_set
     out = tmp_path / "prev"
-    code, stdout, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3,
+    code, stdout, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 4,
                             "--out", out, "--method", method, "--ipd", 0.05, "--json", "--quiet",
                             *(["--path"] if method == "blend" else []))
     assert code == 0, err
     report = json.loads(stdout)
     assert report == json.loads((out / "preview.json").read_text())
-    assert report["pose"] == 3
+    assert report["pose"] == 4
     for eye in ("left", "right"):
         scores = report["eyes"][eye]
         assert set(scores["ssim"]) == {"inferred", "texcoords"} and set(scores["psnr"]) == {"inferred", "texcoords"}
@@ -96,7 +78,7 @@ def test_preview_bad_input(tmp_path, sheet_set, capsys):
     taken = tmp_path / "taken"
     taken.mkdir()
     (taken / "mine.txt").write_text("not mvtex's")
-    code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out", taken,
+    code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 4, "--out", taken,
                        "--quiet")
     assert code == 2 and "mvtex did not write" in err and len(err.strip().splitlines()) == 1
     assert (taken / "mine.txt").read_text() == "not mvtex's"
@@ -104,13 +86,13 @@ def test_preview_bad_input(tmp_path, sheet_set, capsys):
     from mvtex.util.output import claim_output
 
     with claim_output(tmp_path / "busy", "preview"):
-        code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out",
+        code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 4, "--out",
                            tmp_path / "busy", "--quiet")
     assert code == 2 and "in use by pid" in err and len(err.strip().splitlines()) == 1
-    code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 2, "--out",
-                       tmp_path / "p", "--quiet")
-    assert code == 2 and "pose 2" in err and len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out",
+                       tmp_path / "p", "--quiet")
+    assert code == 2 and "pose 3" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 4, "--out",
                        tmp_path / "p", "--weights", "a=0.7,b=0.7", "--quiet")
     assert code == 2 and "sum to 1" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "p").exists()

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import fake_model, one_line_error, run
 
 from mvtex.cli import main
 from mvtex.data.camera import Camera
@@ -26,45 +27,13 @@ from mvtex.util.output import MARKER, claim_output, replace_path
 MVTEX = [sys.executable, "-m", "mvtex"]
 
 
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line_error(code, err, *needles):
-    assert code == 2, err
-    lines = [line for line in err.strip().splitlines() if line.startswith("mvtex ")]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    for needle in needles:
-        assert str(needle) in lines[0], lines[0]
-    return lines[0]
-
-
 def tree(path: Path) -> dict[str, bytes]:
     return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
 
 
-@pytest.fixture()
-def rig_file(tmp_path, front_rig):
-    path = tmp_path / "rig.yaml"
-    save_rig(front_rig, path)
-    return path
-
-
-@pytest.fixture(scope="module")
-def slid(tmp_path_factory, tiny_dataset, front_rig, gl):
-    """A texcoord set of the tiny dataset (poses 0:3) made by `mvtex slide`."""
-    base = tmp_path_factory.mktemp("slid")
-    save_rig(front_rig, base / "rig.yaml")
-    assert main(["slide", str(tiny_dataset), "--rig", str(base / "rig.yaml"), "--out", str(base / "tc"),
-                 "--poses", "0:3", "--subdiv", "0", "--quiet"]) == 0
-    return base / "tc"
-
-
-def copy_set(slid, tmp_path) -> Path:
+def copy_set(slid_sheet0, tmp_path) -> Path:
     tc = tmp_path / "tc"
-    shutil.copytree(slid, tc)
+    shutil.copytree(slid_sheet0, tc)
     return tc
 
 
@@ -79,27 +48,26 @@ def foreign(tmp_path) -> Path:
 
 @pytest.mark.parametrize("command", ["synth", "import", "render", "slide", "triangulate", "train", "predict",
                                      "demo"])
-def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_dataset, rig_file, slid, capsys):
+def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_dataset, rig_file, slid_sheet0, capsys):
     out = foreign(tmp_path)
     argv = {
         "synth": ["synth", out, "--poses", 10],
         "import": ["import", out, "--gt", tmp_path / "*.obj", "--inferred", tmp_path / "*.obj"],
         "render": ["render", tiny_dataset, "--rig", rig_file, "--pose", 0, "--out", out],
         "slide": ["slide", tiny_dataset, "--rig", rig_file, "--out", out],
-        "triangulate": ["triangulate", tiny_dataset, "--rig", rig_file, "--texcoords", slid, "--pose", 0, "--out", out],
-        "train": ["train", tiny_dataset, "--texcoords", slid, "--camera", "a", "--out", out],
+        "triangulate": ["triangulate", tiny_dataset, "--rig", rig_file, "--texcoords", slid_sheet0, "--pose", 0, "--out", out],
+        "train": ["train", tiny_dataset, "--texcoords", slid_sheet0, "--camera", "a", "--out", out],
         "predict": ["predict", tiny_dataset, "--model", tmp_path / "m", "--out", out],
         "demo": ["demo", "--out", out],
     }[command]
     if command == "import":
-        from conftest import grid_mesh
-        from test_dataset import _write_obj
+        from helpers import grid_mesh, write_obj
 
         faces, uv, rest = grid_mesh(4, 4)
-        _write_obj(tmp_path / "g.obj", rest, uv, faces)
+        write_obj(tmp_path / "g.obj", rest, uv, faces)
     if command == "predict":
         pytest.importorskip("torch")
-        _fake_model(tmp_path / "m", tiny_dataset)
+        fake_model(tmp_path / "m", tiny_dataset)
     code, _, err = run(capsys, *argv, "--quiet" if command not in ("synth",) else "--json")
     one_line_error(code, err, out, "--overwrite")
     assert tree(out) == {"keep.txt": b"x"}
@@ -306,15 +274,15 @@ def test_hostile_camera_names_in_a_rig_are_refused(name, tmp_path, tiny_dataset,
                                                                                         "work"]
 
 
-def test_camera_names_are_checked_in_texcoord_sets_and_models(tmp_path, slid, tiny_dataset, rig_file, capsys):
-    tc = copy_set(slid, tmp_path)
+def test_camera_names_are_checked_in_texcoord_sets_and_models(tmp_path, slid_sheet0, tiny_dataset, rig_file, capsys):
+    tc = copy_set(slid_sheet0, tmp_path)
     meta = json.loads((tc / "texcoords.json").read_text())
     meta["cameras"] = ["../../x"]
     (tc / "texcoords.json").write_text(json.dumps(meta))
     code, _, err = run(capsys, "eval", tiny_dataset, "--rig", rig_file, "--texcoords", tc, "--quiet")
     one_line_error(code, err, tc / "texcoords.json", "camera name")
     pytest.importorskip("torch")
-    model = _fake_model(tmp_path / "m", tiny_dataset)
+    model = fake_model(tmp_path / "m", tiny_dataset)
     config = json.loads((model / "config.json").read_text())
     config["camera"] = "../escape"
     (model / "config.json").write_text(json.dumps(config))
@@ -325,28 +293,10 @@ def test_camera_names_are_checked_in_texcoord_sets_and_models(tmp_path, slid, ti
 
 # -- sizes -------------------------------------------------------------------------------
 
-def _fake_model(path: Path, dataset) -> Path:
-    """A model directory made by the library (random weights), small."""
-    from safetensors.torch import save_file
-
-    from mvtex.data.dataset import load_dataset
-    from mvtex.tsnn.model import TSNN, ModelConfig
-    from mvtex.tsnn.modeldir import MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint
-
-    ds = load_dataset(dataset)
-    config = ModelConfig(pose_dim=ds.poses.shape[1], resolution=16, width=8, min_width=4)
-    path.mkdir(parents=True)
-    save_file(TSNN(config).state_dict(), str(path / "model.safetensors"))
-    meta = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": "a", "architecture": config.to_dict(),
-            "mesh": {"subdiv": 0, "num_base_vertices": ds.num_vertices, "num_vertices": ds.num_vertices,
-                     "base_mesh_sha256": mesh_fingerprint(ds.faces, ds.uv)}}
-    (path / "config.json").write_text(json.dumps(meta))
-    return path
-
 
 def test_model_sizes_are_refused_before_anything_is_built(tmp_path, tiny_dataset, capsys):
     pytest.importorskip("torch")
-    model = _fake_model(tmp_path / "m", tiny_dataset)
+    model = fake_model(tmp_path / "m", tiny_dataset)
     code, _, err = run(capsys, "predict", tiny_dataset, "--model", model, "--out", tmp_path / "p", "--quiet")
     assert code == 0, err
     config = json.loads((model / "config.json").read_text())
@@ -403,8 +353,8 @@ def test_rig_intrinsics_and_distortion(tmp_path, tiny_dataset, front_rig, capsys
 
 # -- bad numbers -------------------------------------------------------------------------
 
-def test_non_finite_and_huge_displacements_are_refused(tmp_path, slid, tiny_dataset, rig_file, capsys):
-    tc = copy_set(slid, tmp_path)
+def test_non_finite_and_huge_displacements_are_refused(tmp_path, slid_sheet0, tiny_dataset, rig_file, capsys):
+    tc = copy_set(slid_sheet0, tmp_path)
     d = np.load(tc / "a" / "displacement.npy")
     for value, needle in ((np.nan, "NaN or infinite"), (np.inf, "NaN or infinite"), (1e30, "more than")):
         bad = d.copy()
@@ -415,8 +365,8 @@ def test_non_finite_and_huge_displacements_are_refused(tmp_path, slid, tiny_data
         assert out == ""
 
 
-def test_pose_indices_of_a_texcoord_set_must_be_in_range(tmp_path, slid, tiny_dataset, rig_file, capsys):
-    tc = copy_set(slid, tmp_path)
+def test_pose_indices_of_a_texcoord_set_must_be_in_range(tmp_path, slid_sheet0, tiny_dataset, rig_file, capsys):
+    tc = copy_set(slid_sheet0, tmp_path)
     meta = json.loads((tc / "texcoords.json").read_text())
     for poses, needle in (([-1, 1, 2], "pose index -1"), ([0, 1, 6], "pose index 6"), ([0, 0, 1], "twice"),
                           ([0, 1.5, 2], "integer")):
@@ -455,8 +405,8 @@ def test_nan_in_dataset_arrays_names_the_file(tmp_path, tiny_dataset, rig_file, 
     (["demo", "--epochs", "0"], "--epochs"),
     (["synth", "{out}", "--poses", "-5"], "--poses"),
 ])
-def test_bad_option_values_exit_2_in_one_line(argv, needle, tmp_path, tiny_dataset, rig_file, slid, capsys):
-    values = {"{ds}": tiny_dataset, "{rig}": rig_file, "{tc}": slid, "{out}": tmp_path / "o"}
+def test_bad_option_values_exit_2_in_one_line(argv, needle, tmp_path, tiny_dataset, rig_file, slid_sheet0, capsys):
+    values = {"{ds}": tiny_dataset, "{rig}": rig_file, "{tc}": slid_sheet0, "{out}": tmp_path / "o"}
     argv = [str(values.get(a, a)) for a in argv]
     if argv[0] in ("slide", "triangulate", "train", "demo"):
         argv += ["--out", str(tmp_path / "o")]
@@ -465,22 +415,22 @@ def test_bad_option_values_exit_2_in_one_line(argv, needle, tmp_path, tiny_datas
     assert out == "" and not (tmp_path / "o").exists()
 
 
-def test_empty_validation_split_exits_2(tmp_path, tiny_dataset, slid, capsys):
+def test_empty_validation_split_exits_2(tmp_path, tiny_dataset, slid_sheet0, capsys):
     pytest.importorskip("torch")
     ds = tmp_path / "ds"
     shutil.copytree(tiny_dataset, ds)
     (ds / "split.json").write_text(json.dumps({"train": [0, 1, 2], "val": [], "test": [3, 4, 5]}))
-    code, _, err = run(capsys, "train", ds, "--texcoords", slid, "--camera", "a", "--out", tmp_path / "m",
+    code, _, err = run(capsys, "train", ds, "--texcoords", slid_sheet0, "--camera", "a", "--out", tmp_path / "m",
                        "--epochs", "1", "--quiet")
     one_line_error(code, err, "validation poses")
     assert not (tmp_path / "m").exists()
 
 
-def test_json_output_is_strict(tmp_path, slid, tiny_dataset, rig_file, capsys):
+def test_json_output_is_strict(tmp_path, slid_sheet0, tiny_dataset, rig_file, capsys):
     from mvtex.util.files import dumps_strict
 
     assert json.loads(dumps_strict({"a": float("nan"), "b": [np.float32(np.inf), 1.5]})) == {"a": None, "b": [None, 1.5]}
-    code, out, err = run(capsys, "eval", tiny_dataset, "--rig", rig_file, "--texcoords", slid, "--json", "--quiet")
+    code, out, err = run(capsys, "eval", tiny_dataset, "--rig", rig_file, "--texcoords", slid_sheet0, "--json", "--quiet")
     assert code == 0, err
 
     def reject(constant):
@@ -492,20 +442,20 @@ def test_json_output_is_strict(tmp_path, slid, tiny_dataset, rig_file, capsys):
 
 # -- truncated and corrupt files -----------------------------------------------------------
 
-def test_truncated_npz_in_every_loader(tmp_path, tiny_dataset, rig_file, slid, capsys):
+def test_truncated_npz_in_every_loader(tmp_path, tiny_dataset, rig_file, slid_sheet0, capsys):
     ds = tmp_path / "ds"
     shutil.copytree(tiny_dataset, ds)
     data = (ds / "mesh.npz").read_bytes()
     (ds / "mesh.npz").write_bytes(data[: len(data) // 2])
     for argv in (["render", ds, "--rig", rig_file, "--pose", 0, "--out", tmp_path / "o"],
                  ["slide", ds, "--rig", rig_file, "--out", tmp_path / "o"],
-                 ["eval", ds, "--rig", rig_file, "--texcoords", slid],
-                 ["triangulate", ds, "--rig", rig_file, "--texcoords", slid, "--pose", 0, "--out", tmp_path / "o"],
-                 ["train", ds, "--texcoords", slid, "--camera", "a", "--out", tmp_path / "o"],
+                 ["eval", ds, "--rig", rig_file, "--texcoords", slid_sheet0],
+                 ["triangulate", ds, "--rig", rig_file, "--texcoords", slid_sheet0, "--pose", 0, "--out", tmp_path / "o"],
+                 ["train", ds, "--texcoords", slid_sheet0, "--camera", "a", "--out", tmp_path / "o"],
                  ["bench", ds, "--rig", rig_file]):
         code, _, err = run(capsys, *argv, "--quiet")
         one_line_error(code, err, ds / "mesh.npz", "not a readable .npz")
-    tc = copy_set(slid, tmp_path)
+    tc = copy_set(slid_sheet0, tmp_path)
     (tc / "mesh.npz").write_bytes(b"PK\x03\x04" + b"\x00" * 40)
     code, _, err = run(capsys, "eval", tiny_dataset, "--rig", rig_file, "--texcoords", tc, "--quiet")
     one_line_error(code, err, tc / "mesh.npz")
@@ -549,7 +499,7 @@ def slow_dataset(tmp_path_factory, sheet):
 
 def _wave_sheet(path: Path, sheet, num_poses: int) -> Path:
     """A dataset of the sheet waving through `num_poses` phases (gt 15 mm, inferred 4 mm waves)."""
-    from conftest import wave
+    from helpers import wave
 
     from mvtex.data.dataset import save_dataset
 
@@ -562,7 +512,7 @@ def _wave_sheet(path: Path, sheet, num_poses: int) -> Path:
 
 
 def _one_process_set(base: Path, dataset: Path, front_rig) -> Path:
-    """BASE/rig.yaml and BASE/tc, the dataset slid by one process at subdivision 0."""
+    """BASE/rig.yaml and BASE/tc, the dataset slid_sheet0 by one process at subdivision 0."""
     save_rig(front_rig, base / "rig.yaml")
     assert main(["slide", str(dataset), "--rig", str(base / "rig.yaml"), "--out", str(base / "tc"),
                  "--subdiv", "0", "--workers", "1", "--quiet"]) == 0
@@ -676,14 +626,14 @@ def test_an_input_error_in_a_worker_process_reaches_the_command_intact():
         list(map_unordered(_bad_input, [(i,) for i in range(4)], workers=2))
 
 
-def test_nan_in_the_targets_of_parallel_views_and_training_exits_2_before_any_work(tmp_path, slid, tiny_dataset,
+def test_nan_in_the_targets_of_parallel_views_and_training_exits_2_before_any_work(tmp_path, slid_sheet0, tiny_dataset,
                                                                                     capsys):
     pytest.importorskip("torch")
-    tc = copy_set(slid, tmp_path)
+    tc = copy_set(slid_sheet0, tmp_path)
     d = np.load(tc / "a" / "displacement.npy")
     d[1, 2, 0] = np.nan
     np.save(tc / "a" / "displacement.npy", d)
-    rig = slid.parent / "rig.yaml"
+    rig = slid_sheet0.parent / "rig.yaml"
     for argv, out in ((["views", tiny_dataset, "--rig", rig, "--texcoords", tc, "--between", "a,b", "--steps", 2,
                         "--method", "blend"], tmp_path / "v"),
                       (["train", tiny_dataset, "--texcoords", tc, "--camera", "b,a", "--arch", "gp"], tmp_path / "m")):
@@ -738,9 +688,9 @@ def test_camera_names_from_a_colmap_model_are_checked(tmp_path):
         read_rig(tmp_path)
 
 
-def test_eval_heatmaps_do_not_go_into_a_foreign_folder(tmp_path, slid, tiny_dataset, rig_file, capsys):
+def test_eval_heatmaps_do_not_go_into_a_foreign_folder(tmp_path, slid_sheet0, tiny_dataset, rig_file, capsys):
     heat = foreign(tmp_path)
-    argv = ["eval", tiny_dataset, "--rig", rig_file, "--texcoords", slid, "--poses", "0", "--heatmaps", heat, "--quiet"]
+    argv = ["eval", tiny_dataset, "--rig", rig_file, "--texcoords", slid_sheet0, "--poses", "0", "--heatmaps", heat, "--quiet"]
     code, _, err = run(capsys, *argv)
     one_line_error(code, err, heat, "--overwrite")
     assert tree(heat) == {"keep.txt": b"x"}
@@ -752,12 +702,11 @@ def test_eval_heatmaps_do_not_go_into_a_foreign_folder(tmp_path, slid, tiny_data
 @pytest.mark.parametrize("content,needle", [(b"\x93NUMPY garbage", "not a readable .npy"),
                                             (b"1 2\n3 nan\n", "NaN or infinite"), (b"1 2\n3\n", "cannot read poses")])
 def test_import_pose_files(content, needle, tmp_path, capsys):
-    from conftest import grid_mesh
-    from test_dataset import _write_obj
+    from helpers import grid_mesh, write_obj
 
     faces, uv, rest = grid_mesh(4, 4)
     for k in range(2):
-        _write_obj(tmp_path / f"g{k}.obj", rest, uv, faces)
+        write_obj(tmp_path / f"g{k}.obj", rest, uv, faces)
     poses = tmp_path / ("poses.npy" if content.startswith(b"\x93") else "poses.txt")
     poses.write_bytes(content)
     code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred",
@@ -767,22 +716,21 @@ def test_import_pose_files(content, needle, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("command", ["import", "render", "triangulate", "predict"])
-def test_every_writer_marks_its_output_and_may_replace_it(command, tmp_path, tiny_dataset, rig_file, slid, capsys):
+def test_every_writer_marks_its_output_and_may_replace_it(command, tmp_path, tiny_dataset, rig_file, slid_sheet0, capsys):
     out = tmp_path / "out"
     if command == "import":
-        from conftest import grid_mesh
-        from test_dataset import _write_obj
+        from helpers import grid_mesh, write_obj
 
         faces, uv, rest = grid_mesh(4, 4)
-        _write_obj(tmp_path / "g.obj", rest, uv, faces)
+        write_obj(tmp_path / "g.obj", rest, uv, faces)
         argv = ["import", out, "--gt", tmp_path / "*.obj", "--inferred", tmp_path / "*.obj"]
     elif command == "render":
         argv = ["render", tiny_dataset, "--rig", rig_file, "--pose", 0, "--out", out]
     elif command == "triangulate":
-        argv = ["triangulate", tiny_dataset, "--rig", rig_file, "--texcoords", slid, "--pose", 0, "--out", out]
+        argv = ["triangulate", tiny_dataset, "--rig", rig_file, "--texcoords", slid_sheet0, "--pose", 0, "--out", out]
     else:
         pytest.importorskip("torch")
-        argv = ["predict", tiny_dataset, "--model", _fake_model(tmp_path / "m", tiny_dataset), "--out", out,
+        argv = ["predict", tiny_dataset, "--model", fake_model(tmp_path / "m", tiny_dataset), "--out", out,
                 "--poses", "0:2"]
     for _ in range(2):
         code, _, err = run(capsys, *argv, "--quiet")

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import grid_mesh, wave
+from helpers import grid_mesh, wave, write_obj
 
 from mvtex.data.dataset import default_split, load_dataset, parse_pose_spec, save_dataset
 from mvtex.data.mesh import edges, subdivide
@@ -69,18 +69,11 @@ def test_subdivision_parent_map_and_midpoints():
         assert V - E + F == n - len(edges(faces)) + len(faces)
 
 
-def _write_obj(path, positions, uv, faces):
-    lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in positions]
-    lines += [f"vt {u:.9f} {v:.9f}" for u, v in uv]
-    lines += [f"f {a+1}/{a+1} {b+1}/{b+1} {c+1}/{c+1}" for a, b, c in faces]
-    path.write_text("\n".join(lines) + "\n")
-
-
 def test_import_obj_sequences(tmp_path):
     faces, uv, rest = grid_mesh(6, 5)
     for k in range(3):
-        _write_obj(tmp_path / f"gt_{k:03d}.obj", wave(rest, 0.01, k), uv, faces)
-        _write_obj(tmp_path / f"inf_{k:03d}.obj", wave(rest, 0.003, k), uv, faces)
+        write_obj(tmp_path / f"gt_{k:03d}.obj", wave(rest, 0.01, k), uv, faces)
+        write_obj(tmp_path / f"inf_{k:03d}.obj", wave(rest, 0.003, k), uv, faces)
     from mvtex.data.importer import import_sequences
 
     out = import_sequences(tmp_path / "ds", str(tmp_path / "gt_*.obj"), str(tmp_path / "inf_*.obj"))
@@ -92,10 +85,10 @@ def test_import_obj_sequences(tmp_path):
 
 def test_import_refuses_different_connectivity(tmp_path):
     faces, uv, rest = grid_mesh(6, 5)
-    _write_obj(tmp_path / "gt_0.obj", rest, uv, faces)
-    _write_obj(tmp_path / "gt_1.obj", rest, uv, faces[:, [0, 2, 1]])
-    _write_obj(tmp_path / "inf_0.obj", rest, uv, faces)
-    _write_obj(tmp_path / "inf_1.obj", rest, uv, faces)
+    write_obj(tmp_path / "gt_0.obj", rest, uv, faces)
+    write_obj(tmp_path / "gt_1.obj", rest, uv, faces[:, [0, 2, 1]])
+    write_obj(tmp_path / "inf_0.obj", rest, uv, faces)
+    write_obj(tmp_path / "inf_1.obj", rest, uv, faces)
     from mvtex.data.importer import import_sequences
 
     with pytest.raises(InputError, match="gt_1.obj: connectivity"):

@@ -9,7 +9,7 @@ import subprocess
 
 import numpy as np
 import pytest
-from conftest import grid_mesh, wave
+from helpers import grid_mesh, wave
 
 from mvtex.data.camera import look_at
 from mvtex.data.mesh import barycentric_2d, subdivide

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import two_chart_sheet
 
 from mvtex.data.dataset import load_dataset
 from mvtex.data.texcoords import save_texcoords
@@ -93,26 +94,6 @@ def test_heatmap_colours():
     assert rgb[0, 4].max() < 60              # NaN is the dark background
 
 
-def two_chart_sheet():
-    """The wavy-sheet grid cut at x = 0 into two UV charts (seam vertices split): faces that
-    touch x < 0 form chart 0 (u in [0, 0.45]), the rest chart 1 (u in [0.55, 1])."""
-    from conftest import grid_mesh
-
-    faces, uv, rest = grid_mesh(24, 20)
-    in_chart0 = (rest[faces][:, :, 0] < 0).any(axis=1)
-    chart1_vertices = np.unique(faces[~in_chart0])
-    copy = {v: len(rest) + i for i, v in enumerate(chart1_vertices)}
-    faces = faces.copy()
-    faces[~in_chart0] = np.vectorize(copy.get)(faces[~in_chart0])
-    positions = np.concatenate([rest, rest[chart1_vertices]])
-    uv = np.concatenate([uv * [0.45, 1.0], uv[chart1_vertices] * [0.45, 1.0] + [0.55, 0.0]]).astype(np.float32)
-    keep = np.unique(faces)  # drop chart-1-only originals that no face uses any more
-    remap = np.full(len(positions), -1)
-    remap[keep] = np.arange(len(keep))
-    face_chart = (~in_chart0).astype(int)
-    return remap[faces].astype(np.int32), uv[keep], positions[keep], face_chart
-
-
 def test_same_chart_statistic_excludes_chart_boundaries(gl, front_rig, tmp_path):
     """Where the meshes show different charts the atlas distance is large; the same-chart
     statistic leaves exactly those pixels out (labels from the construction, not from mvtex)."""
@@ -193,7 +174,7 @@ def test_material_error_matches_ray_cast_and_brute_force_uv_lookup(gl, front_rig
     per-pixel material error against exact ray casts (trimesh) and a brute-force search of
     the containing uv triangle."""
     import trimesh
-    from conftest import grid_mesh, wave
+    from helpers import grid_mesh, wave
 
     from mvtex.evaluation.material import MaterialMap, material_error_image
 
@@ -292,7 +273,7 @@ def test_material_map_clamps_off_layout_points_to_the_nearest_boundary_point(gl)
 
 
 def test_dataset_without_rest_reports_null_material_error(gl, sheet, front_rig, tmp_path):
-    from conftest import wave
+    from helpers import wave
 
     from mvtex.data.dataset import save_dataset
 

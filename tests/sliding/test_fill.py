@@ -93,7 +93,7 @@ def test_prebuilt_system_order_gives_the_same_solution_as_a_fresh_solve():
 
 def _folded_strip():
     """A strip whose middle row is pushed up steeply: obtuse angles, negative cotangent weights."""
-    from conftest import grid_mesh
+    from helpers import grid_mesh
 
     faces, _, rest = grid_mesh(12, 6, size=0.3)
     positions = rest.copy()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import grid_mesh, wave
+from helpers import grid_mesh, wave
 
 from mvtex.data.camera import look_at
 from mvtex.render.raster import interpolate, rasterize, rasterize_uv

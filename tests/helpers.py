@@ -1,0 +1,125 @@
+"""What many tests share: closed-form meshes (no mvtex code involved, so tests can compare
+mvtex against independent computations), running the command line, and a failure switch."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def grid_mesh(nx: int = 24, ny: int = 20, size: float = 0.6):
+    """A flat (nx x ny)-vertex sheet in the z=0 plane, CCW seen from +z, uv = normalised xy.
+
+    Returns faces (m,3) int32, uv (n,2) float32, rest (n,3) float64.
+    """
+    xs = np.linspace(-size / 2, size / 2, nx)
+    ys = np.linspace(-size / 2, size / 2, ny)
+    X, Y = np.meshgrid(xs, ys)
+    rest = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], axis=1)
+    uv = ((rest[:, :2] + size / 2) / size).astype(np.float32)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int32)
+    return faces, uv, rest
+
+
+def wave(rest: np.ndarray, amplitude: float, phase: float, wavelength: float = 0.15) -> np.ndarray:
+    """Fold the sheet along x with a sinusoid in z (a closed form)."""
+    out = rest.copy()
+    out[:, 2] = amplitude * np.sin(2 * np.pi * rest[:, 0] / wavelength + phase) + 0.3 * amplitude * np.cos(
+        2 * np.pi * rest[:, 1] / (1.7 * wavelength))
+    return out
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    """`mvtex.cli.main` on argv (anything str() turns into an argument): (exit code, stdout, stderr)."""
+    from mvtex.cli import main
+
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def run_json(capsys, *argv) -> dict:
+    """`run` with --json: the one JSON object the command prints on stdout (exit code 0)."""
+    code, out, err = run(capsys, *argv, "--json")
+    assert code == 0, err
+    lines = out.strip().splitlines()
+    assert len(lines) == 1, out  # exactly one JSON object on stdout
+    result = json.loads(lines[0])
+    assert isinstance(result, dict)
+    return result
+
+
+def one_line_error(code: int, err: str, *needles) -> str:
+    """Assert exit code 2 with exactly one error line naming every needle; returns the line."""
+    assert code == 2, err
+    lines = [line for line in err.strip().splitlines() if line.startswith("mvtex ")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert str(needle) in lines[0], lines[0]
+    return lines[0]
+
+
+def fail_slide_pose(monkeypatch, first_failure: int, error: BaseException) -> dict:
+    """Make `mvtex.sliding.dataset.slide_pose` raise `error` from its `first_failure`-th call on
+    (1-based). Returns the call counter {"n": calls so far}; lowering it postpones failures."""
+    import mvtex.sliding.dataset as jobs
+
+    original = jobs.slide_pose
+    calls = {"n": 0}
+
+    def failing(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] >= first_failure:
+            raise error
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(jobs, "slide_pose", failing)
+    return calls
+
+
+def write_obj(path, positions, uv, faces):
+    lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in positions]
+    lines += [f"vt {u:.9f} {v:.9f}" for u, v in uv]
+    lines += [f"f {a+1}/{a+1} {b+1}/{b+1} {c+1}/{c+1}" for a, b, c in faces]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def two_chart_sheet():
+    """The wavy-sheet grid cut at x = 0 into two UV charts (seam vertices split): faces that
+    touch x < 0 form chart 0 (u in [0, 0.45]), the rest chart 1 (u in [0.55, 1])."""
+    faces, uv, rest = grid_mesh(24, 20)
+    in_chart0 = (rest[faces][:, :, 0] < 0).any(axis=1)
+    chart1_vertices = np.unique(faces[~in_chart0])
+    copy = {v: len(rest) + i for i, v in enumerate(chart1_vertices)}
+    faces = faces.copy()
+    faces[~in_chart0] = np.vectorize(copy.get)(faces[~in_chart0])
+    positions = np.concatenate([rest, rest[chart1_vertices]])
+    uv = np.concatenate([uv * [0.45, 1.0], uv[chart1_vertices] * [0.45, 1.0] + [0.55, 0.0]]).astype(np.float32)
+    keep = np.unique(faces)  # drop chart-1-only originals that no face uses any more
+    remap = np.full(len(positions), -1)
+    remap[keep] = np.arange(len(keep))
+    face_chart = (~in_chart0).astype(int)
+    return remap[faces].astype(np.int32), uv[keep], positions[keep], face_chart
+
+
+def fake_model(path: Path, dataset) -> Path:
+    """A model directory made by the library (random weights), small."""
+    from safetensors.torch import save_file
+
+    from mvtex.data.dataset import load_dataset
+    from mvtex.tsnn.model import TSNN, ModelConfig
+    from mvtex.tsnn.modeldir import MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint
+
+    ds = load_dataset(dataset)
+    config = ModelConfig(pose_dim=ds.poses.shape[1], resolution=16, width=8, min_width=4)
+    path.mkdir(parents=True)
+    save_file(TSNN(config).state_dict(), str(path / "model.safetensors"))
+    meta = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": "a", "architecture": config.to_dict(),
+            "mesh": {"subdiv": 0, "num_base_vertices": ds.num_vertices, "num_vertices": ds.num_vertices,
+                     "base_mesh_sha256": mesh_fingerprint(ds.faces, ds.uv)}}
+    (path / "config.json").write_text(json.dumps(meta))
+    return path
