@@ -2,8 +2,8 @@
 
     python examples/triangulation_engines.py DATASET RIG TEXCOORDS POSE [REPEATS]
 
-Collects the pose's observations once (`collect_hypotheses`, `resolve_ambiguity`), then
-runs step 3 (`triangulate_observations`: triangulation with outlier removal) with
+Collects the pose's observations once (`collect_hypotheses`, `screen_hypotheses`, `vote`),
+then runs step 4 (`triangulate_observations`: triangulation with outlier removal) with
 `engine="mvtex"` (vectorised DLT + Gauss-Newton) and `engine="pycolmap"` (COLMAP's
 multi-view triangulation + points-only bundle adjustment), alternating, and prints one
 JSON object: the median seconds of each, their ratio, and the largest distance between
@@ -21,8 +21,9 @@ import numpy as np
 from mvtex.data.dataset import load_dataset
 from mvtex.data.rig import load_rig, resolve_rig
 from mvtex.data.texcoords import open_texcoords
+from mvtex.recon.consensus import screen_hypotheses, vote
 from mvtex.recon.locate import collect_hypotheses
-from mvtex.recon.triangulate import ReconOptions, resolve_ambiguity, triangulate_observations
+from mvtex.recon.triangulate import ReconOptions, consensus_threshold, triangulate_observations
 
 
 def main(dataset: str, rig: str, texcoords: str, pose: int, repeats: int = 5) -> dict:
@@ -36,7 +37,10 @@ def main(dataset: str, rig: str, texcoords: str, pose: int, repeats: int = 5) ->
     options = ReconOptions()
     hypotheses, _ = collect_hypotheses(ds.uv, X_N, tc.faces, T, cameras, uv_resolution=options.uv_resolution,
                                        assigned=assigned)
-    pixels, weights, _ = resolve_ambiguity(hypotheses, ds.num_vertices, cameras, options)
+    hypotheses, _ = screen_hypotheses(hypotheses, tc.faces, tc.uv, [T[c.name] for c in cameras], options.max_stretch)
+    threshold = consensus_threshold(hypotheses, ds.num_vertices, cameras, options)
+    voted = vote(hypotheses, ds.num_vertices, cameras, threshold, options.max_combinations, options.refine_iterations)
+    pixels, weights = voted.pixels, voted.weights
 
     seconds: dict[str, list[float]] = {"mvtex": [], "pycolmap": []}
     points = {}

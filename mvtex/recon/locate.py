@@ -29,6 +29,7 @@ from mvtex.util.checks import check_shape
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
+    from mvtex.render.raster import Raster
 
 
 # Barycentric slack for "contains": points on a shared edge belong to both triangles
@@ -138,13 +139,26 @@ def _dedupe(vertex: np.ndarray, points: np.ndarray) -> np.ndarray:
     return keep
 
 
-def _visible(camera: Camera, raster, points: np.ndarray, face: np.ndarray, tolerance: float):
-    """Which surface points a camera sees, and their pixels.
+def visible_points(camera: Camera, points: np.ndarray, face: np.ndarray, cloth: Raster,
+                   occluders: Sequence[Raster] = (), tolerance: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+    """Which points of the inferred surface a camera sees, and their pixels.
 
-    A point is seen if one of the 2x2 pixels around its projection shows its own triangle,
-    or if it is no deeper than the farthest surface those pixels show (relative slack):
-    permissive at occlusion boundaries, where the observation is within a pixel of visible
-    material anyway.
+    Against the cloth's own raster, a point is seen if one of the 2x2 pixels around its
+    projection shows its own triangle, or if it is no deeper than the farthest surface
+    those pixels show (relative slack): permissive at occlusion boundaries, where the
+    observation is within a pixel of visible material anyway. An occluder (another opaque
+    surface rendered from the same camera, e.g. a wearer) hides a point where all 2x2
+    pixels show it nearer than the point (same slack).
+
+    Args:
+        camera: the camera the rasters were rendered from.
+        points: (k,3) float64 surface points; face: (k,) int their triangles in `cloth`.
+        cloth: `mvtex.render.raster.Raster` (with depth) of the inferred mesh.
+        occluders: rasters (with depth) of further opaque surfaces.
+        tolerance: relative depth slack.
+
+    Returns:
+        seen (k,) bool and pixels (k,2) float64 OpenCV pixels.
     """
     pixels, z = camera.project(points)
     W, H = camera.width, camera.height
@@ -154,16 +168,22 @@ def _visible(camera: Camera, raster, points: np.ndarray, face: np.ndarray, toler
     own = np.zeros(len(points), bool)
     front = np.zeros(len(points))
     covered = np.zeros(len(points), bool)
+    hidden = [np.ones(len(points), bool) for _ in occluders]
     for du in (0, 1):
         for dv in (0, 1):
             u = np.clip(u0 + du, 0, W - 1)
             v = np.clip(v0 + dv, 0, H - 1)
-            tri = raster.tri_id[v, u]
+            tri = cloth.tri_id[v, u]
             cov = tri >= 0
             own |= tri == face
             covered |= cov
-            front = np.maximum(front, np.where(cov, raster.depth[v, u], 0.0))
+            front = np.maximum(front, np.where(cov, cloth.depth[v, u], 0.0))
+            for k, occluder in enumerate(occluders):
+                nearer = (occluder.tri_id[v, u] >= 0) & (occluder.depth[v, u] * (1 + tolerance) < z)
+                hidden[k] &= nearer
     seen = ok & (own | (covered & (z <= front * (1 + tolerance))))
+    for h in hidden:
+        seen &= ~h
     return seen, pixels
 
 
@@ -175,11 +195,19 @@ class Hypotheses:
         vertex: (h,) int64 gt vertex index.
         camera: (h,) int64 index into the reconstruction's camera list.
         pixel: (h,2) float64 OpenCV pixel of the located surface point in that camera.
+        face: (h,) int64 the triangle of the texcoord set's mesh it was located in.
+        bary: (h,3) float64 its barycentrics there (of T_N, and so of X_N).
     """
 
     vertex: np.ndarray
     camera: np.ndarray
     pixel: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> "Hypotheses":
+        """The hypotheses selected by a (h,) bool mask or an index array."""
+        return Hypotheses(self.vertex[keep], self.camera[keep], self.pixel[keep], self.face[keep], self.bary[keep])
 
 
 def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray,
@@ -204,7 +232,10 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
     Returns:
-        The visible hypotheses, and counts {"hypotheses", "occluded", "unassigned"}.
+        The visible hypotheses, and counts: "hypotheses" located, and of them
+        "unassigned" (dropped for an unassigned corner), "duplicate" (the same 3-D point as
+        another of the vertex's hypotheses in that camera: a point on a shared edge) and
+        "occluded".
     """
     from tqdm import tqdm
 
@@ -218,8 +249,8 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
                                       require_assigned=require_assigned, progress=progress, ctx=own)
     X_N = np.asarray(inferred_positions, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    counts = {"hypotheses": 0, "occluded": 0, "unassigned": 0}
-    hyp_v, hyp_c, hyp_px = [], [], []
+    counts = {"hypotheses": 0, "unassigned": 0, "duplicate": 0, "occluded": 0}
+    hyp_v, hyp_c, hyp_px, hyp_f, hyp_b = [], [], [], [], []
     for c, cam in enumerate(tqdm(cameras, desc="locate", unit="camera", disable=not progress, leave=False)):
         T = np.asarray(texcoords[cam.name], dtype=np.float64)
         check_shape(T, f"texcoords[{cam.name!r}]", (len(X_N), 2))
@@ -231,11 +262,15 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
             vi, fi, bary = vi[ok], fi[ok], bary[ok]
         P = np.einsum("hk,hkj->hj", bary, X_N[faces[fi]])
         keep = _dedupe(vi, P)
-        vi, fi, P = vi[keep], fi[keep], P[keep]
+        counts["duplicate"] += int((~keep).sum())
+        vi, fi, bary, P = vi[keep], fi[keep], bary[keep], P[keep]
         raster = rasterize(ctx, X_N, faces, cam)
-        seen, pixels = _visible(cam, raster, P, fi, depth_tolerance)
+        seen, pixels = visible_points(cam, P, fi, raster, tolerance=depth_tolerance)
         counts["occluded"] += int((~seen).sum())
         hyp_v.append(vi[seen])
         hyp_c.append(np.full(int(seen.sum()), c))
         hyp_px.append(pixels[seen])
-    return Hypotheses(np.concatenate(hyp_v), np.concatenate(hyp_c), np.concatenate(hyp_px)), counts
+        hyp_f.append(fi[seen])
+        hyp_b.append(bary[seen])
+    return Hypotheses(np.concatenate(hyp_v), np.concatenate(hyp_c), np.concatenate(hyp_px), np.concatenate(hyp_f),
+                      np.concatenate(hyp_b)), counts

@@ -37,7 +37,8 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     Returns:
         The report (DESIGN §7): pose, num_vertices, num_triangulated, rmse_m{inferred,
         reconstructed}, rmse_triangulated_m{...}, mean_reprojection_error_px, plus
-        cameras, rejected (vertex counts by reason), stats, strain_energy{gt, inferred,
+        cameras, rejected (vertex counts by reason), rejected_observations (hypotheses
+        not used, by reason), stats, strain_energy{gt, inferred,
         reconstructed} (None without a rest shape), smooth{...}, options.
 
     Raises:
@@ -64,10 +65,10 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
     T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}
     assigned = {c: texcoords.assigned(c, pose) for c in names}
-    rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
-                      gt_faces=dataset.faces, assigned=assigned, progress=progress, ctx=ctx)
-    gt = np.asarray(dataset.gt[pose], np.float64)
     rest = None if dataset.rest is None else np.asarray(dataset.rest, np.float64)
+    rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
+                      gt_faces=dataset.faces, assigned=assigned, rest=rest, progress=progress, ctx=ctx)
+    gt = np.asarray(dataset.gt[pose], np.float64)
     report = reconstruction_report(rec, gt, dataset.faces, rest, pose, options)
     report.update(cameras=names, texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)
     if out is not None:

@@ -4,15 +4,12 @@
 from __future__ import annotations
 
 from dataclasses import asdict
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from mvtex.data.mesh import edge_strain, edges
 from mvtex.recon.geometry import rmse
-
-if TYPE_CHECKING:
-    pass
 from mvtex.recon.triangulate import ReconOptions, Reconstruction
 
 
@@ -41,6 +38,7 @@ def reconstruction_report(rec: Reconstruction, gt: np.ndarray, faces: np.ndarray
         "rmse_triangulated_m": {"inferred": rmse(rec.inferred, gt, tri), "reconstructed": rmse(rec.points, gt, tri)},
         "mean_reprojection_error_px": float(np.mean(err)) if err.size else None,
         "rejected": dict(rec.rejected),
+        "rejected_observations": dict(rec.rejected_observations),
         "stats": dict(rec.stats),
         "strain_energy": None,
         "smooth": {"enabled": bool(options.smooth)},

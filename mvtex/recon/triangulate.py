@@ -10,17 +10,23 @@ these steps, each a function of its own:
    texcoords may fold over); the same barycentric combination of the inferred positions
    X_N is a 3-D point, kept where camera p sees it (depth test against a raster of the
    inferred mesh); its projection is the observation.
-2. `resolve_ambiguity`: where a camera holds several hypotheses of one vertex, keep the
-   one nearest to the point of the combination whose rays disagree least.
-3. `triangulate_observations`: every vertex seen by ≥ 2 cameras is triangulated (the
-   engine: `mvtex.recon.geometry.triangulate_points`, DLT + Gauss-Newton, or COLMAP through
-   `mvtex.formats.colmap.triangulate_tracks`), dropping its worst observation while it exceeds the
-   reprojection threshold.
-4. `accept_points`: reject points behind a camera, with implausible reprojection error or
-   far from the inferred surface.
-5. `pool_and_fill`: seam copies pool their displacement; vertices not triangulated get X_N
-   plus a harmonic extension of it (`extrapolate.fill`); optional Taubin smoothing.
+2. `mvtex.recon.consensus.screen_hypotheses`: the triangle test drops hypotheses located in
+   a triangle whose T_N is stretched across a fold edge (`ReconOptions.max_stretch`).
+3. `mvtex.recon.consensus.vote`: per vertex, the hypotheses the cameras agree on (RANSAC over
+   pairs of cameras, MSAC score, threshold `consensus_threshold`); this also chooses among
+   several hypotheses of one camera.
+4. `triangulate_observations`: every vertex with ≥ 2 agreeing observations is triangulated
+   (the engine: `mvtex.recon.geometry.triangulate_points`, DLT + Gauss-Newton, or COLMAP
+   through `mvtex.formats.colmap.triangulate_tracks`), dropping its worst observation while it
+   exceeds options.max_reprojection_px.
+5. `accept_points`: reject points behind a camera, with implausible reprojection error, far
+   from the inferred surface, or whose displacement disagrees with their neighbours'.
+6. `pool_and_fill`: seam copies pool their displacement; vertices not triangulated get X_N
+   plus a harmonic extension of it (on the rest shape, `mvtex.sliding.fill.fill`); optional
+   Taubin smoothing.
 
+Every located hypothesis is either used or counted once by the reason it was left out
+(`Reconstruction.rejected_observations`, `mvtex.recon.consensus.OBSERVATION_REASONS`).
 Step 1 is the only one that rasterizes (GL, in `mvtex.recon.locate`); the geometry of the
 others is `mvtex.recon.geometry` (NumPy).
 `triangulate_pose` is the `mvtex triangulate` command for one dataset pose; writing its
@@ -29,7 +35,6 @@ output directory is `mvtex.recon.export`.
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, Any, Callable, Sequence
@@ -40,70 +45,22 @@ import scipy.sparse as sp
 from mvtex.data.camera import Camera
 from mvtex.data.mesh import weld_groups, welded_adjacency
 from mvtex.data.rig import Rig
-from mvtex.recon.geometry import (
-    least_disagreement,
-    project_points,
-    refine_points,
-    reprojection_errors,
-    surface_distance,
-    triangulate_points,
-)
+from mvtex.recon.consensus import HypothesisLedger, Vote, screen_hypotheses, vote
+from mvtex.recon.geometry import project_points, reprojection_errors, surface_distance, triangulate_points
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
+from mvtex.recon.options import ENGINES, ReconOptions
 from mvtex.util.checks import check_shape
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 
-
-# Triangulation engines of `ReconOptions.engine`.
-ENGINES = ("mvtex", "pycolmap")
-
+# ReconOptions and ENGINES live in mvtex.recon.options; importing them from here keeps working.
+__all__ = ["ENGINES", "ReconOptions", "Reconstruction", "Triangulator", "accept_points", "consensus_threshold",
+           "pool_and_fill", "reconstruct", "reconstruct_from_hypotheses", "taubin_smooth", "track_triangulator",
+           "triangulate_observations"]
 
 # A triangulation engine: (cameras, pixels (N,C,2), weights (N,C)) -> points (N,3), NaN where degenerate.
 Triangulator = Callable[[Sequence[Camera], np.ndarray, np.ndarray], np.ndarray]
-
-
-@dataclass(frozen=True)
-class ReconOptions:
-    """Options of the reconstruction (the `mvtex triangulate` flags mirror them).
-
-    Attributes:
-        max_reprojection_px: an observation whose reprojection error exceeds this is dropped
-            (while ≥ 3 remain); a point still above it is rejected ("reprojection").
-        max_surface_distance_m: a point farther than this from the inferred surface is
-            rejected ("surface_distance").
-        smooth: Taubin-smooth the reconstructed displacement (for noisy inputs, e.g. TSNN).
-        smooth_iterations: Taubin passes (each a +lambda and a -mu step).
-        uv_resolution: texels per side of the UV lookup buffer.
-        depth_tolerance: relative depth slack of the visibility test.
-        require_assigned: drop hypotheses in triangles with an unassigned (extrapolated)
-            corner, when the texcoord set says which are assigned.
-        max_combinations: at most this many hypothesis combinations are tried per vertex.
-        refine_iterations: Gauss-Newton steps after the DLT (engine "mvtex", and the
-            hypothesis choice of both engines).
-        error_scale_m: error heatmaps run from blue (0) to red (≥ this).
-        strain_scale: strain pictures run from blue (-this, compression) to red (+this).
-        engine: who triangulates the tracks: "mvtex" (vectorised DLT + Gauss-Newton, the
-            default: faster) or "pycolmap" (COLMAP's multi-view triangulation + points-only
-            bundle adjustment); both reach the same least-squares points.
-    """
-
-    max_reprojection_px: float = 2.0
-    max_surface_distance_m: float = 0.05
-    smooth: bool = False
-    smooth_iterations: int = 10
-    uv_resolution: int = 1024
-    depth_tolerance: float = 0.005
-    require_assigned: bool = True
-    max_combinations: int = 256
-    refine_iterations: int = 5
-    error_scale_m: float = 0.01
-    strain_scale: float = 0.1
-    engine: str = "mvtex"
-
-    def __post_init__(self) -> None:
-        if self.engine not in ENGINES:
-            raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {self.engine!r}")
 
 
 @dataclass(frozen=True)
@@ -119,9 +76,12 @@ class Reconstruction:
             camera did not contribute to vertex i.
         reprojection_error: (n,) float64 mean reprojection error (px) of `points` over the
             used observations; NaN where not triangulated.
-        rejected: reason -> number of vertices not triangulated for it ("fewer_than_2_views",
-            "reprojection", "surface_distance", "cheirality").
-        stats: counts of the locate/visibility/hypothesis stages.
+        rejected: reason -> number of vertices not triangulated for it (`accept_points`).
+        rejected_observations: reason -> number of located hypotheses not used for it
+            (`mvtex.recon.consensus.OBSERVATION_REASONS`); with the used ones they add up to
+            stats["hypotheses"].
+        stats: counts of the stages, the vote's threshold ("consensus_threshold_px") and
+            the number of observations used ("used_observations").
         unsmoothed: (n,3) float64 points before smoothing, or None when not smoothed.
     """
 
@@ -131,6 +91,7 @@ class Reconstruction:
     observations: dict[str, np.ndarray]
     reprojection_error: np.ndarray
     rejected: dict[str, int]
+    rejected_observations: dict[str, int] = field(default_factory=dict)
     stats: dict[str, Any] = field(default_factory=dict)
     unsmoothed: np.ndarray | None = None
 
@@ -145,98 +106,24 @@ class Reconstruction:
         return self.points - self.inferred
 
 
-def resolve_ambiguity(hypotheses: Hypotheses, num_vertices: int, cameras: Sequence[Camera],
-                      options: ReconOptions = ReconOptions(), triangulate: Triangulator | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
-    """Step 2: one observation per (vertex, camera), choosing among several hypotheses.
+def consensus_threshold(hypotheses: Hypotheses, num_vertices: int, cameras: Sequence[Camera],
+                        options: ReconOptions = ReconOptions()) -> float:
+    """The vote's inlier threshold (px) for one pose.
 
-    A vertex with several hypotheses in some camera gets a reference point: triangulated
-    (`triangulate`) from its single-hypothesis cameras where it has ≥ 2 of them, else the
-    combination of one hypothesis per camera whose rays disagree least
-    (`mvtex.recon.geometry.least_disagreement`, refined by Gauss-Newton). Each ambiguous camera
-    then keeps the hypothesis nearest to the reference point's projection.
-
-    Args:
-        hypotheses: from `collect_hypotheses`.
-        num_vertices: n, the number of gt vertices.
-        cameras: the C cameras.
-        options: max_combinations, refine_iterations.
-        triangulate: the engine for the reference points (default: `track_triangulator(options)`).
-
-    Returns:
-        pixels (n,C,2) float64 (NaN where none), weights (n,C) float64 1 where camera c has
-        an observation of vertex n, 0 where not, and counts {"ambiguous_observations",
-        "ambiguous_vertices"}.
+    options.consensus_px, grown to options.consensus_scale times the median reprojection
+    error of a loose vote (threshold options.max_reprojection_px) where that is larger:
+    texcoords with noise (predicted ones) then keep their observations, exact ones (TS)
+    keep the tight threshold.
     """
-    triangulate = track_triangulator(options) if triangulate is None else triangulate
-    hv, hc, hpx = hypotheses.vertex, hypotheses.camera, hypotheses.pixel
-    n, C = int(num_vertices), len(cameras)
-    count = np.zeros((n, C), dtype=np.int64)
-    np.add.at(count, (hv, hc), 1)
-    pixels = np.full((n, C, 2), np.nan)
-    single = count[hv, hc] == 1
-    pixels[hv[single], hc[single]] = hpx[single]
-    weights = (count == 1).astype(np.float64)
-    views = (count > 0).sum(axis=1)
-    candidates = np.flatnonzero(views >= 2)
-    ambiguous = candidates[np.any(count[candidates] > 1, axis=1)]
-    counts = {"ambiguous_observations": int(np.sum(count > 1)), "ambiguous_vertices": int(len(ambiguous))}
-    if not len(ambiguous):
-        return pixels, weights, counts
-
-    order = np.lexsort((hc, hv))
-    hv_s, hc_s, hpx_s = hv[order], hc[order], hpx[order]
-    starts = np.searchsorted(hv_s, ambiguous, side="left")
-    stops = np.searchsorted(hv_s, ambiguous, side="right")
-    # Vertices with ≥ 2 single-hypothesis cameras: triangulate from those first.
-    seeded = (count[ambiguous] == 1).sum(axis=1) >= 2
-    X0 = np.full((len(ambiguous), 3), np.nan)
-    if seeded.any():
-        rows = ambiguous[seeded]
-        X0[seeded] = triangulate(cameras, pixels[rows], weights[rows])
-    for j, v in enumerate(ambiguous):
-        sel = slice(starts[j], stops[j])
-        cams_v, px_v = hc_s[sel], hpx_s[sel]
-        if not seeded[j]:
-            X0[j] = _least_disagreement_point(cameras, cams_v, px_v, count[v], options)
-        if not np.all(np.isfinite(X0[j])):
-            continue
-        for c in np.unique(cams_v):
-            if count[v, c] < 2:
-                continue
-            opts = px_v[cams_v == c]
-            projected, _ = cameras[c].project(X0[j])
-            pixels[v, c] = opts[int(np.argmin(np.linalg.norm(opts - projected, axis=1)))]
-            weights[v, c] = 1.0
-    return pixels, weights, counts
-
-
-def _least_disagreement_point(cameras: Sequence[Camera], cams_v: np.ndarray, px_v: np.ndarray,
-                              count_v: np.ndarray, options: ReconOptions) -> np.ndarray:
-    """The point (3,) of the combination of one hypothesis per camera whose rays agree best.
-
-    Cameras with the fewest hypotheses enter the enumeration first, while the number of
-    combinations stays within options.max_combinations; the other cameras are resolved
-    against the resulting point by the caller. NaN when no combination is usable.
-    """
-    cams = sorted(np.unique(cams_v), key=lambda c: count_v[c])
-    chosen, total = [], 1
-    for c in cams:
-        if total * count_v[c] > options.max_combinations and len(chosen) >= 2:
-            break
-        chosen.append(c)
-        total *= count_v[c]
-    if len(chosen) < 2:
-        return np.full(3, np.nan)
-    choices = [np.flatnonzero(cams_v == c) for c in chosen]
-    combos = np.array(list(itertools.islice(itertools.product(*choices), options.max_combinations)))
-    sub = [cameras[c] for c in chosen]
-    candidates = px_v[combos]  # (k, len(chosen), 2)
-    best, point = least_disagreement(sub, candidates)
-    if best < 0:
-        return point
-    return refine_points(sub, point[None], candidates[best:best + 1], np.ones((1, len(sub))),
-                         options.refine_iterations)[0]
+    if options.consensus_scale <= 0:
+        return float(options.consensus_px)
+    loose = vote(hypotheses, num_vertices, cameras, max(options.max_reprojection_px, options.consensus_px),
+                 options.max_combinations, options.refine_iterations)
+    ok = np.all(np.isfinite(loose.points), axis=1)
+    if not ok.any():
+        return float(options.consensus_px)
+    err = reprojection_errors(cameras, loose.points[ok], loose.pixels[ok])[loose.weights[ok] > 0]
+    return float(max(options.consensus_px, options.consensus_scale * np.median(err)))
 
 
 def track_triangulator(options: ReconOptions = ReconOptions()) -> Triangulator:
@@ -263,7 +150,7 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
 
     Args:
         cameras: the C cameras.
-        pixels: (N,C,2) OpenCV pixels; weights: (N,C) 0/1 (from `resolve_ambiguity`).
+        pixels: (N,C,2) OpenCV pixels; weights: (N,C) 0/1 (from `mvtex.recon.consensus.vote`).
         options: max_reprojection_px (and the engine's options).
         triangulate: the engine (default: `track_triangulator(options)`).
 
@@ -297,27 +184,34 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
 
 
 def accept_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndarray, weights: np.ndarray,
-                  inferred_positions: np.ndarray, faces: np.ndarray, options: ReconOptions = ReconOptions()
-                  ) -> tuple[np.ndarray, dict[str, int]]:
-    """Step 4: which triangulated points to keep.
+                  inferred_positions: np.ndarray, faces: np.ndarray, options: ReconOptions = ReconOptions(),
+                  voting: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, int]]:
+    """Step 5: which triangulated points to keep.
 
     A point observed by ≥ 2 cameras is rejected, in this order, if it is not finite or
     behind an observing camera ("cheirality"), if an observation's reprojection error
     exceeds options.max_reprojection_px ("reprojection"), or if it is farther than
     options.max_surface_distance_m from the inferred surface ("surface_distance").
+    Vertices with fewer than 2 observations are "disagreement" where they had
+    hypotheses in ≥ 2 cameras (`voting`) and "fewer_than_2_views" elsewhere.
 
     Args:
         cameras: the C cameras.
         points: (N,3) from `triangulate_observations`; pixels (N,C,2); weights (N,C).
         inferred_positions: (n',3) X_N; faces: (m',3) the inferred mesh.
+        options: max_reprojection_px, max_surface_distance_m.
+        voting: (N,) bool vertices with hypotheses in ≥ 2 cameras (None: none).
 
     Returns:
         accepted (N,) bool, and rejected: reason -> count ("fewer_than_2_views",
-        "reprojection", "surface_distance", "cheirality").
+        "disagreement", "cheirality", "reprojection", "surface_distance").
     """
     rows = np.flatnonzero(np.asarray(weights).sum(axis=1) >= 2)
-    rejected = {"fewer_than_2_views": int(len(points) - len(rows)), "reprojection": 0, "surface_distance": 0,
-                "cheirality": 0}
+    lacking = np.ones(len(points), bool)
+    lacking[rows] = False
+    disagree = int((lacking & voting).sum()) if voting is not None else 0
+    rejected = {"fewer_than_2_views": int(lacking.sum()) - disagree, "disagreement": disagree, "cheirality": 0,
+                "reprojection": 0, "surface_distance": 0}
     accepted = np.zeros(len(points), bool)
     if not len(rows):
         return accepted, rejected
@@ -339,19 +233,22 @@ def accept_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
 
 
 def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.ndarray, faces: np.ndarray,
-                  options: ReconOptions = ReconOptions()) -> tuple[np.ndarray, np.ndarray | None, dict[str, int]]:
-    """Step 5: displacement on every gt vertex from the triangulated ones.
+                  options: ReconOptions = ReconOptions(), rest: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray | None, dict[str, int]]:
+    """Step 6: displacement on every gt vertex from the triangulated ones.
 
     Seam copies (split vertices at one position) are one physical point: their
     displacements are averaged and every copy gets it. The displacement is then extended
-    harmonically to the vertices without one (`extrapolate.fill`, welded across seams)
-    and, with options.smooth, Taubin-smoothed.
+    harmonically to the vertices without one (`mvtex.sliding.fill.fill`, welded across
+    seams, cotangent weights of `rest` when options.fill_shape is "rest" and a rest shape
+    is given, else of `inferred`) and, with options.smooth, Taubin-smoothed.
 
     Args:
         points: (n,3) triangulated positions (read where `triangulated`).
         triangulated: (n,) bool.
         inferred: (n,3) X_N of the gt vertices; faces: (m,3) the gt mesh.
-        options: smooth, smooth_iterations.
+        options: fill_shape, smooth, smooth_iterations.
+        rest: (n,3) the rest shape, or None.
 
     Returns:
         positions (n,3) float64, the positions before smoothing (None when not smoothed),
@@ -369,7 +266,11 @@ def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.nda
     disp[known] = sums[groups[known]] / cnt[groups[known], None]
     counts = {"seam_copies_pooled": int((known & ~triangulated).sum())}
 
-    disp = _fill(faces, inferred, disp, known, groups)
+    shape = inferred
+    if options.fill_shape == "rest" and rest is not None:
+        shape = np.asarray(rest, dtype=np.float64)
+        check_shape(shape, "rest", (n, 3))
+    disp = _fill(faces, shape, disp, known, groups)
     out = inferred + disp
     unsmoothed = None
     if options.smooth:
@@ -410,23 +311,25 @@ def taubin_smooth(values: np.ndarray, adjacency: sp.csr_matrix, iterations: int 
 def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray, uv: np.ndarray,
                 texcoords: dict[str, np.ndarray], rig: Rig, options: ReconOptions = ReconOptions(), *,
                 gt_faces: np.ndarray | None = None, assigned: dict[str, np.ndarray] | None = None,
-                progress: bool = False, ctx: GLContext | None = None) -> Reconstruction:
+                rest: np.ndarray | None = None, progress: bool = False, ctx: GLContext | None = None
+                ) -> Reconstruction:
     """Triangulate the gt vertices from per-camera texture coordinates of an inferred mesh.
 
-    Runs steps 1-5 of the module docstring.
+    Runs steps 1-6 of the module docstring.
 
     Args:
         gt_uv: (n,2) T_G of the gt mesh's vertices.
         inferred_positions: (n',3) X_N on the texcoord set's (possibly subdivided) mesh; its
             first n vertices are the gt mesh's vertices (DESIGN §4 `parent`).
         faces: (m',3) int faces of the texcoord set's mesh.
-        uv: (n',2) T_G on the texcoord set's mesh (checked for shape).
+        uv: (n',2) T_G on the texcoord set's mesh (the triangle test compares T_N with it).
         texcoords: camera name -> (n',2) T_N of that camera; ≥ 2 cameras of `rig`.
         rig: the cameras (those named in `texcoords` are used).
         options: see ReconOptions.
         gt_faces: (m,3) faces of the gt mesh (needed to fill and smooth when n' > n;
             defaults to `faces` when n' == n).
         assigned: optional camera name -> (n',) bool (used with options.require_assigned).
+        rest: optional (n,3) rest shape of the gt mesh (the fill's shape, options.fill_shape).
         progress: show a progress bar over cameras.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
@@ -439,6 +342,7 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     gt_uv = np.asarray(gt_uv, dtype=np.float64)
     X_N = np.asarray(inferred_positions, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
+    uv = np.asarray(uv, dtype=np.float64)
     sizes = check_shape(gt_uv, "gt_uv", ("n", 2))
     check_shape(X_N, "inferred_positions", ("n'", 3), sizes)
     check_shape(uv, "uv", ("n'", 2), sizes)
@@ -452,29 +356,73 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
         gt_faces = faces
     gt_faces = np.asarray(gt_faces, dtype=np.int64)
     check_shape(gt_faces, "gt_faces", ("m", 3))
+    if rest is not None:
+        check_shape(rest, "rest", (n, 3))
     names = [c for c in rig.names if c in texcoords]
     if len(names) < 2:
         raise ValueError(f"reconstruction needs texcoords of ≥ 2 rig cameras, got {sorted(texcoords)}")
     cameras = [rig[c] for c in names]
-    triangulate = track_triangulator(options)
-
     hypotheses, stats = collect_hypotheses(gt_uv, X_N, faces, texcoords, cameras, uv_resolution=options.uv_resolution,
                                            depth_tolerance=options.depth_tolerance, assigned=assigned,
                                            require_assigned=options.require_assigned, progress=progress, ctx=ctx)
-    pixels, weights, counts = resolve_ambiguity(hypotheses, n, cameras, options, triangulate)
-    stats.update(counts)
-    X, weights, counts = triangulate_observations(cameras, pixels, weights, options, triangulate)
-    stats.update(counts)
-    triangulated, rejected = accept_points(cameras, X, pixels, weights, X_N, faces, options)
+    return reconstruct_from_hypotheses(hypotheses, stats, n, X_N, faces, uv, {c: texcoords[c] for c in names},
+                                       rig.select(names), options, gt_faces=gt_faces, rest=rest)
+
+
+def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], num_vertices: int,
+                                inferred_positions: np.ndarray, faces: np.ndarray, uv: np.ndarray,
+                                texcoords: dict[str, np.ndarray], rig: Rig, options: ReconOptions = ReconOptions(),
+                                *, gt_faces: np.ndarray, rest: np.ndarray | None = None) -> Reconstruction:
+    """Steps 2-6 of the module docstring from the located hypotheses (no GL).
+
+    Args:
+        hypotheses, stats: from `collect_hypotheses` with the cameras of `rig` in its order.
+        num_vertices: n, the number of gt vertices.
+        inferred_positions, faces, uv, texcoords, options, rest: as `reconstruct`.
+        rig: the cameras, one per texcoords entry, in the hypotheses' camera order.
+        gt_faces: (m,3) faces of the gt mesh (its n vertices are the first n of the
+            texcoord set's mesh).
+
+    Returns:
+        Reconstruction on the n gt vertices.
+    """
+    X_N = np.asarray(inferred_positions, dtype=np.float64)
+    gt_faces = np.asarray(gt_faces, dtype=np.int64)
+    n = int(num_vertices)
+    names = list(rig.names)
+    cameras = list(rig)
+    stats = dict(stats)
+    triangulate = track_triangulator(options)
+    ledger = HypothesisLedger()
+    for reason in ("unassigned", "duplicate", "occluded"):
+        ledger.add(reason, stats[reason])
+    hypotheses, stretched = screen_hypotheses(hypotheses, faces, uv, [np.asarray(texcoords[c]) for c in names],
+                                              options.max_stretch)
+    ledger.add("stretched_triangle", stretched)
+    threshold = consensus_threshold(hypotheses, n, cameras, options)
+    voted: Vote = vote(hypotheses, n, cameras, threshold, options.max_combinations, options.refine_iterations)
+    for reason in ("fewer_than_2_views", "alternative", "disagreement"):
+        ledger.add(reason, voted.counts[reason])
+    stats.update(ambiguous_vertices=voted.counts["ambiguous_vertices"], consensus_threshold_px=threshold)
+    pixels = voted.pixels
+    X, weights, counts = triangulate_observations(cameras, pixels, voted.weights, options, triangulate)
+    ledger.add("reprojection", counts["outlier_observations"])
+    views = np.zeros((n, len(cameras)), bool)
+    views[hypotheses.vertex, hypotheses.camera] = True
+    triangulated, rejected = accept_points(cameras, X, pixels, weights, X_N, faces, options,
+                                           voting=views.sum(axis=1) >= 2)
+    observed = (weights > 0) & triangulated[:, None]
+    ledger.add("point_rejected", int((weights > 0).sum() - observed.sum()))
+    stats["used_observations"] = int(observed.sum())
     base = X_N[:n]
-    points, unsmoothed, counts = pool_and_fill(X, triangulated, base, gt_faces, options)
+    points, unsmoothed, counts = pool_and_fill(X, triangulated, base, gt_faces, options, rest)
     stats.update(counts)
 
-    observed = (weights > 0) & triangulated[:, None]
     obs = {name: np.where(observed[:, [c]], pixels[:, c], np.nan) for c, name in enumerate(names)}
     err = reprojection_errors(cameras, points, np.stack([obs[name] for name in names], axis=1))
     used = np.isfinite(err)
     with np.errstate(invalid="ignore"):
         per_vertex = np.where(triangulated, np.nansum(err, axis=1) / np.maximum(used.sum(axis=1), 1), np.nan)
     return Reconstruction(points=points, inferred=base, triangulated=triangulated, observations=obs,
-                          reprojection_error=per_vertex, rejected=rejected, stats=stats, unsmoothed=unsmoothed)
+                          reprojection_error=per_vertex, rejected=rejected,
+                          rejected_observations=dict(ledger.rejected), stats=stats, unsmoothed=unsmoothed)

@@ -109,9 +109,11 @@ def test_identity_on_subdivided_mesh(gl):
 def test_fold_over_hypotheses_are_disambiguated(gl):
     """Camera b's texcoords fold over (one vertex dragged across its neighbours): several
     triangles contain some T_G. With two cameras no observation can be voted out, so only
-    the choice of the hypotheses whose rays agree gives back the gt points."""
+    the choice of the hypotheses whose rays agree gives back the gt points. The triangle
+    test (on by default) drops the dragged fans' hypotheses before they compete: the same
+    points."""
     from mvtex.recon.locate import locate_uv
-    from mvtex.recon.triangulate import reconstruct
+    from mvtex.recon.triangulate import ReconOptions, reconstruct
 
     faces, uv, rest = grid_mesh(30, 26)
     gt = wave(rest, 0.015, 0.4)
@@ -122,11 +124,50 @@ def test_fold_over_hypotheses_are_disambiguated(gl):
     pi, fi, bary = locate_uv(uv, faces, bad)
     points = np.einsum("hk,hkj->hj", bary, gt[faces[fi]])
     wrong = np.unique(pi[np.linalg.norm(points - gt[pi], axis=1) > 1e-3])  # has a false hypothesis
-    rec = reconstruct(uv, gt, faces, uv, {"a": uv, "b": bad}, rig)
-    assert rec.stats["ambiguous_vertices"] > 0
+    rec = reconstruct(uv, gt, faces, uv, {"a": uv, "b": bad}, rig, ReconOptions(max_stretch=None))
+    assert rec.stats["ambiguous_vertices"] > 0 and rec.rejected_observations["alternative"] > 0
     assert rec.triangulated[wrong].sum() >= 8
     tri = rec.triangulated
     assert np.abs(rec.points[tri] - gt[tri]).max() < 1e-6
+    screened = reconstruct(uv, gt, faces, uv, {"a": uv, "b": bad}, rig)
+    assert screened.rejected_observations["stretched_triangle"] > 0
+    assert screened.triangulated[wrong].sum() >= 8
+    tri = screened.triangulated
+    assert np.abs(screened.points[tri] - gt[tri]).max() < 1e-6
+
+
+def test_visibility_against_an_occluder_matches_ray_casting(gl):
+    """A square card 0.3 m in front of the flat sheet hides part of it from a camera: the
+    points `visible_points` drops are those whose ray to the camera crosses the card
+    (closed form), up to the one-pixel band along the card's outline."""
+    from mvtex.recon.locate import visible_points
+    from mvtex.render.raster import rasterize
+
+    faces, uv, rest = grid_mesh(60, 50)
+    cam = three_camera_rig()["b"]
+    card = np.array([[-0.1, -0.05, 0.3], [0.08, -0.05, 0.3], [0.08, 0.1, 0.3], [-0.1, 0.1, 0.3]])
+    card_faces = np.array([[0, 1, 2], [0, 2, 3]])
+    rng = np.random.default_rng(2)
+    f = rng.integers(0, len(faces), 3000)
+    b = rng.dirichlet(np.ones(3), 3000)
+    points = np.einsum("hk,hkj->hj", b, rest[faces[f]])
+    cloth = rasterize(gl, rest, faces, cam)
+    occluder = rasterize(gl, card, card_faces, cam)
+    alone, _ = visible_points(cam, points, f, cloth)
+    seen, pixels = visible_points(cam, points, f, cloth, [occluder])
+    assert alone.all()
+    # Closed form: where the segment point -> camera centre crosses z = 0.3.
+    C = cam.center
+    s = (0.3 - points[:, 2]) / (C[2] - points[:, 2])
+    hit = points + s[:, None] * (C - points)
+    behind = (hit[:, 0] > -0.1) & (hit[:, 0] < 0.08) & (hit[:, 1] > -0.05) & (hit[:, 1] < 0.1)
+    outline, _ = cam.project(card)
+    lo, hi = outline.min(axis=0), outline.max(axis=0)
+    inner = np.all((pixels > lo + 1.5) & (pixels < hi - 1.5), axis=1)
+    outer = np.any((pixels < lo - 1.5) | (pixels > hi + 1.5), axis=1)
+    assert behind.sum() > 300
+    assert not seen[behind & inner].any()
+    assert seen[~behind & outer].all()
 
 
 def test_untriangulated_get_the_extended_displacement(gl):
@@ -164,16 +205,20 @@ def test_engines_agree_on_a_noisy_reconstruction(gl):
     T["c"][rng.choice(len(uv), 40, replace=False)] += 0.03  # ~3.5 px outliers
     for k in (13 * 24 + 12, 7 * 24 + 8):
         T["b"][k] = uv[k + 5]  # fold-overs: ambiguous hypotheses
-    runs = {engine: reconstruct(uv, gt, faces, uv, T, rig, ReconOptions(max_reprojection_px=1.0, engine=engine))
+    # A loose vote and no triangle test: the engine's outlier loop and rejection run too.
+    runs = {engine: reconstruct(uv, gt, faces, uv, T, rig, ReconOptions(max_reprojection_px=1.0, consensus_px=4.0,
+                                                                        max_stretch=None, engine=engine))
             for engine in ("mvtex", "pycolmap")}
     ours, colmap = runs["mvtex"], runs["pycolmap"]
-    # Every step ran: ambiguity, outlier removal, rejection.
+    # Every step ran: ambiguity, the vote, outlier removal, rejection.
     assert ours.triangulated.sum() > 400 and ours.stats["ambiguous_vertices"] > 0
-    assert ours.stats["outlier_observations"] > 20 and ours.rejected["reprojection"] > 0
+    assert ours.rejected_observations["disagreement"] > 0
+    assert ours.rejected_observations["reprojection"] > 20 and ours.rejected["reprojection"] > 0
     assert ours.stats == colmap.stats
     assert np.array_equal(ours.triangulated, colmap.triangulated)
     assert np.abs(ours.points - colmap.points).max() < 1e-6
     assert ours.rejected == colmap.rejected
+    assert ours.rejected_observations == colmap.rejected_observations
 
 
 def test_reconstruct_input_errors():
@@ -189,6 +234,16 @@ def test_reconstruct_input_errors():
         reconstruct(uv, rest, faces, uv, {"a": uv}, rig)
     with pytest.raises(ValueError, match="engine must be one of mvtex, pycolmap, got 'ceres'"):
         ReconOptions(engine="ceres")
+    with pytest.raises(ValueError, match=r"max_stretch must be > 1 and finite, or None, got 1.0"):
+        ReconOptions(max_stretch=1.0)
+    with pytest.raises(ValueError, match="consensus_px must be a positive finite number, got nan"):
+        ReconOptions(consensus_px=float("nan"))
+    with pytest.raises(ValueError, match="consensus_scale must be ≥ 0 and finite, got -1"):
+        ReconOptions(consensus_scale=-1)
+    with pytest.raises(ValueError, match="fill_shape must be one of rest, inferred, got 'gt'"):
+        ReconOptions(fill_shape="gt")
+    with pytest.raises(ValueError, match=r"max_combinations must be an integer in \[1, 100000\], got 0"):
+        ReconOptions(max_combinations=0)
 
 
 # -- the command: files ---------------------------------------------------------------------------

@@ -1,0 +1,104 @@
+"""The options of the reconstruction (`ReconOptions`), recorded in every report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# Triangulation engines of `ReconOptions.engine`.
+ENGINES = ("mvtex", "pycolmap")
+
+# Shapes the harmonic fill of `ReconOptions.fill_shape` can be solved on.
+FILL_SHAPES = ("rest", "inferred")
+
+
+@dataclass(frozen=True)
+class ReconOptions:
+    """Options of the reconstruction (the `mvtex triangulate` flags mirror them).
+
+    The observation rules (`max_stretch`, `consensus_px`, `consensus_scale`,
+    `max_neighbour_deviation`) were chosen on held-out poses of both built-in garments and
+    three rigs (docs/reconstruction.md).
+
+    Attributes:
+        max_reprojection_px: an observation whose reprojection error exceeds this is dropped
+            (while ≥ 3 remain); a point still above it is rejected ("reprojection").
+        max_surface_distance_m: a point farther than this from the inferred surface is
+            rejected ("surface_distance").
+        max_stretch: an observation located in a triangle with an edge whose ‖ΔT_N‖ exceeds
+            this times its ‖ΔT_G‖ is dropped ("stretched_triangle"): T_N there interpolates
+            across a fold edge, where the material jumps inside the triangle. None: keep all.
+        consensus_px: inlier threshold (px) of the cameras' vote: per vertex, the pair of
+            observations whose point the most other cameras see within this (least summed
+            truncated squared error) wins, and only the observations within it of the final
+            point are used ("disagreement" for the others); a vertex whose best pair does
+            not agree within it is not triangulated.
+        consensus_scale: the threshold grows to this many times the pose's median
+            reprojection error where that is larger than consensus_px (noisy texcoords,
+            e.g. predicted ones). 0: the fixed threshold only.
+        max_neighbour_deviation: a triangulated point whose displacement from the inferred
+            surface differs from the median of its triangulated neighbours' (within two
+            rings) by more than this many times the pose's median such deviation is rejected
+            ("neighbours"). None: no such test.
+        fill_shape: the shape the harmonic extension of the displacement to untriangulated
+            vertices is solved on: "rest" (the dataset's rest shape, else the inferred mesh)
+            or "inferred".
+        smooth: Taubin-smooth the reconstructed displacement (for noisy inputs, e.g. TSNN).
+        smooth_iterations: Taubin passes (each a +lambda and a -mu step).
+        uv_resolution: texels per side of the UV lookup buffer.
+        depth_tolerance: relative depth slack of the visibility test.
+        require_assigned: drop hypotheses in triangles with an unassigned (extrapolated)
+            corner, when the texcoord set says which are assigned.
+        max_combinations: at most this many hypothesis pairs are tried per vertex.
+        refine_iterations: Gauss-Newton steps after the DLT (engine "mvtex", and the vote
+            of both engines).
+        error_scale_m: error heatmaps run from blue (0) to red (≥ this).
+        strain_scale: strain pictures run from blue (-this, compression) to red (+this).
+        engine: who triangulates the tracks: "mvtex" (vectorised DLT + Gauss-Newton, the
+            default: faster) or "pycolmap" (COLMAP's multi-view triangulation + points-only
+            bundle adjustment); both reach the same least-squares points.
+    """
+
+    max_reprojection_px: float = 2.0
+    max_surface_distance_m: float = 0.05
+    max_stretch: float | None = 2.0
+    consensus_px: float = 0.5
+    consensus_scale: float = 0.0
+    max_neighbour_deviation: float | None = None
+    fill_shape: str = "rest"
+    smooth: bool = False
+    smooth_iterations: int = 10
+    uv_resolution: int = 1024
+    depth_tolerance: float = 0.005
+    require_assigned: bool = True
+    max_combinations: int = 256
+    refine_iterations: int = 5
+    error_scale_m: float = 0.01
+    strain_scale: float = 0.1
+    engine: str = "mvtex"
+
+    def __post_init__(self) -> None:
+        positive = {"max_reprojection_px": self.max_reprojection_px,
+                    "max_surface_distance_m": self.max_surface_distance_m, "consensus_px": self.consensus_px,
+                    "depth_tolerance": self.depth_tolerance, "error_scale_m": self.error_scale_m,
+                    "strain_scale": self.strain_scale}
+        for name, value in positive.items():
+            if not value > 0 or value == float("inf"):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if self.max_stretch is not None and not 1 < self.max_stretch < float("inf"):
+            raise ValueError(f"max_stretch must be > 1 and finite, or None, got {self.max_stretch!r}")
+        if not 0 <= self.consensus_scale < float("inf"):
+            raise ValueError(f"consensus_scale must be ≥ 0 and finite, got {self.consensus_scale!r}")
+        if self.max_neighbour_deviation is not None and not 0 < self.max_neighbour_deviation < float("inf"):
+            raise ValueError(f"max_neighbour_deviation must be positive and finite, or None, "
+                             f"got {self.max_neighbour_deviation!r}")
+        if self.fill_shape not in FILL_SHAPES:
+            raise ValueError(f"fill_shape must be one of {', '.join(FILL_SHAPES)}, got {self.fill_shape!r}")
+        for name, value, low, high in (("smooth_iterations", self.smooth_iterations, 0, 1000),
+                                       ("uv_resolution", self.uv_resolution, 16, 8192),
+                                       ("max_combinations", self.max_combinations, 1, 100000),
+                                       ("refine_iterations", self.refine_iterations, 0, 100)):
+            if int(value) != value or not low <= value <= high:
+                raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+        if self.engine not in ENGINES:
+            raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {self.engine!r}")
