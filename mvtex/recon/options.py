@@ -16,9 +16,8 @@ FILL_SHAPES = ("rest", "inferred")
 class ReconOptions:
     """Options of the reconstruction (the `mvtex triangulate` flags mirror them).
 
-    The observation rules (`max_stretch`, `consensus_px`, `consensus_scale`,
-    `max_neighbour_deviation`) were chosen on held-out poses of both built-in garments and
-    three rigs (docs/reconstruction.md).
+    The observation rules (`max_stretch`, `consensus_px`, `consensus_scale`) were chosen on
+    held-out poses of both built-in garments and three rigs (docs/reconstruction.md).
 
     Attributes:
         max_reprojection_px: an observation whose reprojection error exceeds this is dropped
@@ -36,10 +35,6 @@ class ReconOptions:
         consensus_scale: the threshold grows to this many times the pose's median
             reprojection error where that is larger than consensus_px (noisy texcoords,
             e.g. predicted ones). 0: the fixed threshold only.
-        max_neighbour_deviation: a triangulated point whose displacement from the inferred
-            surface differs from the median of its triangulated neighbours' (within two
-            rings) by more than this many times the pose's median such deviation is rejected
-            ("neighbours"). None: no such test.
         fill_shape: the shape the harmonic extension of the displacement to untriangulated
             vertices is solved on: "rest" (the dataset's rest shape, else the inferred mesh)
             or "inferred".
@@ -61,10 +56,9 @@ class ReconOptions:
 
     max_reprojection_px: float = 2.0
     max_surface_distance_m: float = 0.05
-    max_stretch: float | None = 2.0
+    max_stretch: float | None = 1.75
     consensus_px: float = 0.5
-    consensus_scale: float = 0.0
-    max_neighbour_deviation: float | None = None
+    consensus_scale: float = 4.0
     fill_shape: str = "rest"
     smooth: bool = False
     smooth_iterations: int = 10
@@ -89,9 +83,6 @@ class ReconOptions:
             raise ValueError(f"max_stretch must be > 1 and finite, or None, got {self.max_stretch!r}")
         if not 0 <= self.consensus_scale < float("inf"):
             raise ValueError(f"consensus_scale must be ≥ 0 and finite, got {self.consensus_scale!r}")
-        if self.max_neighbour_deviation is not None and not 0 < self.max_neighbour_deviation < float("inf"):
-            raise ValueError(f"max_neighbour_deviation must be positive and finite, or None, "
-                             f"got {self.max_neighbour_deviation!r}")
         if self.fill_shape not in FILL_SHAPES:
             raise ValueError(f"fill_shape must be one of {', '.join(FILL_SHAPES)}, got {self.fill_shape!r}")
         for name, value, low, high in (("smooth_iterations", self.smooth_iterations, 0, 1000),

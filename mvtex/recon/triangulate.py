@@ -19,8 +19,8 @@ these steps, each a function of its own:
    (the engine: `mvtex.recon.geometry.triangulate_points`, DLT + Gauss-Newton, or COLMAP
    through `mvtex.formats.colmap.triangulate_tracks`), dropping its worst observation while it
    exceeds options.max_reprojection_px.
-5. `accept_points`: reject points behind a camera, with implausible reprojection error, far
-   from the inferred surface, or whose displacement disagrees with their neighbours'.
+5. `accept_points`: reject points behind a camera, with implausible reprojection error or
+   far from the inferred surface.
 6. `pool_and_fill`: seam copies pool their displacement; vertices not triangulated get X_N
    plus a harmonic extension of it (on the rest shape, `mvtex.sliding.fill.fill`); optional
    Taubin smoothing.

@@ -214,3 +214,25 @@ def test_every_hypothesis_is_accounted_for(planted):
         used = sum(np.isfinite(o[:, 0]).sum() for o in rec.observations.values())
         assert used == rec.stats["used_observations"]
         assert rec.stats["hypotheses"] == used + sum(rec.rejected_observations.values())
+
+
+def test_threshold_grows_with_the_noise_of_the_observations():
+    """consensus_scale: the threshold is that many times the median reprojection error of
+    the points triangulated from every observation (no outliers here, 0.3 px noise, so the
+    loose vote keeps them all); with scale 0 it is consensus_px."""
+    from mvtex.recon.geometry import reprojection_errors, triangulate_points
+    from mvtex.recon.triangulate import ReconOptions, consensus_threshold
+
+    rng = np.random.default_rng(4)
+    cams = list(square_rig(640, 480))
+    X = rng.uniform(-0.2, 0.2, size=(200, 3))
+    px = np.stack([c.project(X)[0] for c in cams], axis=1) + rng.normal(scale=0.3, size=(200, 4, 2))
+    V, Cm = np.meshgrid(np.arange(200), np.arange(4), indexing="ij")
+    hyp = hypotheses_of(V.ravel(), Cm.ravel(), px.reshape(-1, 2))
+    points = triangulate_points(cams, px, np.ones((200, 4)))
+    expected = 3.0 * np.median(reprojection_errors(cams, points, px))
+    assert expected > 0.5
+    got = consensus_threshold(hyp, 200, cams, ReconOptions(consensus_px=0.5, consensus_scale=3.0))
+    assert got == pytest.approx(expected, rel=1e-9)
+    assert consensus_threshold(hyp, 200, cams, ReconOptions(consensus_px=0.5)) == 0.5
+    assert consensus_threshold(hyp, 200, cams, ReconOptions(consensus_px=5.0, consensus_scale=3.0)) == 5.0

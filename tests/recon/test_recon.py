@@ -192,6 +192,28 @@ def test_untriangulated_get_the_extended_displacement(gl):
     assert np.abs(rec.points - rest).max() < 1e-6
 
 
+def test_fill_on_the_rest_shape_extends_a_linear_field_exactly():
+    """Harmonic (cotangent) extension reproduces fields linear in the shape it is solved on
+    (closed form on a flat sheet): solved on the flat rest shape, a displacement linear in
+    the rest coordinates known on the border and a few rows comes back exactly inside;
+    solved on the wavy inferred shape it does not."""
+    from mvtex.recon.triangulate import ReconOptions, pool_and_fill
+
+    faces, uv, rest = grid_mesh(30, 26)
+    inferred = wave(rest, 0.03, 0.7, wavelength=0.2)
+    disp = rest @ np.array([[0.02, 0.0, -0.01], [0.01, 0.03, 0.0], [0.0, 0.0, 0.0]]) + np.array([0.001, 0.0, 0.002])
+    rows, cols = np.divmod(np.arange(len(uv)), 30)
+    known = (rows == 0) | (rows == 25) | (cols == 0) | (cols == 29) | (rows % 8 == 4)
+    points = np.where(known[:, None], inferred + disp, np.nan)
+    on_rest, _, _ = pool_and_fill(points, known, inferred, faces, ReconOptions(fill_shape="rest"), rest=rest)
+    on_inferred, _, _ = pool_and_fill(points, known, inferred, faces, ReconOptions(fill_shape="inferred"), rest=rest)
+    assert np.abs(on_rest - (inferred + disp)).max() < 1e-12
+    assert np.abs(on_inferred - (inferred + disp)).max() > 1e-5
+    assert np.array_equal(on_rest[known], on_inferred[known])
+    without_rest, _, _ = pool_and_fill(points, known, inferred, faces, ReconOptions(fill_shape="rest"))
+    assert np.array_equal(without_rest, on_inferred)  # no rest shape: the inferred one
+
+
 def test_engines_agree_on_a_noisy_reconstruction(gl):
     """Noisy texcoords, three cameras: `engine="pycolmap"` triangulates the same vertices
     to the same points as the default engine (< 1e-6 m), through every step."""

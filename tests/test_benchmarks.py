@@ -1,0 +1,37 @@
+"""The benchmark scripts behind the tables of docs/ run (small sizes)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+pytestmark = pytest.mark.gl
+
+
+def load(name: str):
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.slow
+def test_table_recon_small(tmp_path):
+    from mvtex.recon.consensus import OBSERVATION_REASONS
+
+    summary = load("table_recon").main([str(tmp_path), "--garments", "shirt", "--rigs", "stereo", "--num-poses", "10",
+                                        "--poses", "0:2", "--subdiv", "0", "--recon", "max_stretch=off",
+                                        "--json", str(tmp_path / "out.json")])
+    assert summary["options"]["max_stretch"] is None and summary["slide"]["subdiv"] == 0
+    (row,) = summary["rows"]
+    assert (row["garment"], row["rig"], row["texcoords"]) == ("shirt", "stereo", "TS")
+    assert row["poses"] == [0, 1] and 0 < row["triangulated_share"] < 1
+    assert row["rmse_triangulated_mm"]["reconstructed"] < row["rmse_triangulated_mm"]["inferred"]
+    assert row["ratio_triangulated"]["worst"] <= row["ratio_triangulated"]["median"]
+    assert set(row["rejected_observations"]) == set(OBSERVATION_REASONS)
+    assert row["rejected_observations"]["stretched_triangle"] == 0  # the test is off
+    assert summary["table"].count("| shirt | stereo | TS |") == 2
+    assert (tmp_path / "out.json").exists()
