@@ -120,6 +120,6 @@ def fake_model(path: Path, dataset) -> Path:
     save_file(TSNN(config).state_dict(), str(path / "model.safetensors"))
     meta = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": "a", "architecture": config.to_dict(),
             "mesh": {"subdiv": 0, "num_base_vertices": ds.num_vertices, "num_vertices": ds.num_vertices,
-                     "base_mesh_sha256": mesh_fingerprint(ds.faces, ds.uv)}}
+                     "base_mesh": mesh_fingerprint(ds.faces, ds.uv)}}
     (path / "config.json").write_text(json.dumps(meta))
     return path

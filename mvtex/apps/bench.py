@@ -21,11 +21,12 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig
-from mvtex.sliding.hits import Hits, find_hits_raster, intersect_pairs
+from mvtex.data.rig import Rig, check_sees
+from mvtex.sliding.hits import Hits, find_hits_raster, in_front, intersect_pairs, owning_vertices
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import displacement_from_hits
 from mvtex.sliding.topology import SlideTopology, build_topology
+from mvtex.util.parallel import check_backend
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
@@ -67,9 +68,7 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     owner = _first_hits(inf_rt, np.broadcast_to(origin, dirs_px.shape), dirs_px, len(topo.faces))
     owned = np.zeros(len(topo.faces), bool)
     owned[owner[owner >= 0]] = True
-    touched = np.zeros(n, bool)
-    touched[topo.faces[owned].ravel()] = True
-    cand = np.flatnonzero(touched & camera.in_image(pixels, z))
+    cand = owning_vertices(owned, topo, camera, pixels, z)
     # Rule 2: the first inferred surface along the vertex ray is not (much) nearer.
     dirs = X[cand] - origin
     unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -78,7 +77,7 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     has = occ >= 0
     t_occ[has] = intersect_pairs(origin, dirs[has], X, topo.faces, occ[has])[0]
     # Embree's float32 hit can miss in float64 by a hair at an edge: then it is not an occluder.
-    vis = ~(t_occ < 1 - options.depth_tolerance)
+    vis = in_front(t_occ, options)
     cand, dirs, unit = cand[vis], dirs[vis], unit[vis]
     visible = np.zeros(n, bool)
     visible[cand] = True
@@ -174,9 +173,12 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     from mvtex.data.rig import as_rig
     from mvtex.render.context import GLContext
 
+    check_backend(workers)
     ds = as_dataset(dataset)
-    rig = as_rig(rig)[0]
-    poses = list(range(min(10, ds.num_poses))) if poses is None else [int(p) for p in poses]
+    rig, rig_source = as_rig(rig)
+    poses = list(range(min(10, ds.num_poses))) if poses is None else ds.check_poses(poses)
+    check_sees(rig, np.asarray(ds.inferred[poses[0]]), rig_source,
+               what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
     if ctx is None:
         with GLContext() as own:
             return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,

@@ -24,14 +24,15 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from mvtex.data.rig import Rig
-from mvtex.util.parallel import ThreadState
+from mvtex.data.rig import Rig, check_sees
+from mvtex.util.files import read_row
+from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
@@ -39,27 +40,93 @@ from mvtex.evaluation.material import MATERIAL_HEATMAP_MAX_MM, MaterialMap, _mat
 from mvtex.evaluation.uv import CHART_BOUNDARY_COLOR, HEATMAP_MAX, chart_image, masked_uv_error, texcoord_image
 
 
-def _stats(values: Sequence[float]) -> dict:
-    v = np.asarray([x for x in values if np.isfinite(x)], dtype=np.float64)
-    if v.size == 0:
-        return {"mean": float("nan"), "std": float("nan")}
-    return {"mean": float(v.mean()), "std": float(v.std())}
+@dataclass(frozen=True)
+class Stats:
+    """Mean and standard deviation of a per-image error over images (NaN when none counts)."""
+
+    mean: float
+    std: float
+
+    @classmethod
+    def of(cls, values: Sequence[float]) -> "Stats":
+        v = np.asarray([x for x in values if np.isfinite(x)], dtype=np.float64)
+        return cls(float("nan"), float("nan")) if v.size == 0 else cls(float(v.mean()), float(v.std()))
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """One error of the baseline (the inferred mesh with T_G, "inferred") and of a texcoord
+    set ("texcoords") over the same images."""
+
+    inferred: Stats
+    texcoords: Stats
+
+    @property
+    def ratio(self) -> float:
+        """inferred mean / texcoords mean: how many times smaller the texcoords' error is (NaN
+        when undefined)."""
+        t = self.texcoords.mean
+        return self.inferred.mean / t if np.isfinite(t) and t > 0 else float("nan")
+
+    def to_json(self) -> dict:
+        return {"inferred": asdict(self.inferred), "texcoords": asdict(self.texcoords)}
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """What `evaluate` measures (DESIGN §7 `mvtex eval`).
+
+    Attributes:
+        num_images: images where both meshes cover a pixel (the others are skipped).
+        sqrt_mse: the per-pixel uv error (DESIGN §5), SqrtMSE per image.
+        sqrt_mse_same_chart: the same over the pixels where both meshes show one UV chart.
+        material_rmse_m: the material error in meters, RMSE per image; None for a dataset
+            without a rest shape.
+        per_camera: camera name -> the same for its images (no `per_camera` of its own).
+    """
+
+    num_images: int
+    sqrt_mse: Comparison
+    sqrt_mse_same_chart: Comparison
+    material_rmse_m: Comparison | None
+    per_camera: dict[str, "Evaluation"] = field(default_factory=dict)
+
+    @property
+    def ratio(self) -> float:
+        return self.sqrt_mse.ratio
+
+    @property
+    def ratio_same_chart(self) -> float:
+        return self.sqrt_mse_same_chart.ratio
+
+    @property
+    def ratio_material(self) -> float | None:
+        return None if self.material_rmse_m is None else self.material_rmse_m.ratio
+
+    def to_json(self) -> dict:
+        """The JSON object of `mvtex eval --json`."""
+        out = {"num_images": self.num_images,
+               "sqrt_mse": self.sqrt_mse.to_json(), "ratio": self.ratio,
+               "sqrt_mse_same_chart": self.sqrt_mse_same_chart.to_json(), "ratio_same_chart": self.ratio_same_chart,
+               "material_rmse_m": None if self.material_rmse_m is None else self.material_rmse_m.to_json(),
+               "ratio_material": self.ratio_material}
+        if self.per_camera:
+            out["per_camera"] = {name: e.to_json() for name, e in self.per_camera.items()}
+        return out
 
 
 def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same: list[float],
-             base_material: list[float] | None = None, tc_material: list[float] | None = None) -> dict:
+             base_material: list[float] | None = None, tc_material: list[float] | None = None,
+             per_camera: dict[str, Evaluation] | None = None) -> Evaluation:
+    """Per-image errors (NaN where an image does not count) -> an `Evaluation` over the
+    images where both the baseline and the texcoords have an error."""
     ok = [i for i in range(len(base)) if np.isfinite(base[i]) and np.isfinite(tc[i])]
-    out = {"num_images": len(ok)}
-    for key, ratio_key, (b, t) in (("sqrt_mse", "ratio", (base, tc)), ("sqrt_mse_same_chart", "ratio_same_chart",
-                                                                         (base_same, tc_same)),
-                                   ("material_rmse_m", "ratio_material", (base_material, tc_material))):
-        if b is None:
-            out[key] = out[ratio_key] = None
-            continue
-        sb, st = _stats([b[i] for i in ok]), _stats([t[i] for i in ok])
-        out[key] = {"inferred": sb, "texcoords": st}
-        out[ratio_key] = sb["mean"] / st["mean"] if ok and st["mean"] > 0 else float("nan")
-    return out
+
+    def compare(b, t):
+        return None if b is None else Comparison(Stats.of([b[i] for i in ok]), Stats.of([t[i] for i in ok]))
+
+    return Evaluation(num_images=len(ok), sqrt_mse=compare(base, tc), sqrt_mse_same_chart=compare(base_same, tc_same),
+                      material_rmse_m=compare(base_material, tc_material), per_camera=per_camera or {})
 
 
 @dataclass(frozen=True)
@@ -77,20 +144,14 @@ class _EvalSpec:
 
 
 @dataclass
-class _EvalState:
-    """A thread's opened inputs and GL context for one `_EvalSpec`."""
+class _EvalState(WorkerState):
+    """A thread's opened inputs (and GL context) for one `_EvalSpec`."""
 
     dataset: Any
     texcoord_set: Any
     charts: np.ndarray
     charts_tc: np.ndarray
-    ctx: Any
     material_map: MaterialMap | None
-    owns_ctx: bool
-
-    def release(self) -> None:
-        if self.owns_ctx:
-            self.ctx.release()
 
 
 _EVAL_STATE = ThreadState()  # each thread's _EvalState, one set at a time
@@ -101,8 +162,8 @@ def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool) -> _EvalState:
 
     charts = uv_charts(ds.faces, ds.num_vertices)
     material_map = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=ctx) if ds.rest is not None else None
-    return _EvalState(ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)), ctx, material_map,
-                      owns_ctx)
+    return _EvalState(ctx, owns_ctx, ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)),
+                      material_map)
 
 
 def _eval_state(spec: _EvalSpec) -> _EvalState:
@@ -122,7 +183,7 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
     """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b,
     same_t, material_b, material_t) each (NaN material without a rest shape)."""
     from mvtex.render.pictures import colorbar, heatmap, side_by_side
-    from mvtex.util.files import read_row, save_png
+    from mvtex.util.files import save_png
 
     state = _EVAL_STATE.get(spec.key, lambda: _eval_state(spec))
     ds, tc, ctx, material_map = state.dataset, state.texcoord_set, state.ctx, state.material_map
@@ -170,8 +231,8 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
 
 
 def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
-             heatmaps: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
-             scheduler: str | None = None, ctx: GLContext | None = None) -> dict:
+             cameras: Sequence[str] | None = None, heatmaps: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
+             scheduler: str | None = None, ctx: GLContext | None = None) -> Evaluation:
     """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
 
     "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
@@ -182,6 +243,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         dataset: `Dataset` or dataset directory.
         rig: `Rig` or rig path / built-in name. A rig whose cameras are all in the set
             selects those cameras; otherwise it must contain every camera of the set.
+        cameras: evaluate these cameras of the rig and the set only (default: as above).
         texcoord_set: `TexcoordSet` or its directory.
         poses: dataset pose indices (default: the set's poses).
         heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
@@ -198,11 +260,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         into (pose, camera) order before any statistic is taken.
 
     Returns:
-        {"num_images", "sqrt_mse": {"inferred": {"mean", "std"}, "texcoords": {...}},
-         "ratio": inferred mean / texcoords mean, "sqrt_mse_same_chart": {...},
-         "ratio_same_chart", "material_rmse_m": {"inferred": {"mean", "std"}, "texcoords": {...}}
-         (meters; None when the dataset has no `rest`), "ratio_material" (None likewise),
-         "per_camera": {name: same keys}}.
+        An `Evaluation`; `.to_json()` is the JSON object of `mvtex eval --json`.
     """
     from tqdm import tqdm
 
@@ -212,6 +270,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     from mvtex.render.context import GLContext
     from mvtex.util.parallel import map_unordered
 
+    check_backend(workers, scheduler)
     ds = as_dataset(dataset)
     tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
     if tc.num_base_vertices != ds.num_vertices:
@@ -219,9 +278,14 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
 
         raise InputError(tc.path / "mesh.npz", f"made for {tc.num_base_vertices} vertices, the dataset has {ds.num_vertices}")
     rig, rig_source = as_rig(rig)
-    if not set(rig.names) <= set(tc.cameras):
+    if cameras is not None:
+        rig = rig.select(list(cameras), source=rig_source)
+    elif not set(rig.names) <= set(tc.cameras):
         rig = rig.select(tc.cameras, source=rig_source)
     poses = tc.poses if poses is None else [int(p) for p in poses]
+    if poses:
+        check_sees(rig, read_row(ds.inferred, poses[0]), rig_source,
+                   what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
     for p in poses:
         tc.row(p)  # InputError for a pose the set does not have
     for name in rig.names:
@@ -253,7 +317,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     for (_, _, name), image in zip(jobs, values):
         for column, value in zip(per_cam[name], image):
             column.append(value)
-    result = _summary(*([v for c in per_cam.values() for v in c[i]] if i < 4 or has_rest else None for i in range(6)))
-    result["per_camera"] = {name: _summary(*lists[:4], *(lists[4:] if has_rest else (None, None)))
-                            for name, lists in per_cam.items()}
-    return result
+    per_camera = {name: _summary(*lists[:4], *(lists[4:] if has_rest else (None, None)))
+                  for name, lists in per_cam.items()}
+    return _summary(*([v for c in per_cam.values() for v in c[i]] if i < 4 or has_rest else None for i in range(6)),
+                    per_camera=per_camera)

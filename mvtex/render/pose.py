@@ -18,10 +18,10 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.dataset import Dataset
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_sees
 from mvtex.data.texcoords import TexcoordSet
 from mvtex.util.errors import InputError
-from mvtex.util.files import save_png, write_json
+from mvtex.util.files import read_row, save_png, write_json
 from mvtex.util.output import atomic_path
 
 if TYPE_CHECKING:
@@ -74,6 +74,8 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
     for cam in rig:
         cam.require_pinhole(rig_path)
+    check_sees(rig, read_row(dataset.inferred, pose), rig_path,
+               what=f"the inferred mesh of {dataset.path} at pose {pose}")
     if ctx is None:
         with GLContext() as own:
             return render_pose(dataset, rig, pose, out, texcoord_set=texcoord_set, raster=raster,

@@ -180,6 +180,30 @@ def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: 
     return out_tri, bary, out_back
 
 
+def owning_vertices(owned: np.ndarray, topo: SlideTopology, camera: Camera, pixels: np.ndarray,
+                    depth: np.ndarray) -> np.ndarray:
+    """Rule 1 of visibility (the paper's): the vertices of an (subdivided) inferred triangle
+    that owns at least one pixel, and whose projection lies in the image.
+
+    Args:
+        owned: (m',) bool, which subdivided faces own a pixel.
+        pixels, depth: (n',2) and (n',) the vertices' projections (`Camera.project`).
+
+    Returns:
+        (k,) int64 vertex indices, increasing.
+    """
+    touched = np.zeros(len(topo.uv), bool)
+    touched[topo.faces[owned].ravel()] = True
+    return np.flatnonzero(touched & camera.in_image(pixels, depth))
+
+
+def in_front(t_first: np.ndarray, options: SlideOptions) -> np.ndarray:
+    """Rule 2 of visibility: nothing of the inferred mesh lies before the vertex on its ray,
+    given the nearest occluder's t (t = 1 at the vertex, inf for none), with the relative
+    tolerance `options.depth_tolerance`. (k,) bool."""
+    return t_first >= 1 - options.depth_tolerance
+
+
 def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray,
                      topo: SlideTopology, camera: Camera, options: SlideOptions, *, compiled: bool = True) -> Hits:
     """Visibility and first gt hits by rasterization + exact candidate intersection.
@@ -204,13 +228,9 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     # bound the read-back region (the inferred base vertices are among X's first n).
     gt_ids, sub_ids = rasterize_pair(ctx, gt, inferred, faces, camera, levels=len(topo.levels) - 1,
                                      pixels=np.concatenate([gt_pixels, pixels]))
-    # Rule 1 (the paper's): an incident (subdivided) triangle owns at least one pixel.
-    covered = sub_ids[sub_ids >= 0]
     owned = np.zeros(len(topo.faces), bool)
-    owned[covered] = True
-    touched = np.zeros(n, bool)
-    touched[topo.faces[owned].ravel()] = True
-    cand = np.flatnonzero(touched & camera.in_image(pixels, z))
+    owned[sub_ids[sub_ids >= 0]] = True
+    cand = owning_vertices(owned, topo, camera, pixels, z)
     # Rule 2: nothing of the inferred mesh in front of the vertex along its ray (t = 1 at the
     # vertex). Candidate occluders: the base inferred triangles drawn around its projection
     # (the same surface as their subdivided children).
@@ -231,7 +251,7 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
         ray, tri = ray[other], tri[other]
         t_occ = intersect_pairs(origin, dirs[ray], inferred, faces, tri)[0]
         _, t_first = _first_per_ray(ray, t_occ, len(cand))
-    front = t_first >= 1 - options.depth_tolerance
+    front = in_front(t_first, options)
     cand, dirs = cand[front], dirs[front]
     visible = np.zeros(n, bool)
     visible[cand] = True

@@ -11,7 +11,7 @@ from typing import Any, Sequence
 
 from mvtex.tsnn.modeldir import _kept_model
 from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, train
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 
 def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
@@ -44,22 +44,20 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         {"out", "cameras", "arch", "models": {camera: the `train` summary}, "kept": the
         cameras whose models were kept}.
     """
-    from mvtex.util.parallel import map_unordered
+    from mvtex.util.parallel import check_backend, map_unordered
 
     out = Path(out)
+    check_backend(workers, scheduler)
     cameras = list(cameras)
     missing = [c for c in cameras if c not in texcoords.cameras]
     if missing:
         raise InputError(texcoords.path, f"no camera {missing[0]!r} in this texcoord set "
                          f"(it has {', '.join(texcoords.cameras)})")
     if len(set(cameras)) != len(cameras):
-        raise InputError(None, f"cameras listed twice: {cameras}")
+        raise OptionError(f"cameras lists a camera twice: {', '.join(cameras)}")
     for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
         texcoords.displacement(c, texcoords.poses[0])
-    try:
-        resolved = _resolve(options, cameras[0])
-    except ValueError as err:
-        raise InputError(None, f"training options: {err}") from None
+    resolved = _resolve(options, cameras[0])
     split = _split(dataset, texcoords)
     dataset_hash = None
     models: dict[str, Any] = {}

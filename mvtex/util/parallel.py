@@ -16,8 +16,33 @@ only then. Workers there must be able to import mvtex and read the same dataset 
 from __future__ import annotations
 
 import os
+import re
 import sys
+from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
+
+
+def check_backend(workers: int | None = None, scheduler: str | None = None, *, timeout: float = 5.0) -> None:
+    """Refuse (OptionError) a worker count below 1, and a Dask scheduler address that is not
+    `tcp://HOST:PORT` (or `HOST:PORT`) or where nothing accepts a connection within
+    `timeout` seconds: before any work starts or anything is written."""
+    import socket
+
+    from mvtex.util.errors import OptionError
+
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise OptionError(f"workers must be an integer of at least 1, got {workers!r}")
+    if scheduler is None:
+        return
+    match = re.fullmatch(r"(?:(?:tcp|tls)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9._-]+):(\d{1,5})/?", str(scheduler).strip())
+    if not match or not 0 < int(match.group(2)) < 65536:
+        raise OptionError(f"scheduler must be a Dask scheduler address tcp://HOST:PORT, got {scheduler!r}")
+    host, port = match.group(1).strip("[]"), int(match.group(2))
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as err:
+        raise OptionError(f"scheduler: nothing accepts a connection at {host}:{port} ({err.strerror or err}); "
+                          "start one with `dask scheduler`") from None
 
 
 def map_unordered(fn: Callable[..., Any], tasks: Sequence[tuple], *, workers: int = 1, scheduler: str | None = None,
@@ -70,6 +95,20 @@ class ThreadState:
         self._local.held = None if value is None else (key, value)
         if old is not None and old[1] is not value:
             old[1].release()
+
+
+@dataclass
+class WorkerState:
+    """What a worker thread keeps between the tasks of one run: its GL context (a
+    `mvtex.render.context.GLContext`, released with the state when the worker made it) and,
+    in subclasses, the run's opened inputs (`ThreadState` holds one per thread)."""
+
+    ctx: Any
+    owns_ctx: bool
+
+    def release(self) -> None:
+        if self.owns_ctx:
+            self.ctx.release()
 
 
 def _processes(fn, tasks: list, workers: int, max_in_flight: int) -> Iterator[Any]:

@@ -16,8 +16,8 @@ import numpy as np
 
 from mvtex.data.camera import Camera, check_camera_name
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError
-from mvtex.util.parallel import ThreadState
+from mvtex.util.errors import InputError, OptionError
+from mvtex.util.parallel import ThreadState, check_backend
 from mvtex.views.cameras import check_weights, interpolate_camera
 from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
 
@@ -98,20 +98,20 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     from tqdm import tqdm
 
     from mvtex.data.rig import save_rig
-    from mvtex.data.texcoords import open_unfinished
-    from mvtex.util.files import dumps_strict, load_npy, save_npy, write_npy_rows
+    from mvtex.data.texcoords import PartialSet
+    from mvtex.util.files import dumps_strict
     from mvtex.util.fingerprint import fingerprint
-    from mvtex.util.output import remove_leftovers, replace_path
 
+    check_backend(workers, scheduler)
     if len(weights) != len(names) or not names:
-        raise ValueError("one name per view is needed")
+        raise OptionError("names: one name per view is needed")
     if len(set(names)) != len(names):
-        raise InputError(None, f"view names must be unique, got {list(names)}")
+        raise OptionError(f"names must be unique, got {list(names)}")
     for name in names:  # they become folder names
         try:
             check_camera_name(name)
         except ValueError as err:
-            raise InputError(None, str(err)) from None
+            raise OptionError(f"name: {err}") from None
     weights = [check_weights(w, rig, rig_source) for w in weights]
     synth = ViewSynthesizer(dataset, rig, texcoords, options, rig_source)
     for w in weights:
@@ -135,33 +135,21 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
                          "texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
                          "rig": {c.name: [c.width, c.height, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in rig}}}
     record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
-    partial = out.with_name(out.name + ".partial")
     with synth:
-        open_unfinished(partial, "views", "views-", faces=texcoords.faces, uv=texcoords.uv,
-                        parent=texcoords.parent, source=f"views-{options.method}", subdiv=texcoords.subdiv,
-                        poses=poses, cameras=list(names), done_masks=["done.npy"], **record)
-        # A run killed while saving the done mask leaves its hidden temporary and aside
-        # copies; without the mask every block is computed again.
-        remove_leftovers(partial, "done.npy")
-        done = np.zeros(len(poses), bool)
-        if (partial / "done.npy").is_file():
-            done = np.array(load_npy(partial / "done.npy", mmap=False), dtype=bool)
+        partial = PartialSet(out, "views", "views-", faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,
+                             source=f"views-{options.method}", subdiv=texcoords.subdiv, poses=poses,
+                             cameras=list(names), record=record)
 
         def write(start: int, disp: dict, asg: dict) -> None:
-            # Through the files, not maps: pages written through a map stay in the process's
-            # resident memory while it is open, which would grow with the run. The rows are
-            # on disk before the done mask says so.
-            count = len(next(iter(asg.values())))
+            rows = range(start, start + len(next(iter(asg.values()))))
             for name in names:
-                for file, values in (("displacement.npy", disp[name]), ("assigned.npy", asg[name])):
-                    write_npy_rows(partial / name / file, range(start, start + count), values)
-            done[start:start + count] = True
-            save_npy(partial / "done.npy", done)
-            bar.update(count * len(names))
+                partial.write(name, rows, disp[name], asg[name])
+            bar.update(len(rows) * len(names))
 
         size = _WRITE_BLOCK
         if workers > 1 or scheduler:  # blocks small enough that every worker gets several
             size = max(1, min(_WRITE_BLOCK, -(-len(poses) // (4 * max(workers, 2)))))
+        done = np.logical_and.reduce([partial.done[name] for name in names])
         starts = [start for start in range(0, len(poses), size) if not done[start:start + size].all()]
         bar = tqdm(total=len(poses) * len(names), initial=int(done.sum()) * len(names),
                    desc=f"views ({options.method})", unit="view", disable=not progress, file=sys.stderr)
@@ -179,10 +167,7 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             for start, disp, asg in map_unordered(_view_block, tasks, workers=workers, scheduler=scheduler):
                 write(start, disp, asg)
         bar.close()
-    save_rig(Rig(tuple(cameras)), partial / "rig.yaml")
-    # Rename the finished set in (an older `out` aside first), then drop the done mask: a
-    # stop in between leaves either a resumable partial or a complete set.
-    replace_path(partial, out)
-    (out / "done.npy").unlink(missing_ok=True)
+    save_rig(Rig(tuple(cameras)), partial.path / "rig.yaml")
+    partial.finish()
     return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,
             "cameras": {c.name: c.center.tolist() for c in cameras}}

@@ -36,7 +36,7 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 BACKGROUND = (40, 40, 46)
 
@@ -61,7 +61,7 @@ class PreviewOptions:
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.ipd) and 0 <= self.ipd < 10):
-            raise ValueError(f"ipd must be in [0, 10) m, got {self.ipd!r}")
+            raise OptionError(f"ipd must be in [0, 10) m, got {self.ipd!r}")
 
 
 def eye_cameras(viewpoint: Camera, ipd: float) -> tuple[Camera, Camera]:

@@ -170,7 +170,7 @@ def test_damaged_obj_imports(which, how, line):
             (root / which).write_text("\n".join(lines) + "\n")
         damage_file(root / which, how)
         inputs = snapshot(root)
-        code = check(["import", root / "ds", "--gt", root / "g*.obj", "--inferred", root / "i*.obj", "--quiet"],
+        code = check(["import", "--out", root / "ds", "--gt", root / "g*.obj", "--inferred", root / "i*.obj", "--quiet"],
                      root, root / "ds", inputs)
         if code == 0:
             from mvtex.data.dataset import load_dataset
@@ -206,9 +206,9 @@ def test_damaged_model_directories(tiny_dataset, path, value, weights):
 @given(option=st.sampled_from([("triangulate", "--max-reprojection-px"), ("triangulate", "--max-surface-distance"),
                                ("triangulate", "--pose"), ("slide", "--max-displacement"), ("slide", "--workers"),
                                ("slide", "--poses"), ("slide", "--subdiv"), ("train", "--epochs"),
-                               ("train", "--resolution"), ("train", "--device"), ("train", "--camera"),
+                               ("train", "--resolution"), ("train", "--device"), ("train", "--cameras"),
                                ("train", "--workers"), ("eval", "--workers"), ("eval", "--poses"),
-                               ("views", "--workers"), ("synth", "--poses")]),
+                               ("views", "--workers"), ("synth", "--num-poses")]),
        value=st.one_of(number_text, hostile_text))
 def test_option_values(tiny_dataset, rig_file, slid_sheet0, option, value):
     """Every option value is either refused in one line or accepted; the run then stops at
@@ -219,11 +219,11 @@ def test_option_values(tiny_dataset, rig_file, slid_sheet0, option, value):
         out.mkdir()
         (out / "keep.txt").write_text("x")
         base = {"triangulate": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--pose", "0"],
-                "slide": ["--rig", root / "rig.yaml"], "train": ["--texcoords", root / "tc", "--camera", "a"],
+                "slide": ["--rig", root / "rig.yaml"], "train": ["--texcoords", root / "tc", "--cameras", "a"],
                 "eval": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--heatmaps", out / "h"],
                 "views": ["--rig", root / "rig.yaml", "--texcoords", root / "tc", "--between", "a,b", "--steps", "2"],
                 "synth": []}[command]
-        target = [out] if command == "synth" else [root / "sheet"]
+        target = ["--out", out] if command == "synth" else [root / "sheet"]
         tail = [] if command in ("eval", "synth") else ["--out", out]
         inputs = snapshot(root)
         argv = [command, *target, *base, *tail, f"{flag}={value}"]
