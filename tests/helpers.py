@@ -56,7 +56,7 @@ def run_json(capsys, *argv) -> dict:
 def one_line_error(code: int, err: str, *needles) -> str:
     """Assert exit code 2 with exactly one error line naming every needle; returns the line."""
     assert code == 2, err
-    lines = [line for line in err.strip().splitlines() if line.startswith("mvtex ")]
+    lines = [line for line in err.strip().splitlines() if line.startswith(("mvtex ", "mvtex:"))]
     assert len(lines) == 1 and "Traceback" not in err, err
     for needle in needles:
         assert str(needle) in lines[0], lines[0]

@@ -113,9 +113,9 @@ def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: 
     jobs, fastest pass in seconds)."""
     from mvtex.data.dataset import load_dataset, reference_shape
     from mvtex.render.context import GLContext
-    from mvtex.util.parallel import single_thread_gl
+    from mvtex.util.parallel import configure_threads
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(dataset_path, validate=False)
     options = SlideOptions(subdiv=subdiv)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)

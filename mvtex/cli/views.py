@@ -62,15 +62,20 @@ def cmd_views(args):
     rig, rig_path = load_rig(args.rig)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
-    with output(args, "views"):
+    import contextlib
+
+    from mvtex.util.output import claim_file
+
+    plot = claim_file(args.plot, "views", overwrite=args.overwrite) if args.plot else contextlib.nullcontext()
+    with output(args, "views"), plot:
         result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses, options=options,
                              rig_source=rig_path, progress=not args.quiet, workers=args.workers or 1,
                              scheduler=args.scheduler)
-    if args.plot is not None:
-        from mvtex.views.measure import path_plot
+        if args.plot is not None:
+            from mvtex.views.measure import path_plot
 
-        result["measured"] = path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
-                                       progress=not args.quiet)
+            result["measured"] = path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
+                                           progress=not args.quiet)
     emit(args, result, f"wrote {len(names)} view(s) x {len(result['poses'])} pose(s) ({args.method}) to {args.out}")
 
 

@@ -63,11 +63,14 @@ class Dataset:
         return parse_pose_spec(spec or default, self.num_poses, self.split, source=self.path)
 
     def check_poses(self, poses) -> list[int]:
-        """Pose indices as ints; InputError (naming the dataset) when none or one out of range."""
+        """Pose indices as ints; InputError (naming the dataset) when none, one out of range
+        or one given twice."""
         poses = [int(p) for p in poses]
         if not poses:
             raise InputError(self.path, "no pose selected")
         _check_range(poses, self.num_poses, self.path)
+        if len(set(poses)) != len(poses):
+            raise InputError(self.path, f"pose {next(p for p in poses if poses.count(p) > 1)} is selected twice")
         return poses
 
 
@@ -94,6 +97,19 @@ def reference_shape(dataset: Dataset) -> np.ndarray:
 def reference_shape_source(dataset: Dataset) -> str:
     """Which shape `reference_shape` takes: "rest" or "gt[0]"."""
     return "rest" if dataset.rest is not None else "gt[0]"
+
+
+def content_fingerprint(dataset: Dataset) -> str:
+    """The fingerprint (`mvtex.util.fingerprint`) of a dataset's content: gt, inferred and
+    pose arrays, and the body's when it has one. Texcoord sets and models record it, so
+    that they are never used with another dataset's content under the same path."""
+    from mvtex.util.fingerprint import fingerprint
+
+    arrays = [dataset.gt, dataset.inferred, dataset.poses]
+    body = getattr(dataset, "body", None)
+    if body is not None:
+        arrays += [body.faces, body.positions]
+    return fingerprint(*arrays)
 
 
 def default_split(num_poses: int, seed: int = 0) -> dict[str, list[int]]:
@@ -129,13 +145,24 @@ def parse_pose_spec(spec: str, num_poses: int, split: dict[str, list[int]] | Non
             parts = spec.split(":")
             if len(parts) > 3:
                 raise ValueError
-            sl = slice(*(int(p) if p.strip() else None for p in parts))
-            indices = list(range(num_poses))[sl]
+            bounds = [int(p) if p.strip() else None for p in parts]
+            if bounds[2:] and bounds[2] == 0:
+                raise ValueError
+            for b in bounds[:2]:
+                if b is not None and not -num_poses <= b <= num_poses:
+                    raise InputError(source, f"pose spec {spec!r} reaches past the poses of the dataset "
+                                     f"(it has {num_poses}: 0..{num_poses - 1})")
+            indices = list(range(num_poses))[slice(*bounds)]
         else:
             indices = [int(p) for p in spec.split(",") if p.strip()]
+    except InputError:
+        raise
     except ValueError:
         raise InputError(source, f"bad pose spec {spec!r} (use all, train, val, test, a:b or 3,5,7)") from None
     _check_range(indices, num_poses, source)
+    if len(set(indices)) != len(indices):
+        twice = next(i for i in indices if indices.count(i) > 1)
+        raise InputError(source, f"pose spec {spec!r} lists pose {twice} twice")
     if not indices:
         raise InputError(source, f"pose spec {spec!r} selects no pose")
     return indices

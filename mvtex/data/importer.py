@@ -13,23 +13,88 @@ from mvtex.data.dataset import save_dataset
 from mvtex.util.errors import InputError
 from mvtex.util.files import load_npy
 
+MESH_SUFFIXES = (".obj", ".ply")
+
 
 def _sorted_glob(pattern: str, what: str) -> list[str]:
-    files = sorted(globlib.glob(pattern))
+    files = sorted(f for f in globlib.glob(pattern) if not os.path.isdir(f))
     if not files:
         raise InputError(pattern, f"no {what} files match")
+    stray = [f for f in files if Path(f).suffix.lower() not in MESH_SUFFIXES]
+    if stray:
+        raise InputError(stray[0], f"matches the {what} glob {pattern!r} but is not an OBJ or PLY file; "
+                         "narrow the glob")
     return files
 
 
+def _check_obj_text(file: str) -> None:
+    """What trimesh would read silently differently, in one line: bytes that are not text,
+    faces that are not triangles, face indices out of range."""
+    try:
+        text = Path(file).read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(file, "is not a text OBJ file (it does not decode as UTF-8)") from None
+    lines = text.splitlines()
+    total = sum(1 for line in lines if line.startswith("v "))
+    vertices = 0  # defined so far: negative indices count back from here
+    for number, line in enumerate(lines, start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if fields[0] == "v":
+            vertices += 1
+        elif fields[0] == "f":
+            if len(fields) != 4:
+                raise InputError(file, f"line {number}: a face of {len(fields) - 1} vertices; mvtex reads "
+                                 "triangle meshes (triangulate it first)")
+            for ref in fields[1:]:
+                try:
+                    index = int(ref.split("/")[0])
+                except ValueError:
+                    raise InputError(file, f"line {number}: bad face vertex {ref!r}") from None
+                if not (1 <= index <= total or -vertices <= index <= -1):
+                    raise InputError(file, f"line {number}: face vertex {index} out of range (the file has "
+                                     f"{total} vertices)")
+
+
+def _ply_face_count(file: str) -> int | None:
+    """The face count a PLY header declares (None when not readable as a PLY header)."""
+    with open(file, "rb") as f:
+        head = f.read(4096)
+    if not head.startswith(b"ply"):
+        return None
+    for line in head.split(b"end_header")[0].splitlines():
+        fields = line.split()
+        if fields[:2] == [b"element", b"face"] and len(fields) == 3 and fields[2].isdigit():
+            return int(fields[2])
+    return None
+
+
 def _read_mesh(file: str):
+    import logging
+    import warnings
+
     import trimesh
 
+    if Path(file).suffix.lower() == ".obj":
+        _check_obj_text(file)
+    log = logging.getLogger("trimesh")
+    level = log.level
+    log.setLevel(logging.CRITICAL)  # its warnings would be lines besides mvtex's one-line error
     try:
-        mesh = trimesh.load(file, process=False, maintain_order=True, force="mesh")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load(file, process=False, maintain_order=True, force="mesh")
     except Exception as err:  # trimesh raises many kinds for unreadable files
         raise InputError(file, f"cannot read mesh ({type(err).__name__}: {err})") from None
+    finally:
+        log.setLevel(level)
     if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
         raise InputError(file, "no triangle faces")
+    declared = _ply_face_count(file) if Path(file).suffix.lower() == ".ply" else None
+    if declared is not None and declared != len(mesh.faces):
+        raise InputError(file, f"declares {declared} faces that make {len(mesh.faces)} triangles: mvtex reads "
+                         "triangle meshes (triangulate it first)")
     return mesh
 
 

@@ -171,9 +171,9 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
     from mvtex.render.context import GLContext
-    from mvtex.util.parallel import single_thread_gl
+    from mvtex.util.parallel import configure_threads
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     tc = open_texcoords(spec.texcoords, ds.num_vertices)
     return _open_eval_state(ds, tc, GLContext(), True)
@@ -273,15 +273,13 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     check_backend(workers, scheduler)
     ds = as_dataset(dataset)
     tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
-    if tc.num_base_vertices != ds.num_vertices:
-        from mvtex.util.errors import InputError
-
-        raise InputError(tc.path / "mesh.npz", f"made for {tc.num_base_vertices} vertices, the dataset has {ds.num_vertices}")
+    tc.check_dataset(ds)
     rig, rig_source = as_rig(rig)
     if cameras is not None:
         rig = rig.select(list(cameras), source=rig_source)
     elif not set(rig.names) <= set(tc.cameras):
         rig = rig.select(tc.cameras, source=rig_source)
+    tc.check_rig(rig, rig_source, cameras=rig.names)
     poses = tc.poses if poses is None else [int(p) for p in poses]
     if poses:
         check_sees(rig, read_row(ds.inferred, poses[0]), rig_source,

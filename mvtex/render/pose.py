@@ -74,6 +74,9 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
     for cam in rig:
         cam.require_pinhole(rig_path)
+    if texcoord_set is not None:
+        texcoord_set.check_dataset(dataset)
+        texcoord_set.check_rig(rig, rig_path, cameras=rig.names)
     check_sees(rig, read_row(dataset.inferred, pose), rig_path,
                what=f"the inferred mesh of {dataset.path} at pose {pose}")
     if ctx is None:

@@ -27,7 +27,7 @@ from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 if TYPE_CHECKING:
     from mvtex.data.dataset import Dataset
     from mvtex.render.context import GLContext
-from mvtex.util.parallel import single_thread_gl
+from mvtex.util.parallel import configure_threads
 
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
 
@@ -36,11 +36,6 @@ _AUTO_WORKERS = 8  # workers=None: one process per core, up to this many
 
 
 _AUTO_MIN_JOBS = 256  # workers=None: fewer jobs left than this run in this process (start-up ≈ 1-2 s a worker)
-
-
-def _rig_record(rig: Rig) -> dict:
-    return {cam.name: {"width": cam.width, "height": cam.height, "K": cam.K.tolist(), "R": cam.R.tolist(),
-                       "t": cam.t.tolist()} for cam in rig}
 
 
 @dataclass(frozen=True)
@@ -70,7 +65,7 @@ def _open_state(spec: _Spec) -> _WorkerState:
     from mvtex.data.dataset import load_dataset, reference_shape
     from mvtex.render.context import GLContext
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
     return _WorkerState(GLContext(), True, ds, topo)
@@ -132,7 +127,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     from mvtex.data.dataset import as_dataset, reference_shape, reference_shape_source
     from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import PartialSet
+    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
     from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
     check_backend(workers, scheduler)
@@ -147,12 +142,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     topo = build_topology(ds.faces, ds.uv, reference, options.subdiv)
     record = {
         "options": options.to_json(),
-        "dataset": {"path": str(Path(ds.path).resolve()), "name": ds.name, "num_poses": ds.num_poses,
-                    "num_vertices": ds.num_vertices, "mesh": fingerprint(ds.faces, ds.uv),
-                    # Content, not only the path: arrays replaced in place must not be mixed.
-                    "content": fingerprint(ds.gt, ds.inferred, ds.poses)},
+        "dataset": dataset_record(ds),  # content, not only the path: arrays replaced in place must not be mixed
         "reference": {"shape": reference_shape_source(ds), "fingerprint": fingerprint(reference)},
-        "rig": _rig_record(rig),
+        "rig": rig_record(rig),
     }
     partial = PartialSet(out, "slide", "ts", faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
                          subdiv=options.subdiv, poses=poses, cameras=rig.names, record=record)

@@ -17,12 +17,11 @@ from mvtex.util.errors import InputError, OptionError
 def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
     """In a worker: one camera's model from paths (torch on one thread: the workers already
     fill the cores)."""
-    import torch
-
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
+    from mvtex.util.parallel import configure_threads
 
-    torch.set_num_threads(1)
+    configure_threads(1)
     ds = load_dataset(dataset, validate=False)
     return train(ds, open_texcoords(texcoords, ds.num_vertices), out, camera=camera, options=options, progress=False)
 
@@ -55,6 +54,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
                          f"(it has {', '.join(texcoords.cameras)})")
     if len(set(cameras)) != len(cameras):
         raise OptionError(f"cameras lists a camera twice: {', '.join(cameras)}")
+    texcoords.check_dataset(dataset)
     for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
         texcoords.displacement(c, texcoords.poses[0])
     resolved = _resolve(options, cameras[0])

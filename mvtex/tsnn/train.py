@@ -353,6 +353,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             raise InputError(texcoords.path, f"cameras {', '.join(missing)} of the texcoord set are not in the rig "
                              f"(it has {', '.join(rig.names)})")
     views = {c: rig[c].cam_from_world.tolist() for c in cameras} if rig is not None and camera is None else {}
+    texcoords.check_dataset(dataset)
     faces, uv, parent = _check_texcoord_mesh(dataset, texcoords)
     split = _split(dataset, texcoords)
     if train_poses is not None:

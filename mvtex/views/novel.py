@@ -45,9 +45,9 @@ def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
     """A worker's synthesizer for a run."""
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
-    from mvtex.util.parallel import single_thread_gl
+    from mvtex.util.parallel import configure_threads
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     return ViewSynthesizer(ds, spec.rig, open_texcoords(spec.texcoords, ds.num_vertices), spec.options,
                            spec.rig_source)
@@ -98,9 +98,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     from tqdm import tqdm
 
     from mvtex.data.rig import save_rig
-    from mvtex.data.texcoords import PartialSet
+    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
     from mvtex.util.files import dumps_strict
-    from mvtex.util.fingerprint import fingerprint
 
     check_backend(workers, scheduler)
     if len(weights) != len(names) or not names:
@@ -131,9 +130,9 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
               "view_options": asdict(options), "from": {"texcoords": str(Path(texcoords.path).resolve()),
                                                         "source": texcoords.source, "cameras": texcoords.cameras},
               # Content, not only paths: a rerun continues only from the same inputs.
-              "inputs": {"dataset": fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
-                         "texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
-                         "rig": {c.name: [c.width, c.height, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in rig}}}
+              "dataset": dataset_record(dataset), "rig": rig_record(Rig(tuple(cameras))),
+              "inputs": {"texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
+                         "array": rig_record(rig.select(synth.array))}}
     record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
     with synth:
         partial = PartialSet(out, "views", "views-", faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,

@@ -182,13 +182,13 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     from mvtex.util.files import save_png, write_json
     from mvtex.util.output import atomic_path, check_output
     from mvtex.views.cameras import check_weights, interpolate_camera
-    from mvtex.views.synthesizer import check_texcoords_rig
 
     pose = int(pose)
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} is outside [0, {dataset.num_poses})")
     texcoords.row(pose)
-    check_texcoords_rig(texcoords, rig, rig_source)
+    texcoords.check_rig(rig, rig_source)
+    texcoords.check_dataset(dataset)
     out = check_output(out, "preview", overwrite=overwrite)
     array = [c for c in rig.names if c in texcoords.cameras]
     if weights is None:
@@ -201,6 +201,11 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         raise InputError(texcoords.path, "method reconstruct needs texcoords of at least 2 rig cameras")
     viewpoint = interpolate_camera(rig, weights, "viewpoint")
     left, right = eye_cameras(viewpoint, options.ipd)
+    cloth = np.asarray(dataset.inferred[pose], np.float64)
+    for eye in (left, right):
+        if not eye.sees(cloth):  # scores of two empty pictures would say "identical"
+            raise OptionError(f"ipd: the {eye.name} eye, {options.ipd:g} m from the other, sees none of the cloth of "
+                              f"pose {pose}; give a smaller ipd or another viewpoint")
     eyes = _Eyes(dataset, rig, texcoords, pose, options.method, array, progress)
     try:
         renders = {"left": eyes.render(left), "right": eyes.render(right)}

@@ -117,10 +117,8 @@ class ViewSynthesizer:
 
     def __init__(self, dataset, rig: Rig, texcoords, options: ViewOptions = ViewOptions(),
                  rig_source: str | os.PathLike | None = None, ctx=None):
-        check_texcoords_rig(texcoords, rig, rig_source)
-        if texcoords.num_base_vertices != dataset.num_vertices:
-            raise InputError(texcoords.path / "mesh.npz", f"made for a mesh of {texcoords.num_base_vertices} "
-                             f"vertices, the dataset has {dataset.num_vertices}")
+        texcoords.check_rig(rig, rig_source)
+        texcoords.check_dataset(dataset)
         from mvtex.render.context import GLContext
 
         self.dataset = dataset
@@ -311,27 +309,3 @@ class ViewSynthesizer:
             sub = charts_through_parent(base, self.texcoords.faces, len(self.texcoords.uv))
             self._chart_cache = (sub, base[np.asarray(self.dataset.faces)[:, 0]])
         return self._chart_cache
-
-
-def check_texcoords_rig(texcoords, rig: Rig, rig_source: str | os.PathLike | None = None) -> None:
-    """InputError unless the texcoord set's cameras are in the rig (and, where the set
-    records the cameras it was made with, are the same cameras)."""
-    missing = [c for c in texcoords.cameras if c not in rig.names]
-    if missing:
-        raise InputError(texcoords.path, f"cameras {', '.join(missing)} of this texcoord set are not in the rig "
-                         f"{rig_source or ''} (it has {', '.join(rig.names)}): a texcoord set from another rig?")
-    recorded = texcoords.meta.get("rig")
-    if isinstance(recorded, dict):
-        for name, rec in recorded.items():
-            if name not in rig.names or not isinstance(rec, dict):
-                continue
-            cam = rig[name]
-            try:
-                same = (int(rec["width"]) == cam.width and int(rec["height"]) == cam.height and
-                        np.allclose(rec["K"], cam.K, atol=1e-6) and np.allclose(rec["R"], cam.R, atol=1e-6) and
-                        np.allclose(rec["t"], cam.t, atol=1e-6))
-            except (KeyError, TypeError, ValueError):
-                continue
-            if not same:
-                raise InputError(texcoords.path, f"camera {name!r} of this texcoord set was made with other "
-                                 f"parameters than the rig's {rig_source or ''} camera of that name")
