@@ -16,6 +16,7 @@ import os
 import platform
 import sys
 import time
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -148,8 +149,38 @@ def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats
     return sum(count for count, _ in done) / max(seconds for _, seconds in done)
 
 
+@dataclass(frozen=True)
+class BenchResult:
+    """What `run_bench` measured (`to_json()` is `mvtex bench --json`).
+
+    Attributes:
+        jobs, poses, cameras, subdiv, num_vertices, image_size: what was timed.
+        sliding: {"raster"|"raycast": {"jobs_per_s", "seconds"} (one process, the fastest pass),
+            "raster_workers": {"workers", "jobs_per_s"} (None when workers == 1)}.
+        speedup: raster over ray cast, measured side by side.
+        agreement: {"displacement": share of vertices assigned by both paths whose d agree to
+            1e-5, "assigned_flags": share with equal flags}.
+        eval: {"images_per_s"}. machine: cores, GL renderer, platform, Python.
+    """
+
+    jobs: int
+    poses: int
+    cameras: list[str]
+    subdiv: int
+    num_vertices: int
+    image_size: list[int]
+    sliding: dict
+    speedup: float
+    agreement: dict
+    eval: dict
+    machine: dict
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
 def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
-              progress: bool = True, workers: int = 2, ctx: GLContext | None = None) -> dict:
+              progress: bool = True, workers: int = 2, ctx: GLContext | None = None) -> BenchResult:
     """Measure jobs/s of the raster and ray-cast sliding paths and the eval throughput.
 
     Args:
@@ -163,9 +194,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         ctx: `raster.GLContext` for this process (created, and released, if None).
 
     Returns:
-        JSON-able dict: jobs, sliding.{raster,raycast}.jobs_per_s, speedup (raster over
-        ray cast, both in one process), sliding.raster_workers.{workers,jobs_per_s}, agreement.{displacement (fraction of vertices assigned by both whose d
-        agree to 1e-5), assigned_flags (fraction with equal flags)}, eval.images_per_s, machine.
+        A `BenchResult`.
     """
     from tqdm import tqdm
 
@@ -229,21 +258,14 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         uv_t, r_t = texcoord_image(ctx, topo.positions(infs[k]), topo.faces, topo.uv + d, cam)
         masked_uv_error(uv_t, r_t.mask, uv_g, r_g.mask)
     eval_time = time.perf_counter() - start
-    return {
-        "jobs": len(jobs),
-        "poses": len(poses),
-        "cameras": rig.names,
-        "subdiv": subdiv,
-        "num_vertices": len(topo.uv),
-        "image_size": [rig.cameras[0].width, rig.cameras[0].height],
-        "sliding": {
-            "raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
-            "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
-            "raster_workers": {"workers": int(workers), "jobs_per_s": parallel},
-        },
-        "speedup": timing["raycast"] / timing["raster"],
-        "agreement": {"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
-        "eval": {"images_per_s": len(jobs) / eval_time},
-        "machine": {"cpu_count": os.cpu_count(), "gl_renderer": ctx.renderer, "platform": platform.platform(),
-                    "python": platform.python_version(), "processes": 1},
-    }
+    return BenchResult(
+        jobs=len(jobs), poses=len(poses), cameras=rig.names, subdiv=subdiv, num_vertices=len(topo.uv),
+        image_size=[rig.cameras[0].width, rig.cameras[0].height],
+        sliding={"raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
+                 "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
+                 "raster_workers": {"workers": int(workers), "jobs_per_s": parallel}},
+        speedup=timing["raycast"] / timing["raster"],
+        agreement={"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
+        eval={"images_per_s": len(jobs) / eval_time},
+        machine={"cpu_count": os.cpu_count(), "gl_renderer": ctx.renderer, "platform": platform.platform(),
+                 "python": platform.python_version(), "processes": 1})

@@ -72,6 +72,34 @@ def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
     return (start, *_views_of_poses(synth, spec.cameras, spec.weights, poses))
 
 
+@dataclass(frozen=True)
+class NovelViews:
+    """What `novel_views` made.
+
+    Attributes:
+        out: the texcoord set of the views (its cameras in out/rig.yaml).
+        method: "blend" or "reconstruct".
+        views: view name -> its weights over the array's cameras.
+        poses: dataset pose indices, the set's rows.
+        cameras: view name -> its camera centre (world, m).
+        measured: with `--plot`, the views measured against gt (`mvtex.views.measure.path_plot`).
+    """
+
+    out: Path
+    method: str
+    views: dict[str, dict[str, float]]
+    poses: list[int]
+    cameras: dict[str, list[float]]
+    measured: dict | None = None
+
+    def to_json(self) -> dict:
+        out = {"out": str(self.out), "method": self.method, "views": self.views, "poses": self.poses,
+               "cameras": self.cameras}
+        if self.measured is not None:
+            out["measured"] = self.measured
+        return out
+
+
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
                 rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
@@ -93,7 +121,7 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             `_WRITE_BLOCK` poses; the result does not depend on where they ran.
 
     Returns:
-        {"out", "method", "views": {name: weights}, "poses": [...], "cameras": {name: centre}}.
+        A `NovelViews`; `.to_json()` is the JSON of `mvtex views --json`.
     """
     from tqdm import tqdm
 
@@ -168,5 +196,5 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
         bar.close()
     save_rig(Rig(tuple(cameras)), partial.path / "rig.yaml")
     partial.finish()
-    return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,
-            "cameras": {c.name: c.center.tolist() for c in cameras}}
+    return NovelViews(out=out, method=options.method, views=record["views"], poses=poses,
+                      cameras={c.name: c.center.tolist() for c in cameras})

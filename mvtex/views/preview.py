@@ -64,6 +64,47 @@ class PreviewOptions:
             raise OptionError(f"ipd must be in [0, 10) m, got {self.ipd!r}")
 
 
+@dataclass(frozen=True)
+class EyeScores:
+    """One eye's scores against the gt render: (inferred with T_G, texcoords) each.
+
+    Attributes:
+        ssim, psnr: (inferred, texcoords) SSIM and PSNR (dB; 99 for identical images).
+        weights: the array cameras' weights of the eye's texcoords.
+        box: (row0, row1, col0, col1) of the pixels scored (the garment's bounding box).
+    """
+
+    ssim: tuple[float, float]
+    psnr: tuple[float, float]
+    weights: dict[str, float]
+    box: tuple[int, int, int, int]
+
+    def to_json(self) -> dict:
+        return {"ssim": {"inferred": self.ssim[0], "texcoords": self.ssim[1]},
+                "psnr": {"inferred": self.psnr[0], "texcoords": self.psnr[1]},
+                "weights": self.weights, "box": list(self.box)}
+
+
+@dataclass(frozen=True)
+class Preview:
+    """What `stereo_preview` measured and wrote (preview.json is `to_json()`)."""
+
+    pose: int
+    eyes: dict[str, EyeScores]
+    viewpoint: dict
+    method: str
+    source: str
+    texcoords: str
+    options: PreviewOptions
+    files: list[str]
+
+    def to_json(self) -> dict:
+        return {"pose": self.pose, "eyes": {k: v.to_json() for k, v in self.eyes.items()}, "viewpoint": self.viewpoint,
+                "ipd": self.options.ipd, "method": self.method, "source": self.source, "texcoords": self.texcoords,
+                "scores_over": "garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)",
+                "options": asdict(self.options), "files": self.files}
+
+
 def eye_cameras(viewpoint: Camera, ipd: float) -> tuple[Camera, Camera]:
     """The left and right eyes: the viewpoint moved by ∓ipd/2 along its x axis (image right)."""
     from dataclasses import replace
@@ -176,7 +217,7 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         weights: the viewpoint (array camera -> weight); default equal over the array.
 
     Returns:
-        The preview.json object.
+        A `Preview`; `.to_json()` is preview.json (and `mvtex preview --json`).
     """
     from mvtex.render.pictures import grid_image, side_by_side
     from mvtex.util.files import save_png, write_json
@@ -209,19 +250,19 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     eyes = _Eyes(dataset, rig, texcoords, pose, options.method, array, progress)
     try:
         renders = {"left": eyes.render(left), "right": eyes.render(right)}
-        report: dict = {"pose": pose, "eyes": {}}
+        scores = {}
         for name, r in renders.items():
             box = garment_box([r["gt"], r["inferred"], r["texcoords"]], options.margin)
             s_inf, p_inf = image_scores(r["gt"], r["inferred"], box)
             s_tc, p_tc = image_scores(r["gt"], r["texcoords"], box)
-            report["eyes"][name] = {"ssim": {"inferred": s_inf, "texcoords": s_tc},
-                                    "psnr": {"inferred": p_inf, "texcoords": p_tc},
-                                    "weights": r["weights"],
-                                    "box": [int(box[0].start or 0), int(box[0].stop or r["gt"].shape[0]), int(box[1].start or 0), int(box[1].stop or r["gt"].shape[1])]}
-        report.update(viewpoint={"weights": weights, "centre": viewpoint.center.tolist()}, ipd=options.ipd,
-                      method=options.method, source=texcoords.source, texcoords=str(texcoords.path),
-                      scores_over="garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)",
-                      options=asdict(options), files=["stereo.png", "anaglyph.png", "comparison.png", "preview.json"])
+            H, W = r["gt"].shape[:2]
+            scores[name] = EyeScores(ssim=(s_inf, s_tc), psnr=(p_inf, p_tc), weights=r["weights"],
+                                     box=(int(box[0].start or 0), int(box[0].stop or H), int(box[1].start or 0),
+                                          int(box[1].stop or W)))
+        files = ["stereo.png", "anaglyph.png", "comparison.png", "preview.json"] + (["path.gif"] if options.path else [])
+        report = Preview(pose=pose, eyes=scores, viewpoint={"weights": weights, "centre": viewpoint.center.tolist()},
+                         method=options.method, source=texcoords.source, texcoords=str(texcoords.path),
+                         options=options, files=files)
         with atomic_path(out) as tmp:
             tmp.mkdir()
             L, R = renders["left"], renders["right"]
@@ -231,9 +272,8 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
             labels = ["gt", "inferred T_G", f"{texcoords.source} {options.method}"]
             save_png(tmp / "comparison.png", grid_image(rows, col_labels=["left", "right"], row_labels=labels))
             if options.path:
-                report["files"].append("path.gif")
                 _write_path_gif(tmp / "path.gif", eyes, rig, array, options, progress)
-            write_json(tmp / "preview.json", report)
+            write_json(tmp / "preview.json", report.to_json())
     finally:
         eyes.release()
     return report
