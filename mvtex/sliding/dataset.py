@@ -20,7 +20,7 @@ import numpy as np
 from mvtex.data.rig import Rig, check_sees
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import slide_pose
-from mvtex.sliding.topology import SlideTopology, build_topology
+from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
 from mvtex.util.files import read_row
 from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
@@ -55,6 +55,12 @@ class _WorkerState(WorkerState):
 
     dataset: Dataset
     topology: SlideTopology
+    body_topo: BodyTopology | None
+
+
+def _body_topology(ds: Dataset, topo: SlideTopology) -> BodyTopology | None:
+    body = getattr(ds, "body", None)
+    return None if body is None else body_topology(body.faces, topo)
 
 
 _WORKER = ThreadState()
@@ -68,7 +74,7 @@ def _open_state(spec: _Spec) -> _WorkerState:
     configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
-    return _WorkerState(GLContext(), True, ds, topo)
+    return _WorkerState(GLContext(), True, ds, topo, _body_topology(ds, topo))
 
 
 def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
@@ -82,9 +88,10 @@ def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
         k = poses[row]
         # Read through the files (`read_row`): rows read through the dataset's maps would stay
         # resident, and a long run would end up holding the whole dataset.
+        body = None if state.body_topo is None else (ds.body.pose(k), ds.body.faces)
         d_out[i], a_out[i] = slide_pose(read_row(ds.gt, k), read_row(ds.inferred, k),
                                         ds.faces, ds.uv, cam, topo.subdivision, spec.options, topology=topo,
-                                        ctx=state.ctx)
+                                        ctx=state.ctx, body=body, body_topo=state.body_topo)
     return camera, rows, d_out, a_out
 
 
@@ -168,7 +175,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             from mvtex.render.context import GLContext
 
             ctx = own_ctx = GLContext()
-        _WORKER.set(spec.key, _WorkerState(ctx, False, ds, topo))
+        _WORKER.set(spec.key, _WorkerState(ctx, False, ds, topo, _body_topology(ds, topo)))
     from mvtex.util.parallel import map_unordered
 
     bar = tqdm(total=len(poses) * len(rig), initial=partial.rows_done, desc="slide", unit="job",
