@@ -254,6 +254,55 @@ def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positi
         base_tri_id (H,W) int32 in [0, m), subdivided_tri_id (H,W) int32 in [0, 4^levels m);
         -1 = background; occluder faces at and above `body_offsets(m, levels)`.
     """
+    pair = _draw_pair(ctx, base_positions, subdivided_positions, faces, camera, levels, pixels, occluder, False)
+    W, H = camera.width, camera.height
+    r0, r1, c0, c1 = pair.box
+    base_ids = np.full((H, W), -1, np.int32)
+    sub_ids = np.full((H, W), -1, np.int32)
+    base_ids[r0:r1, c0:c1] = pair.base_tri
+    sub_ids[r0:r1, c0:c1] = pair.sub_tri
+    return base_ids, sub_ids
+
+
+@dataclass(frozen=True)
+class PairRaster:
+    """Both halves of a pair raster with barycentrics (`rasterize_pair_attributes`), in the
+    box of the image that holds every id (rows r0:r1, columns c0:c1); -1 elsewhere.
+
+    Attributes:
+        box: (r0, r1, c0, c1).
+        base_tri, sub_tri: (h,w) int32 ids as `rasterize_pair` gives them (occluder faces
+            from `body_offsets(m, levels)` on).
+        base_bary, sub_bary: (h,w,3) float32 perspective-correct barycentrics in the base
+            face, resp. in the subdivided child face (0 on background and occluder), or
+            None (ids only).
+    """
+
+    box: tuple[int, int, int, int]
+    base_tri: np.ndarray
+    sub_tri: np.ndarray
+    base_bary: np.ndarray | None
+    sub_bary: np.ndarray | None
+
+    def full(self, values: np.ndarray, shape: tuple[int, int], fill=0) -> np.ndarray:
+        """An (H,W,...) image of per-box-pixel `values` (h,w,...), `fill` outside the box."""
+        r0, r1, c0, c1 = self.box
+        out = np.full(tuple(shape) + values.shape[2:], fill, values.dtype)
+        out[r0:r1, c0:c1] = values
+        return out
+
+
+def rasterize_pair_attributes(ctx: GLContext, base_positions: np.ndarray, subdivided_positions: np.ndarray,
+                              faces: np.ndarray, camera: Camera, *, levels: int = 0, pixels: np.ndarray | None = None,
+                              occluder: tuple[np.ndarray, np.ndarray] | None = None) -> PairRaster:
+    """`rasterize_pair` that also reads back the barycentrics of both halves (in the base
+    face of the first mesh and in the subdivided child face of the second), only in the
+    box that holds every id: a `PairRaster`."""
+    return _draw_pair(ctx, base_positions, subdivided_positions, faces, camera, levels, pixels, occluder, True)
+
+
+def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, camera: Camera, levels: int,
+               pixels, occluder, attributes: bool) -> PairRaster:
     import moderngl
 
     camera.require_pinhole()
@@ -276,8 +325,6 @@ def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positi
         clip = clip_from_camera(camera, near, far).T.astype("f4").tobytes()
         pair.prog_ids["clip_from_cam"].write(clip)
         pair.prog["clip_from_cam"].write(clip)
-        pair.vbo.write(base.tobytes())
-        pair.vbo_sub.write(sub[pair.faces].tobytes())
         # A triangle covers only pixel centres inside the box of its projected corners, so
         # the box of all projections (one pixel margin) holds every id: only the box is
         # cleared and read back. With a vertex behind the camera the projection says
@@ -290,7 +337,7 @@ def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positi
             c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
             c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
         w, h = c1 - c0, r1 - r0
-        fbo = ctx._target("pair", W, H)
+        fbo = ctx._target("pair_attributes" if attributes else "pair", W, H)
         fbo.use()
         if w > 0 and h > 0:
             for x0 in (c0, W + c0):
@@ -299,22 +346,39 @@ def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positi
         gl.enable(moderngl.DEPTH_TEST)
         # The viewport clips in clip space: nothing of one mesh can spill into the other half.
         gl.viewport = (0, 0, W, H)
-        pair.vao.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        if attributes:  # the first half through the subface program too, at level 0
+            pair.vbo_sub.write(base[pair.faces].tobytes())
+            pair.prog["num_faces"].value = pair.num_mesh_faces
+            pair.prog["levels"].value = 0
+            pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, 0)[0]
+            pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        else:
+            pair.vbo.write(base.tobytes())
+            pair.vao.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        pair.vbo_sub.write(sub[pair.faces].tobytes())
         gl.viewport = (W, 0, W, H)
         pair.prog["num_faces"].value = pair.num_mesh_faces
         pair.prog["levels"].value = pair.levels
         pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, pair.levels)[1]
         pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
-        base_ids = np.full((H, W), -1, np.int32)
-        sub_ids = np.full((H, W), -1, np.int32)
-        if w > 0 and h > 0:
-            # GL window row y is image row v (the projection flips once), so no flip here.
-            for out, x0 in ((base_ids, c0), (sub_ids, W + c0)):
+        halves = []
+        for x0 in (c0, W + c0):
+            if w > 0 and h > 0:
+                # GL window row y is image row v (the projection flips once), so no flip here.
                 data = fbo.read(attachment=0, components=1, dtype="i4", viewport=(x0, r0, w, h))
                 # gl_PrimitiveID restarts at 0 on each draw call; ids are stored +1.
-                out[r0:r1, c0:c1] = np.frombuffer(data, np.int32).reshape(h, w) - 1
+                ids = np.frombuffer(data, np.int32).reshape(h, w) - 1
+                bary = None
+                if attributes:
+                    data = fbo.read(attachment=1, components=4, dtype="f4", viewport=(x0, r0, w, h))
+                    bary = np.frombuffer(data, np.float32).reshape(h, w, 4)[..., :3]
+            else:
+                ids = np.full((h, w), -1, np.int32)
+                bary = np.zeros((h, w, 3), np.float32) if attributes else None
+            halves.append((ids, bary))
         gl.viewport = (0, 0, W, H)
-    return base_ids, sub_ids
+    return PairRaster(box=(r0, r1, c0, c1), base_tri=halves[0][0], sub_tri=halves[1][0],
+                      base_bary=halves[0][1], sub_bary=halves[1][1])
 
 
 def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.ndarray:
