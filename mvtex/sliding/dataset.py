@@ -170,7 +170,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         "dataset": {"path": str(Path(ds.path).resolve()), "name": ds.name, "num_poses": ds.num_poses,
                     "num_vertices": ds.num_vertices, "mesh": _fingerprint(ds.faces, ds.uv),
                     # Content, not only the path: arrays replaced in place must not be mixed.
-                    "content": content_fingerprint(ds.gt, ds.inferred, ds.poses)},
+                    "content": content_fingerprint(ds.gt, ds.inferred, ds.poses, *ds.body_arrays())},
         "reference": {"shape": reference_shape_source(ds), "fingerprint": _fingerprint(reference)},
         "rig": _rig_record(rig),
     }

@@ -69,7 +69,8 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         if dataset_hash is None:
             from mvtex.util.fingerprint import fingerprint
 
-            dataset_hash = fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv)
+            dataset_hash = fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv,
+                                       *dataset.body_arrays())
         kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
         if kept is not None:
             models[c] = kept

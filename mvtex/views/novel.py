@@ -131,7 +131,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
               "view_options": asdict(options), "from": {"texcoords": str(Path(texcoords.path).resolve()),
                                                         "source": texcoords.source, "cameras": texcoords.cameras},
               # Content, not only paths: a rerun continues only from the same inputs.
-              "inputs": {"dataset": fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
+              "inputs": {"dataset": fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv,
+                                                *dataset.body_arrays()),
                          "texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
                          "rig": {c.name: [c.width, c.height, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in rig}}}
     record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
