@@ -66,11 +66,11 @@ def mesh_pattern(boundary: np.ndarray, spacing: float) -> tuple[np.ndarray, np.n
     polygon = PolygonPath(np.vstack([boundary, boundary[:1]]), closed=True)
     lo, hi = boundary.min(axis=0), boundary.max(axis=0)
     row_step = spacing * np.sqrt(3.0) / 2.0
-    rows = np.arange(lo[1] + 0.5 * row_step, hi[1], row_step)
-    lattice = [np.stack([np.arange(lo[0] + (0.5 if r % 2 else 0.0) * spacing, hi[0], spacing),
-                         np.full(len(np.arange(lo[0] + (0.5 if r % 2 else 0.0) * spacing, hi[0], spacing)), y)], 1)
-               for r, y in enumerate(rows)]
-    lattice = np.concatenate(lattice)
+    rows = []
+    for r, y in enumerate(np.arange(lo[1] + 0.5 * row_step, hi[1], row_step)):
+        x = np.arange(lo[0] + (0.5 * spacing if r % 2 else 0.0), hi[0], spacing)  # every other row shifted
+        rows.append(np.stack([x, np.full(len(x), y)], axis=1))
+    lattice = np.concatenate(rows)
     lattice = lattice[polygon.contains_points(lattice)]
     ends = np.roll(boundary, -1, axis=0)
     lattice = lattice[_segment_distance(lattice, boundary, ends) > 0.55 * spacing]
