@@ -161,8 +161,8 @@ def mesh_distance(points, vertices, faces, cutoff=0.05):
     out = nearest - radius
     near = np.flatnonzero(nearest < cutoff)
     lists = cKDTree(centroids).query_ball_point(points[near], nearest[near] + radius)
-    owner = np.repeat(near, [len(l) for l in lists])
-    face = np.concatenate([np.asarray(l, np.int64) for l in lists])
+    owner = np.repeat(near, [len(faces_near) for faces_near in lists])
+    face = np.concatenate([np.asarray(faces_near, np.int64) for faces_near in lists])
     q = closest_points_on_triangles(points[owner], *(corners[face, k] for k in range(3)))
     d = np.linalg.norm(points[owner] - q, axis=1)
     exact = np.full(len(points), np.inf)

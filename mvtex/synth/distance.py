@@ -11,14 +11,14 @@ the closest triangle's outward normal: negative inside the body.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
-def _compiled(fn):
+def _compiled(fn, **options):
     try:
-        return njit(cache=True, nogil=True, error_model="numpy")(fn)
+        return njit(cache=True, nogil=True, error_model="numpy", **options)(fn)
     except RuntimeError:  # numba's "cannot cache function ...: no locator available"
-        return njit(nogil=True, error_model="numpy")(fn)
+        return njit(nogil=True, error_model="numpy", **options)(fn)
 
 
 @_compiled
@@ -58,15 +58,15 @@ def _closest(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
 
 
 @_compiled
-def _signed_distances(points, vertices, normals, faces, near, incident, nearest, out):
-    """Signed distance of each point to the faces around the `nearest` of its candidate
-    vertices `near` that are nearest to it now; the sign: of the offset from the closest
-    point along the vertex normals interpolated there (robust where the closest point is a
-    corner or an edge, whose faces' own normals may disagree)."""
+def _signed_range(points, vertices, normals, faces, near, incident, nearest, start, stop, out):
+    """Signed distance of points start:stop to the faces around the `nearest` of their
+    candidate vertices `near` that are nearest to them now; the sign: of the offset from the
+    closest point along the vertex normals interpolated there (robust where the closest
+    point is a corner or an edge, whose faces' own normals may disagree)."""
     pick = np.empty(nearest, np.int64)
     pick_sq = np.empty(nearest)
     tested = np.empty(nearest * incident.shape[1], np.int64)
-    for i in range(points.shape[0]):
+    for i in range(start, stop):
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         for k in range(nearest):
             pick_sq[k] = np.inf
@@ -116,6 +116,18 @@ def _signed_distances(points, vertices, normals, faces, near, incident, nearest,
                     nz = u * normals[ia, 2] + v * normals[ib, 2] + w * normals[ic, 2]
                     sign = 1.0 if dx * nx + dy * ny + dz * nz >= 0.0 else -1.0
         out[i] = sign * np.sqrt(best_sq)
+
+
+def _signed_parallel(points, vertices, normals, faces, near, incident, nearest, out):
+    """`_signed_range` over all points, in blocks on the cores (each point independent)."""
+    blocks = 32
+    n = points.shape[0]
+    for b in prange(blocks):
+        _signed_range(points, vertices, normals, faces, near, incident, nearest, b * n // blocks,
+                      (b + 1) * n // blocks, out)
+
+
+_signed_distances = _compiled(_signed_parallel, parallel=True)
 
 
 class SurfaceDistance:

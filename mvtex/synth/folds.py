@@ -95,7 +95,8 @@ def _bilinear(table: np.ndarray, fi: np.ndarray, fj: np.ndarray) -> np.ndarray:
     return top * (1 - ti) + bottom * ti
 
 
-def fold_field(fold: Fold, dp: np.ndarray, dq: np.ndarray, fade=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def fold_field(fold: Fold, dp: np.ndarray, dq: np.ndarray,
+               fade=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Displacement field of one fold over material points at offsets (dp, dq) from its
     centre (each (m,) float64, already wrapped on a periodic chart).
 

@@ -299,6 +299,7 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
         np.save(tmp / "poses.npy", np.asarray(poses, np.float32), allow_pickle=False)
         if options.body:
             np.savez_compressed(tmp / "body.npz", faces=body_faces)
-        (tmp / "split.json").write_text(json.dumps({k: [int(i) for i in split[k]] for k in ("train", "val", "test")}) + "\n")
+        parts = {k: [int(i) for i in split[k]] for k in ("train", "val", "test")}
+        (tmp / "split.json").write_text(json.dumps(parts) + "\n")
         (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
     return stats

@@ -25,7 +25,8 @@ def round_cone(points: np.ndarray, start, end, start_radius: float, end_radius: 
     start, end = np.asarray(start, np.float64), np.asarray(end, np.float64)
     axis = end - start
     t = np.clip(((points - start) @ axis) / (axis @ axis), 0.0, 1.0)
-    return np.linalg.norm(points - (start + t[:, None] * axis), axis=1) - (start_radius + (end_radius - start_radius) * t)
+    radius = start_radius + (end_radius - start_radius) * t
+    return np.linalg.norm(points - (start + t[:, None] * axis), axis=1) - radius
 
 
 def ellipsoid(points: np.ndarray, centre, radii) -> np.ndarray:

@@ -314,7 +314,8 @@ def _deform_material(material: _Material, pose: np.ndarray) -> tuple[np.ndarray,
             support, slide, offset, peak = fold_field(fold, dp, dq, _torso_fade(fold))
         else:
             _, u, c, _ = material.sleeves[fold.chart]
-            support, slide, offset, peak = fold_field(fold, u - fold.p0, wrap(c - fold.q0, 2 * shape.SLEEVE_HALF_AROUND))
+            dq = wrap(c - fold.q0, 2 * shape.SLEEVE_HALF_AROUND)
+            support, slide, offset, peak = fold_field(fold, u - fold.p0, dq)
         slides[fold.chart][support] += slide
         offsets[fold.chart][support] += offset
         info.append((float(np.ptp(offset)) if len(offset) else 0.0, fold.wavelength, peak))

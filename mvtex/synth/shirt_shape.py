@@ -30,7 +30,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 
-from mvtex.synth.mannequin import elliptic_stack, ellipsoid, mesh_implicit, round_cone, smooth_min
+from mvtex.synth.mannequin import ellipsoid, elliptic_stack, mesh_implicit, round_cone, smooth_min
 from mvtex.synth.pattern import mesh_pattern, sample_curve
 
 SEMI_X, SEMI_Z = 0.19, 0.125  # the lower torso's elliptic section, m
@@ -171,7 +171,8 @@ def _boundary(front: bool) -> tuple[np.ndarray, np.ndarray]:
     for k, (corners, kind) in enumerate(pieces):
         corners = np.asarray(corners, np.float64)
         if len(corners) < 50:  # a polyline: sample each straight piece on its own
-            samples = np.concatenate([sample_curve(np.linspace(p, q, 50), SPACING) for p, q in zip(corners[:-1], corners[1:])])
+            samples = np.concatenate([sample_curve(np.linspace(p, q, 50), SPACING)
+                                      for p, q in zip(corners[:-1], corners[1:])])
         else:
             samples = sample_curve(corners, SPACING)
         kind_of = np.full(len(samples), kind)

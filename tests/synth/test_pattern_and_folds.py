@@ -17,7 +17,8 @@ def test_an_l_shaped_piece_is_meshed_inside_its_border():
     points, faces = mesh_pattern(boundary, spacing)
     np.testing.assert_array_equal(points[: len(boundary)], boundary)
     p = points[faces]
-    area = 0.5 * ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]))
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
     assert np.all(area > 0)  # counter-clockwise
     assert abs(area.sum() - (0.3 * 0.1 + 0.1 * 0.15)) < 1e-12  # covers the polygon exactly
     # The border of the mesh is the polygon: boundary edges are the consecutive samples.
