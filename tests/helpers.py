@@ -172,3 +172,47 @@ def folded_sheet(nx=30, ny=30):
     # Steep enough (slope > 2) to hide parts of itself from the oblique camera.
     inferred = np.stack([0.8 * x * 1.01 + 0.002, y, 0.04 * env * np.cos(k * x + 0.4)], 1)
     return faces, uv, gt.astype(np.float64), inferred.astype(np.float64)
+def closest_points_on_triangles(p, a, b, c):
+    """Closest points (k,3) on triangles (a, b, c) to points p (each (k,3)), by the region
+    tests of Ericson's Real-Time Collision Detection (5.1.5), in NumPy."""
+    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        out = a + (vb / denom)[:, None] * ab + (vc / denom)[:, None] * ac  # inside the face
+        cases = [  # later cases win: from the edges to the corners, as the region tests nest
+            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), b + ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None] * (c - b)),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + (d2 / (d2 - d6))[:, None] * ac),
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + (d1 / (d1 - d3))[:, None] * ab),
+            ((d6 >= 0) & (d5 <= d6), c), ((d3 >= 0) & (d4 <= d3), b), ((d1 <= 0) & (d2 <= 0), a)]
+    for mask, value in cases:
+        out = np.where(mask[:, None], value, out)
+    return out
+
+
+def mesh_distance(points, vertices, faces, cutoff=0.05):
+    """Distance (n,) of points to a triangle mesh: exact where the nearest vertex is closer
+    than `cutoff` (every face that can hold the closest point is tested: its centroid lies
+    within that vertex's distance plus the face's size), else a lower bound (the nearest
+    vertex's distance less the largest face radius)."""
+    from scipy.spatial import cKDTree
+
+    points, vertices = np.asarray(points, np.float64), np.asarray(vertices, np.float64)
+    corners = vertices[faces]
+    centroids = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroids[:, None], axis=2).max()
+    nearest, _ = cKDTree(vertices).query(points)
+    out = nearest - radius
+    near = np.flatnonzero(nearest < cutoff)
+    lists = cKDTree(centroids).query_ball_point(points[near], nearest[near] + radius)
+    owner = np.repeat(near, [len(faces_near) for faces_near in lists])
+    face = np.concatenate([np.asarray(faces_near, np.int64) for faces_near in lists])
+    q = closest_points_on_triangles(points[owner], *(corners[face, k] for k in range(3)))
+    d = np.linalg.norm(points[owner] - q, axis=1)
+    exact = np.full(len(points), np.inf)
+    np.minimum.at(exact, owner, d)
+    out[near] = exact[near]
+    return out

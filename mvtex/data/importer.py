@@ -98,19 +98,55 @@ def _read_mesh(file: str):
     return mesh
 
 
+def _check_same_mesh(mesh, file: str, n: int, faces: np.ndarray, first: str) -> np.ndarray:
+    """The vertices (n,3) float32 of a mesh of a sequence whose first mesh (`first`) has n vertices
+    and these faces; InputError naming `file` otherwise."""
+    vertices = np.asarray(mesh.vertices)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise InputError(file, f"vertex positions of shape {vertices.shape}, expected (n,3)")
+    if len(vertices) != n:
+        raise InputError(file, f"{len(vertices)} vertices, expected {n} (from {first})")
+    if not np.array_equal(np.asarray(mesh.faces), faces):
+        raise InputError(file, f"connectivity or vertex order differs from {first}")
+    vertices = vertices.astype(np.float32)
+    if not np.all(np.isfinite(vertices)):  # after the cast: float32 overflows count too
+        raise InputError(file, "NaN or infinite vertex positions")
+    return vertices
+
+
+def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A body sequence: (faces (mb,3) int32, positions (K,nb,3) float32); no uv needed."""
+    count = len(files)
+    first = _read_mesh(files[0])
+    faces = np.asarray(first.faces, dtype=np.int32)
+    nb = len(first.vertices)
+    positions = np.empty((count, nb, 3), dtype=np.float32)
+    from tqdm import tqdm
+
+    for k, file in enumerate(tqdm(files, desc="import body", unit="pose", disable=not progress)):
+        mesh = first if k == 0 else _read_mesh(file)
+        positions[k] = _check_same_mesh(mesh, file, nb, faces, files[0])
+    return faces, positions
+
+
 def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
                      poses_file: str | os.PathLike | None = None, name: str | None = None,
-                     progress: bool = True) -> Path:
+                     progress: bool = True, body_glob: str | None = None) -> Path:
     """Turn two OBJ/PLY sequences with identical connectivity into a dataset.
 
     Files are paired in sorted order. The first gt mesh defines faces and uv (and `rest`);
     every other mesh must have the same vertex count and the same faces, or InputError.
     Without `poses_file` (.npy (K,P) or .txt/.csv rows), the pose vector is the frame index.
+    With `body_glob`, a third sequence (one connectivity, no uv needed, as many meshes as
+    gt, paired in sorted order) becomes the dataset's body (body.npz + body.npy).
     """
     gt_files = _sorted_glob(gt_glob, "gt")
     inf_files = _sorted_glob(inferred_glob, "inferred")
     if len(gt_files) != len(inf_files):
         raise InputError(inferred_glob, f"{len(inf_files)} inferred meshes for {len(gt_files)} gt meshes")
+    body_files = _sorted_glob(body_glob, "body") if body_glob is not None else None
+    if body_files is not None and len(body_files) != len(gt_files):
+        raise InputError(body_glob, f"{len(body_files)} body meshes for {len(gt_files)} gt meshes")
     first = _read_mesh(gt_files[0])
     faces = np.asarray(first.faces, dtype=np.int32)
     n = len(first.vertices)
@@ -127,21 +163,14 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     for k, (g, i) in enumerate(tqdm(list(zip(gt_files, inf_files)), desc="import", unit="pose", disable=not progress)):
         for file, target in ((g, gt), (i, inferred)):
             mesh = first if file == gt_files[0] else _read_mesh(file)
-            if np.asarray(mesh.vertices).ndim != 2 or np.asarray(mesh.vertices).shape[1] != 3:
-                raise InputError(file, f"vertex positions of shape {np.asarray(mesh.vertices).shape}, expected (n,3)")
-            if len(mesh.vertices) != n:
-                raise InputError(file, f"{len(mesh.vertices)} vertices, expected {n} (from {gt_files[0]})")
-            if not np.array_equal(np.asarray(mesh.faces), faces):
-                raise InputError(file, f"connectivity or vertex order differs from {gt_files[0]}")
-            target[k] = mesh.vertices
-            if not np.all(np.isfinite(target[k])):
-                raise InputError(file, "NaN or infinite vertex positions")
+            target[k] = _check_same_mesh(mesh, file, n, faces, gt_files[0])
     if poses_file is not None:
         poses = _read_poses(Path(poses_file), len(gt_files))
     else:
         poses = np.arange(len(gt_files), dtype=np.float32)[:, None]
+    body_faces, body = _read_body(body_files, progress) if body_files is not None else (None, None)
     return save_dataset(out, faces=faces, uv=uv, gt=gt, inferred=inferred, poses=poses,
-                        name=name or Path(out).name, rest=gt[0])
+                        name=name or Path(out).name, rest=gt[0], body_faces=body_faces, body=body)
 
 
 def _read_poses(path: Path, k: int) -> np.ndarray:

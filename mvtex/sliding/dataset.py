@@ -59,7 +59,7 @@ class _WorkerState(WorkerState):
 
 
 def _body_topology(ds: Dataset, topo: SlideTopology) -> BodyTopology | None:
-    body = getattr(ds, "body", None)
+    body = ds.body
     return None if body is None else body_topology(body.faces, topo)
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from mvtex.tsnn.modeldir import _kept_model
-from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, train
+from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, dataset_fingerprint, train
 from mvtex.util.errors import InputError, OptionError
 
 
@@ -65,9 +65,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         if not (out / c / "config.json").is_file():
             continue
         if dataset_hash is None:
-            from mvtex.util.fingerprint import fingerprint
-
-            dataset_hash = fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv)
+            dataset_hash = dataset_fingerprint(dataset)
         kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
         if kept is not None:
             models[c] = kept
