@@ -108,15 +108,24 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
                                                       np.ascontiguousarray(origin, dtype=np.float64)))
 
 
-def _job(ctx: GLContext, path: str, gt, inferred, faces, uv, topo, camera, options):
+def _job(ctx: GLContext, path: str, gt, inferred, faces, uv, topo, camera, options, body=None):
+    """One sliding job on `path` ("raster" or "raycast"); body: (positions, BodyTopology) or None."""
     gt = np.asarray(gt, np.float64)
     inferred = np.asarray(inferred, np.float64)
     X = topo.positions(inferred)
     if path == "raster":
-        hits = find_hits_raster(ctx, gt, inferred, faces, X, topo, camera, options)
+        hits = find_hits_raster(ctx, gt, inferred, faces, X, topo, camera, options, body=body)
     else:
-        hits = find_hits_embree(gt, inferred, faces, X, topo, camera, options)
+        hits = find_hits_embree(gt, inferred, faces, X, topo, camera, options, body=body)
     return displacement_from_hits(hits, faces, uv, X, topo, options)
+
+
+def _bodies(ds, topo: SlideTopology, poses) -> dict:
+    """Pose -> (body positions, BodyTopology) of a dataset with a body, else pose -> None."""
+    if ds.body is None:
+        return {k: None for k in poses}
+    body_topo = body_topology(ds.body.faces, topo)
+    return {k: (ds.body.pose(k), body_topo) for k in poses}
 
 
 def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: int, barrier) -> tuple[int, float]:
@@ -132,14 +141,16 @@ def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: 
     options = SlideOptions(subdiv=subdiv)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
     faces = ds.faces.astype(np.int64)
+    bodies = _bodies(ds, topo, sorted({k for k, _ in jobs}))
     with GLContext() as ctx:
-        _job(ctx, "raster", ds.gt[jobs[0][0]], ds.inferred[jobs[0][0]], faces, ds.uv, topo, rig[jobs[0][1]], options)
+        k0 = jobs[0][0]
+        _job(ctx, "raster", ds.gt[k0], ds.inferred[k0], faces, ds.uv, topo, rig[jobs[0][1]], options, bodies[k0])
         barrier.wait()
         best = np.inf
         for _ in range(repeats):
             start = time.perf_counter()
             for k, cam in jobs:
-                _job(ctx, "raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options)
+                _job(ctx, "raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options, bodies[k])
             best = min(best, time.perf_counter() - start)
     return len(jobs), best
 
@@ -166,8 +177,12 @@ class BenchResult:
 
     Attributes:
         jobs, poses, cameras, subdiv, num_vertices, image_size: what was timed.
-        sliding: {"raster"|"raycast": {"jobs_per_s", "seconds"} (one process, the fastest pass),
-            "raster_workers": {"workers", "jobs_per_s"} (None when workers == 1)}.
+        sliding: {"raster"|"raycast": {"jobs_per_s", "seconds"} (one process, the fastest pass;
+            with the dataset's body when it has one), "raster_workers": {"workers",
+            "jobs_per_s"} (None when workers == 1)}.
+        body: for a dataset with a body, {"num_faces", "raster_without_body": {"jobs_per_s",
+            "seconds"}, "overhead": raster seconds with the body / without - 1}, measured side
+            by side; None without a body.
         speedup: raster over ray cast, measured side by side.
         agreement: {"displacement": share of vertices assigned by both paths whose d agree to
             1e-5, "assigned_flags": share with equal flags}.
@@ -181,6 +196,7 @@ class BenchResult:
     num_vertices: int
     image_size: list[int]
     sliding: dict
+    body: dict | None
     speedup: float
     agreement: dict
     eval: dict
@@ -223,7 +239,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         with GLContext() as own:
             return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,
                              workers=workers, ctx=own)
-    from mvtex.evaluation.uv import masked_uv_error, texcoord_image
+    from mvtex.evaluation.evaluate import ImageEvaluator
 
     options = SlideOptions(subdiv=subdiv)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
@@ -231,21 +247,29 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     jobs = [(k, cam) for k in poses for cam in rig]
     gts = {k: np.asarray(ds.gt[k], np.float64) for k in poses}
     infs = {k: np.asarray(ds.inferred[k], np.float64) for k in poses}
-    # Warm up both paths (GL context, shader compilation, Embree import).
-    for path in ("raster", "raycast"):
-        _job(ctx, path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options)
+    bodies = _bodies(ds, topo, poses)
+    # (name, path, with the body): the body-free raster pass only for a dataset with a body.
+    passes = [("raster", "raster", True), ("raycast", "raycast", True)]
+    if ds.body is not None:
+        passes.append(("raster_without_body", "raster", False))
+    # Warm up every path (GL context, shader compilation, Embree import).
+    for _, path, worn in passes:
+        _job(ctx, path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options,
+             bodies[poses[0]] if worn else None)
     results: dict = {}
-    bar = tqdm(total=2 * repeats * len(jobs), desc="bench", unit="job", disable=not progress, file=sys.stderr)
-    # The passes of the two paths alternate, so that both meet the same moments of a shared
+    bar = tqdm(total=len(passes) * repeats * len(jobs), desc="bench", unit="job", disable=not progress,
+               file=sys.stderr)
+    # The passes of the paths alternate, so that all meet the same moments of a shared
     # machine; the fastest pass of each counts.
-    timing = {"raster": np.inf, "raycast": np.inf}
+    timing = {name: np.inf for name, _, _ in passes}
     for _ in range(repeats):
-        for path in ("raster", "raycast"):
+        for name, path, worn in passes:
             start = time.perf_counter()
             for k, cam in jobs:
-                results[path, k, cam.name] = _job(ctx, path, gts[k], infs[k], faces, ds.uv, topo, cam, options)
+                results[name, k, cam.name] = _job(ctx, path, gts[k], infs[k], faces, ds.uv, topo, cam, options,
+                                                  bodies[k] if worn else None)
                 bar.update(1)
-            timing[path] = min(timing[path], time.perf_counter() - start)
+            timing[name] = min(timing[name], time.perf_counter() - start)
     bar.close()
     parallel = None
     if workers > 1:
@@ -259,23 +283,30 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         agree += int((np.abs(d_r[common] - d_e[common]).max(axis=1) <= 1e-5).sum())
         flags += int((a_r == a_e).sum())
         total += len(a_r)
-    # Evaluation: per image one gt, one baseline and one (subdivided) texcoords render.
-    start = time.perf_counter()
-    for k, cam in jobs:
-        uv_g, r_g = texcoord_image(ctx, gts[k], faces, ds.uv, cam)
-        uv_b, r_b = texcoord_image(ctx, infs[k], faces, ds.uv, cam)
-        masked_uv_error(uv_b, r_b.mask, uv_g, r_g.mask)
-        d, _ = results["raster", k, cam.name]
-        uv_t, r_t = texcoord_image(ctx, topo.positions(infs[k]), topo.faces, topo.uv + d, cam)
-        masked_uv_error(uv_t, r_t.mask, uv_g, r_g.mask)
-    eval_time = time.perf_counter() - start
+    # Evaluation: what `evaluate` does per image (uv and material errors, baseline and
+    # texcoords, the body in the renders), on the raster path's texcoords.
+    evaluator = ImageEvaluator(ctx, ds, topo.faces, topo.uv, topo.subdivision.parent)
+    k0, cam0 = jobs[0]
+    evaluator(k0, cam0, topo.uv + results["raster", k0, cam0.name][0], gt=gts[k0], inferred=infs[k0])  # warm-up
+    eval_time = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for k, cam in jobs:
+            evaluator(k, cam, topo.uv + results["raster", k, cam.name][0], gt=gts[k], inferred=infs[k])
+        eval_time = min(eval_time, time.perf_counter() - start)
+    body = None
+    if ds.body is not None:
+        body = {"num_faces": int(len(ds.body.faces)),
+                "raster_without_body": {"jobs_per_s": len(jobs) / timing["raster_without_body"],
+                                        "seconds": timing["raster_without_body"]},
+                "overhead": timing["raster"] / timing["raster_without_body"] - 1}
     return BenchResult(
         jobs=len(jobs), poses=len(poses), cameras=rig.names, subdiv=subdiv, num_vertices=len(topo.uv),
         image_size=[rig.cameras[0].width, rig.cameras[0].height],
         sliding={"raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
                  "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
                  "raster_workers": {"workers": int(workers), "jobs_per_s": parallel}},
-        speedup=timing["raycast"] / timing["raster"],
+        body=body, speedup=timing["raycast"] / timing["raster"],
         agreement={"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
         eval={"images_per_s": len(jobs) / eval_time},
         machine={"cpu_count": os.cpu_count(), "gl_renderer": ctx.renderer, "platform": platform.platform(),

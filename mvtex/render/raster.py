@@ -337,32 +337,50 @@ def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, came
             c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
             c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
         w, h = c1 - c0, r1 - r0
-        fbo = ctx._target("pair_attributes" if attributes else "pair", W, H)
-        fbo.use()
-        if w > 0 and h > 0:
-            for x0 in (c0, W + c0):
-                fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(x0, r0, w, h))
         gl.disable(moderngl.CULL_FACE)
         gl.enable(moderngl.DEPTH_TEST)
-        # The viewport clips in clip space: nothing of one mesh can spill into the other half.
-        gl.viewport = (0, 0, W, H)
-        if attributes:  # the first half through the subface program too, at level 0
-            pair.vbo_sub.write(base[pair.faces].tobytes())
-            pair.prog["num_faces"].value = pair.num_mesh_faces
-            pair.prog["levels"].value = 0
-            pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, 0)[0]
-            pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+        if attributes:
+            # Two framebuffers, each mesh at the image's own window coordinates: the
+            # barycentrics are those `rasterize` reads (a viewport shifted by W rounds them
+            # differently in float32).
+            targets = [ctx._target("ids", W, H, slot) for slot in (0, 1)]
+            offsets = (c0, c0)
+            for slot, (positions, levels_) in enumerate(((base, 0), (sub, pair.levels))):
+                targets[slot].use()
+                if w > 0 and h > 0:
+                    targets[slot].clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(c0, r0, w, h))
+                gl.viewport = (0, 0, W, H)
+                targets[slot].scissor = (c0, r0, w, h)
+                pair.vbo_sub.write(positions[pair.faces].tobytes())
+                pair.prog["num_faces"].value = pair.num_mesh_faces
+                pair.prog["levels"].value = levels_
+                pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, levels_)[1]
+                pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+                targets[slot].scissor = None
         else:
+            fbo = ctx._target("pair", W, H)
+            fbo.use()
+            if w > 0 and h > 0:
+                for x0 in (c0, W + c0):
+                    fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(x0, r0, w, h))
+            # The viewport clips in clip space: nothing of one mesh can spill into the other
+            # half. The scissor box keeps the rasterizer to the box read back (an occluder
+            # reaches far past the mesh).
+            gl.viewport = (0, 0, W, H)
+            fbo.scissor = (c0, r0, w, h)
             pair.vbo.write(base.tobytes())
             pair.vao.render(moderngl.TRIANGLES, vertices=3 * pair.m)
-        pair.vbo_sub.write(sub[pair.faces].tobytes())
-        gl.viewport = (W, 0, W, H)
-        pair.prog["num_faces"].value = pair.num_mesh_faces
-        pair.prog["levels"].value = pair.levels
-        pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, pair.levels)[1]
-        pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+            pair.vbo_sub.write(sub[pair.faces].tobytes())
+            gl.viewport = (W, 0, W, H)
+            fbo.scissor = (W + c0, r0, w, h)
+            pair.prog["num_faces"].value = pair.num_mesh_faces
+            pair.prog["levels"].value = pair.levels
+            pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, pair.levels)[1]
+            pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+            fbo.scissor = None
+            targets, offsets = [fbo, fbo], (c0, W + c0)
         halves = []
-        for x0 in (c0, W + c0):
+        for fbo, x0 in zip(targets, offsets):
             if w > 0 and h > 0:
                 # GL window row y is image row v (the projection flips once), so no flip here.
                 data = fbo.read(attachment=0, components=1, dtype="i4", viewport=(x0, r0, w, h))
