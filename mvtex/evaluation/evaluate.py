@@ -304,13 +304,11 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
     return _open_eval_state(ds, tc, GLContext(), True)
 
 
-BODY_COLOR = (150, 150, 150)  # heatmap pixels where the body is the nearest surface
-
-
 def _heatmap_picture(image: ImageErrors, cam, source: str) -> np.ndarray:
     """Baseline and texcoords heatmaps side by side (magenta: different charts, grey: the
     body), and the material error below them when the dataset has a rest shape."""
     from mvtex.render.pictures import colorbar, heatmap, side_by_side
+    from mvtex.render.shading import BODY_RGB
 
     raster = image.raster
     r0, r1, c0, c1 = raster.box
@@ -321,7 +319,7 @@ def _heatmap_picture(image: ImageErrors, cam, source: str) -> np.ndarray:
         box[image.pixels] = values * scale
         err = raster.full(box.reshape(r1 - r0, c1 - c0), shape, np.nan)
         picture = heatmap(err, vmax)
-        for where, color in ((image.body_pixels, BODY_COLOR), (image.pixels[image.other_chart], CHART_BOUNDARY_COLOR)):
+        for where, color in ((image.body_pixels, BODY_RGB), (image.pixels[image.other_chart], CHART_BOUNDARY_COLOR)):
             if where is None:
                 continue
             mark = np.zeros((r1 - r0) * (c1 - c0), bool)
