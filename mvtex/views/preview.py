@@ -117,17 +117,23 @@ def eye_cameras(viewpoint: Camera, ipd: float) -> tuple[Camera, Camera]:
     return eyes[0], eyes[1]
 
 
-def _render(ctx, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera) -> np.ndarray:
-    """The one place this module draws: (H,W,3) uint8 textured render in GL context `ctx`."""
+def _render(ctx, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera,
+            body=None) -> np.ndarray:
+    """The one place this module draws: (H,W,3) uint8 textured render in GL context `ctx`
+    (with the body, if given, in its matte material)."""
     from mvtex.render.shading import render_textured
 
-    return render_textured(ctx, positions, faces, texcoords, camera, background=BACKGROUND)
+    return render_textured(ctx, positions, faces, texcoords, camera, background=BACKGROUND, body=body)
 
 
-def garment_box(images, margin: int = 4) -> tuple[slice, slice]:
-    """Row and column slices of the bounding box of the non-background pixels of any image."""
+def garment_box(images, margin: int = 4, masks=()) -> tuple[slice, slice]:
+    """Row and column slices of the bounding box of the non-background pixels of any image,
+    or, given `masks` ((H,W) bool: where the cloth is, for pictures that show a body too),
+    of their pixels."""
     fg = np.zeros(images[0].shape[:2], bool)
-    for im in images:
+    for mask in masks:
+        fg |= mask
+    for im in images if not len(masks) else ():
         fg |= np.any(im != np.asarray(BACKGROUND, np.uint8), axis=2)
     if not fg.any():
         return slice(None), slice(None)
@@ -168,6 +174,7 @@ class _Eyes:
         self.gt = np.asarray(dataset.gt[pose], np.float64)
         self.inferred = np.asarray(dataset.inferred[pose], np.float64)
         self.inferred_sub = texcoords.positions(self.inferred)
+        self.body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
 
     def release(self) -> None:
         self.synth.release()
@@ -181,10 +188,17 @@ class _Eyes:
 
     def render(self, eye: Camera, with_references: bool = True) -> dict:
         T, weights = self.texcoords(eye)
-        out = {"weights": weights, "texcoords": _render(self.synth.gl, self.inferred_sub, self.tc.faces, T, eye)}
+        gl, body = self.synth.gl, self.body
+        out = {"weights": weights, "texcoords": _render(gl, self.inferred_sub, self.tc.faces, T, eye, body)}
         if with_references:
-            out["gt"] = _render(self.synth.gl, self.gt, self.dataset.faces, self.dataset.uv, eye)
-            out["inferred"] = _render(self.synth.gl, self.inferred, self.dataset.faces, self.dataset.uv, eye)
+            out["gt"] = _render(gl, self.gt, self.dataset.faces, self.dataset.uv, eye, body)
+            out["inferred"] = _render(gl, self.inferred, self.dataset.faces, self.dataset.uv, eye, body)
+        out["cloth"] = ()
+        if body is not None and with_references:  # where the cloth shows: the scores' box
+            from mvtex.render.raster import rasterize
+
+            out["cloth"] = tuple(rasterize(gl, x, self.dataset.faces, eye, attributes=False, occluder=body).mask
+                                 for x in (self.gt, self.inferred))
         return out
 
 
@@ -252,7 +266,7 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         renders = {"left": eyes.render(left), "right": eyes.render(right)}
         scores = {}
         for name, r in renders.items():
-            box = garment_box([r["gt"], r["inferred"], r["texcoords"]], options.margin)
+            box = garment_box([r["gt"], r["inferred"], r["texcoords"]], options.margin, r["cloth"])
             s_inf, p_inf = image_scores(r["gt"], r["inferred"], box)
             s_tc, p_tc = image_scores(r["gt"], r["texcoords"], box)
             H, W = r["gt"].shape[:2]
