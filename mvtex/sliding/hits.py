@@ -104,6 +104,22 @@ def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
     return ray, ids[keep]
 
 
+def _with_hosts(ray: np.ndarray, tri: np.ndarray, vertices: np.ndarray, host_keys: np.ndarray,
+                m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(ray, tri) pairs with each ray's host faces added (the base faces vertices[ray] lies
+    on, from the sorted keys v * m + f), distinct and sorted by ray then face (tri may hold
+    body faces from m on)."""
+    lo = np.searchsorted(host_keys, vertices * m)
+    hi = np.searchsorted(host_keys, (vertices + 1) * m)
+    count = hi - lo
+    host_ray = np.repeat(np.arange(len(vertices)), count)
+    host = host_keys[np.repeat(lo, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
+    # Face ids up to m + body faces: keys in a base past every id.
+    base = max(m, int(tri.max()) + 1 if len(tri) else 0)
+    keys = np.unique(np.r_[ray * base + tri, host_ray * base + (host - vertices[host_ray] * m)])
+    return keys // base, keys % base
+
+
 def _first_per_ray(ray: np.ndarray, key: np.ndarray, num_rays: int) -> tuple[np.ndarray, np.ndarray]:
     """For pairs sorted by ray: per ray, the index of the first pair with the smallest key.
 
@@ -301,10 +317,11 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
         tri_hit[cand], bary[cand], back[cand] = first_hits(
             origin64, dirs, pixels[cand], gt_ids, options.radius, neighbours,
             np.ascontiguousarray(gt_all, dtype=np.float64), faces64, m, topo.chart[cand], topo.gt_chart,
-            topo.uv[cand], np.ascontiguousarray(topo.uv[:len(gt)]))
+            topo.uv[cand], np.ascontiguousarray(topo.uv[:len(gt)]), topo.host_keys, cand)
         from_inside = compiled_seen_from_inside(np.ascontiguousarray(X, dtype=np.float64), topo.faces, origin64)
     else:
         ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, neighbours)
+        ray, tri = _with_hosts(ray, tri, cand, topo.host_keys, m)
         tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt_all, faces_all, ray, tri,
                                                             topo.chart[cand], topo.gt_chart, topo.uv[cand],
                                                             topo.uv[:len(gt)],

@@ -18,7 +18,8 @@ Three kernels:
 - `nearest_occluder`: the nearest hit t of each vertex's ray on the inferred base mesh,
   leaving out the base faces the vertex itself lies on (rule 2, the depth test).
 - `first_hits`: the first gt hit of each ray with its tie-break (own chart, then facing
-  the camera, then uv nearest the vertex's own T_G).
+  the camera, then uv nearest the vertex's own T_G); the candidates also hold the faces
+  the vertex lies on (gt and inferred share faces).
 - `seen_from_inside`: `sliding.seen_from_inside` (area-weighted vertex normals, summed in
   the same order as `mesh.vertex_normals`, against the view direction) without its
   (m,3) and (n,3) temporaries.
@@ -168,13 +169,16 @@ def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, s
 
 @_compiled
 def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, faces, num_cloth, vert_chart,
-               face_chart, vert_uv, face_uv):
+               face_chart, vert_uv, face_uv, host_keys, vertices):
     """Per ray k: the nearest hit of dirs[k] on the faces of the window around pixels[k]
-    in `tri_id`, ties broken as `sliding.choose_hits` does with uv given.
+    in `tri_id` and on the faces hosting vertices[k] (gt and inferred share the faces:
+    where they are close these hold the hit, even as slivers no pixel centre samples),
+    ties broken as `sliding.choose_hits` does with uv given.
 
     Args:
         origin, dirs, pixels, tri_id, radius, neighbours: as `nearest_occluder` (ids are
-        base face ids, no modulo). positions: (n,3) float64 gt positions (then the body's).
+        base face ids, no modulo). host_keys, vertices: as `nearest_occluder` (keys
+        v * num_cloth + f). positions: (n,3) float64 gt positions (then the body's).
         faces: (m,3) int64 (then the body's). num_cloth: the cloth's face count; a ray whose
         first hit is on a later (body) face has none (exact ties go to the cloth).
         vert_chart: (k,) int64 chart of each ray's vertex. face_chart: (m,) int64.
@@ -187,7 +191,12 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
     tri = np.full(k, -1, np.int64)
     bary = np.zeros((k, 3))
     back = np.zeros(k, np.bool_)
-    size = 4 * (2 * radius + 1) ** 2
+    # The window closed under neighbours, and the most faces any vertex lies on.
+    most, run = 0, 0
+    for h in range(len(host_keys)):
+        run = run + 1 if h > 0 and host_keys[h] // num_cloth == host_keys[h - 1] // num_cloth else 1
+        most = max(most, run)
+    size = 4 * (2 * radius + 1) ** 2 + most
     buf = np.empty(size, np.int64)
     ts = np.empty(size)
     b1s = np.empty(size)
@@ -199,6 +208,14 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
     for i in range(k):
         count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
                         neighbours, 0, num_cloth, num_cloth, buf, mark, i + 1)
+        lo = np.searchsorted(host_keys, vertices[i] * num_cloth)
+        hi = np.searchsorted(host_keys, (vertices[i] + 1) * num_cloth)
+        for h in range(lo, hi):
+            f = host_keys[h] - vertices[i] * num_cloth
+            if mark[f] != i + 1:
+                mark[f] = i + 1
+                buf[count] = f
+                count += 1
         t_min = np.inf
         for j in range(count):
             ts[j], b1s[j], b2s[j], facing[j] = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2],
