@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvtex.sliding.kernels import _compiled
+from mvtex.util.compiled import compiled as _compiled
 
 
 @_compiled

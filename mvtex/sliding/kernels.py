@@ -33,18 +33,9 @@ a second per process.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from mvtex.util.compiled import compiled as _compiled
 
 _BARY_EPS = 1e-9  # the same as sliding._BARY_EPS
-
-
-def _compiled(fn):
-    """numba-compile `fn` (no GIL, NumPy's division semantics), cached on disk where numba
-    finds a writable place for its cache, compiled in every process where it finds none."""
-    try:
-        return njit(cache=True, nogil=True, error_model="numpy")(fn)
-    except RuntimeError:  # numba's "cannot cache function ...: no locator available"
-        return njit(nogil=True, error_model="numpy")(fn)
 
 
 @_compiled

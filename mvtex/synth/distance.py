@@ -11,14 +11,9 @@ the closest triangle's outward normal: negative inside the body.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
-
-def _compiled(fn, **options):
-    try:
-        return njit(cache=True, nogil=True, error_model="numpy", **options)(fn)
-    except RuntimeError:  # numba's "cannot cache function ...: no locator available"
-        return njit(nogil=True, error_model="numpy", **options)(fn)
+from mvtex.util.compiled import compiled as _compiled
 
 
 @_compiled
