@@ -22,6 +22,18 @@ def register(sub) -> None:
     library_names(p.add_argument("--max-surface-distance", type=float, default=0.05,
                                  help="reject points farther than this from the inferred surface (default 0.05 m)"),
                   "max_surface_distance_m")
+    p.add_argument("--max-stretch", type=float, default=1.75, metavar="R",
+                   help="drop observations located in a triangle with an edge whose texcoords stretch more than R "
+                        "times its material length (T_N across a fold edge; default 1.75)")
+    p.add_argument("--no-max-stretch", dest="max_stretch", action="store_const", const=None,
+                   help="keep observations whatever their triangle's stretch")
+    p.add_argument("--consensus-px", type=float, default=0.5,
+                   help="the cameras' vote: an observation agrees with a point within this (default 0.5 px)")
+    p.add_argument("--consensus-scale", type=float, default=None, metavar="S",
+                   help="grow the vote's threshold to S times the pose's median reprojection error (default: 4 "
+                        "for predicted texcoords, 0 for slid ones)")
+    p.add_argument("--fill-shape", choices=("rest", "inferred"), default="rest",
+                   help="the shape the displacement of untriangulated vertices is extended on (default rest)")
     p.add_argument("--engine", choices=("mvtex", "pycolmap"), default="mvtex",
                    help="who triangulates the tracks: mvtex (vectorised DLT + Gauss-Newton, faster) or pycolmap "
                         "(COLMAP multi-view triangulation + points-only bundle adjustment); the same points")
@@ -34,14 +46,11 @@ def cmd_triangulate(args):
     from mvtex.data.texcoords import open_texcoords
     from mvtex.recon.pose import triangulate_pose
     from mvtex.recon.triangulate import ReconOptions
-    from mvtex.util.errors import OptionError
 
-    for name, value in (("max_reprojection_px", args.max_reprojection_px),
-                        ("max_surface_distance_m", args.max_surface_distance)):
-        if not value > 0 or value == float("inf"):
-            raise OptionError(f"{name} must be a finite number > 0, got {value}")
     options = ReconOptions(smooth=args.smooth, max_reprojection_px=args.max_reprojection_px,
-                           max_surface_distance_m=args.max_surface_distance, engine=args.engine)
+                           max_surface_distance_m=args.max_surface_distance, max_stretch=args.max_stretch,
+                           consensus_px=args.consensus_px, consensus_scale=args.consensus_scale,
+                           fill_shape=args.fill_shape, engine=args.engine)
     dataset = load_dataset(args.dataset)
     rig, rig_path = load_rig(args.rig)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)

@@ -33,8 +33,8 @@ from mvtex.recon.geometry import camera_arrays, triangulate_points
 from mvtex.recon.locate import Hypotheses
 
 # Why a located hypothesis was not used, in the order the steps decide it.
-OBSERVATION_REASONS = ("unassigned", "duplicate", "occluded", "stretched_triangle", "fewer_than_2_views",
-                       "alternative", "disagreement", "reprojection", "point_rejected")
+OBSERVATION_REASONS = ("unassigned", "duplicate", "occluded", "hidden_by_body", "stretched_triangle",
+                       "fewer_than_2_views", "alternative", "disagreement", "reprojection", "point_rejected")
 
 
 @dataclass

@@ -147,8 +147,9 @@ def visible_points(camera: Camera, points: np.ndarray, face: np.ndarray, cloth: 
     projection shows its own triangle, or if it is no deeper than the farthest surface
     those pixels show (relative slack): permissive at occlusion boundaries, where the
     observation is within a pixel of visible material anyway. An occluder (another opaque
-    surface rendered from the same camera, e.g. a wearer) hides a point where all 2x2
-    pixels show it nearer than the point (same slack).
+    surface rendered from the same camera, e.g. the wearer's body) hides a point where any
+    of the 2x2 pixels shows it nearer than the point (same slack): strict, since an
+    observation next to the body's silhouette may be of material the body hides.
 
     Args:
         camera: the camera the rasters were rendered from.
@@ -168,7 +169,7 @@ def visible_points(camera: Camera, points: np.ndarray, face: np.ndarray, cloth: 
     own = np.zeros(len(points), bool)
     front = np.zeros(len(points))
     covered = np.zeros(len(points), bool)
-    hidden = [np.ones(len(points), bool) for _ in occluders]
+    hidden = [np.zeros(len(points), bool) for _ in occluders]
     for du in (0, 1):
         for dv in (0, 1):
             u = np.clip(u0 + du, 0, W - 1)
@@ -180,7 +181,7 @@ def visible_points(camera: Camera, points: np.ndarray, face: np.ndarray, cloth: 
             front = np.maximum(front, np.where(cov, cloth.depth[v, u], 0.0))
             for k, occluder in enumerate(occluders):
                 nearer = (occluder.tri_id[v, u] >= 0) & (occluder.depth[v, u] * (1 + tolerance) < z)
-                hidden[k] &= nearer
+                hidden[k] |= nearer
     seen = ok & (own | (covered & (z <= front * (1 + tolerance))))
     for h in hidden:
         seen &= ~h
@@ -213,8 +214,8 @@ class Hypotheses:
 def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray,
                        texcoords: dict[str, np.ndarray], cameras: Sequence[Camera], *, uv_resolution: int = 1024,
                        depth_tolerance: float = 0.005, assigned: dict[str, np.ndarray] | None = None,
-                       require_assigned: bool = True, progress: bool = False, ctx: GLContext | None = None
-                       ) -> tuple[Hypotheses, dict[str, int]]:
+                       require_assigned: bool = True, body: tuple[np.ndarray, np.ndarray] | None = None,
+                       progress: bool = False, ctx: GLContext | None = None) -> tuple[Hypotheses, dict[str, int]]:
     """Per camera, the surface points showing each gt vertex's material, where visible.
 
     Args:
@@ -228,14 +229,16 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
             rather than extrapolated).
         require_assigned: with `assigned`, drop hypotheses in triangles with an
             unassigned corner.
+        body: optional (positions (nb,3), faces (mb,3)) of the wearer's body in this pose:
+            in the depth test of every camera, so that no hypothesis the body hides is kept.
         progress: progress bar over cameras on stderr.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
     Returns:
         The visible hypotheses, and counts: "hypotheses" located, and of them
         "unassigned" (dropped for an unassigned corner), "duplicate" (the same 3-D point as
-        another of the vertex's hypotheses in that camera: a point on a shared edge) and
-        "occluded".
+        another of the vertex's hypotheses in that camera: a point on a shared edge),
+        "occluded" (by the cloth) and "hidden_by_body" (seen past the cloth, not past the body).
     """
     from tqdm import tqdm
 
@@ -246,10 +249,15 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         with GLContext() as own:
             return collect_hypotheses(gt_uv, inferred_positions, faces, texcoords, cameras, uv_resolution=uv_resolution,
                                       depth_tolerance=depth_tolerance, assigned=assigned,
-                                      require_assigned=require_assigned, progress=progress, ctx=own)
+                                      require_assigned=require_assigned, body=body, progress=progress, ctx=own)
     X_N = np.asarray(inferred_positions, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    counts = {"hypotheses": 0, "unassigned": 0, "duplicate": 0, "occluded": 0}
+    counts = {"hypotheses": 0, "unassigned": 0, "duplicate": 0, "occluded": 0, "hidden_by_body": 0}
+    if body is not None:
+        body_positions = np.asarray(body[0], dtype=np.float64)
+        body_faces = np.asarray(body[1], dtype=np.int64)
+        check_shape(body_positions, "body positions", ("nb", 3))
+        check_shape(body_faces, "body faces", ("mb", 3))
     hyp_v, hyp_c, hyp_px, hyp_f, hyp_b = [], [], [], [], []
     for c, cam in enumerate(tqdm(cameras, desc="locate", unit="camera", disable=not progress, leave=False)):
         T = np.asarray(texcoords[cam.name], dtype=np.float64)
@@ -267,6 +275,11 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         raster = rasterize(ctx, X_N, faces, cam)
         seen, pixels = visible_points(cam, P, fi, raster, tolerance=depth_tolerance)
         counts["occluded"] += int((~seen).sum())
+        if body is not None:
+            body_raster = rasterize(ctx, body_positions, body_faces, cam)
+            past_body, _ = visible_points(cam, P, fi, raster, [body_raster], tolerance=depth_tolerance)
+            counts["hidden_by_body"] += int((seen & ~past_body).sum())
+            seen &= past_body
         hyp_v.append(vi[seen])
         hyp_c.append(np.full(int(seen.sum()), c))
         hyp_px.append(pixels[seen])

@@ -61,12 +61,14 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         raise InputError(texcoords.path, f"triangulation needs ≥ 2 cameras present in both the texcoord set "
                          f"({', '.join(texcoords.cameras)}) and the rig ({', '.join(rig.names)})")
     sub_rig = rig.select(names)
+    options = options.for_source(texcoords.source)
     X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
     T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}
     assigned = {c: texcoords.assigned(c, pose) for c in names}
     rest = None if dataset.rest is None else np.asarray(dataset.rest, np.float64)
+    body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
     rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
-                      gt_faces=dataset.faces, assigned=assigned, rest=rest, progress=progress, ctx=ctx)
+                      gt_faces=dataset.faces, assigned=assigned, rest=rest, body=body, progress=progress, ctx=ctx)
     gt = np.asarray(dataset.gt[pose], np.float64)
     report = reconstruction_report(rec, gt, dataset.faces, rest, pose, options)
     report.update(cameras=names, texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)

@@ -115,7 +115,7 @@ def consensus_threshold(hypotheses: Hypotheses, num_vertices: int, cameras: Sequ
     texcoords with noise (predicted ones) then keep their observations, exact ones (TS)
     keep the tight threshold.
     """
-    if options.consensus_scale <= 0:
+    if not options.consensus_scale:  # None (no source to decide by) or 0
         return float(options.consensus_px)
     loose = vote(hypotheses, num_vertices, cameras, max(options.max_reprojection_px, options.consensus_px),
                  options.max_combinations, options.refine_iterations)
@@ -311,8 +311,8 @@ def taubin_smooth(values: np.ndarray, adjacency: sp.csr_matrix, iterations: int 
 def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray, uv: np.ndarray,
                 texcoords: dict[str, np.ndarray], rig: Rig, options: ReconOptions = ReconOptions(), *,
                 gt_faces: np.ndarray | None = None, assigned: dict[str, np.ndarray] | None = None,
-                rest: np.ndarray | None = None, progress: bool = False, ctx: GLContext | None = None
-                ) -> Reconstruction:
+                rest: np.ndarray | None = None, body: tuple[np.ndarray, np.ndarray] | None = None,
+                progress: bool = False, ctx: GLContext | None = None) -> Reconstruction:
     """Triangulate the gt vertices from per-camera texture coordinates of an inferred mesh.
 
     Runs steps 1-6 of the module docstring.
@@ -330,6 +330,8 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
             defaults to `faces` when n' == n).
         assigned: optional camera name -> (n',) bool (used with options.require_assigned).
         rest: optional (n,3) rest shape of the gt mesh (the fill's shape, options.fill_shape).
+        body: optional (positions (nb,3), faces (mb,3)) of the wearer's body in this pose: no
+            observation it hides from a camera is used.
         progress: show a progress bar over cameras.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
@@ -364,7 +366,8 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     cameras = [rig[c] for c in names]
     hypotheses, stats = collect_hypotheses(gt_uv, X_N, faces, texcoords, cameras, uv_resolution=options.uv_resolution,
                                            depth_tolerance=options.depth_tolerance, assigned=assigned,
-                                           require_assigned=options.require_assigned, progress=progress, ctx=ctx)
+                                           require_assigned=options.require_assigned, body=body,
+                                           progress=progress, ctx=ctx)
     return reconstruct_from_hypotheses(hypotheses, stats, n, X_N, faces, uv, {c: texcoords[c] for c in names},
                                        rig.select(names), options, gt_faces=gt_faces, rest=rest)
 
@@ -394,8 +397,8 @@ def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], n
     stats = dict(stats)
     triangulate = track_triangulator(options)
     ledger = HypothesisLedger()
-    for reason in ("unassigned", "duplicate", "occluded"):
-        ledger.add(reason, stats[reason])
+    for reason in ("unassigned", "duplicate", "occluded", "hidden_by_body"):
+        ledger.add(reason, stats.get(reason, 0))
     hypotheses, stretched = screen_hypotheses(hypotheses, faces, uv, [np.asarray(texcoords[c]) for c in names],
                                               options.max_stretch)
     ledger.add("stretched_triangle", stretched)

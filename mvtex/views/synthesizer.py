@@ -190,8 +190,8 @@ class ViewSynthesizer:
             X_N = tc.positions(state.inferred)
             T = {c: tc.uv.astype(np.float64) + state.displacement[c] for c in self.array}
             state.reconstruction = reconstruct(self.dataset.uv, X_N, tc.faces, tc.uv, T, self.rig.select(self.array),
-                                             self.recon_options, gt_faces=self.dataset.faces, assigned=state.assigned,
-                                             progress=progress, ctx=self.gl)
+                                             self.recon_options.for_source(tc.source), gt_faces=self.dataset.faces, assigned=state.assigned,
+                                             body=state.body, progress=progress, ctx=self.gl)
         return state
 
     def view(self, state: PoseContext, camera: Camera, weights: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:

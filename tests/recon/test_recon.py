@@ -260,7 +260,7 @@ def test_reconstruct_input_errors():
         ReconOptions(max_stretch=1.0)
     with pytest.raises(ValueError, match="consensus_px must be a positive finite number, got nan"):
         ReconOptions(consensus_px=float("nan"))
-    with pytest.raises(ValueError, match="consensus_scale must be ≥ 0 and finite, got -1"):
+    with pytest.raises(ValueError, match="consensus_scale must be ≥ 0 and finite, or None, got -1"):
         ReconOptions(consensus_scale=-1)
     with pytest.raises(ValueError, match="fill_shape must be one of rest, inferred, got 'gt'"):
         ReconOptions(fill_shape="gt")
@@ -441,3 +441,53 @@ def test_triangulate_smooth_through_the_command_line(identity_run, tmp_path, cap
     assert smooth["rmse_m"]["reconstructed"] < plain["rmse_m"]["reconstructed"]
     on_disk = json.loads((tmp_path / "out1" / "report.json").read_text())
     assert on_disk == smooth
+
+
+def test_no_observation_the_body_hides(gl):
+    """A box between a wavy sheet and three cameras (inferred = gt, T_N = T_G, so every
+    located point is the gt vertex): every observation the reconstruction uses is of a
+    vertex whose ray to that camera misses the box (trimesh's exact ray cast), and without
+    the body some would not be."""
+    import trimesh
+
+    from mvtex.recon.triangulate import reconstruct
+
+    embree = pytest.importorskip("trimesh.ray.ray_pyembree")
+    faces, uv, rest = grid_mesh(40, 34)
+    gt = wave(rest, 0.015, 0.4)
+    rig = three_camera_rig()
+    box = trimesh.creation.box(extents=(0.12, 0.08, 0.1), transform=trimesh.transformations.translation_matrix(
+        (0.02, 0.01, 0.45)))
+    body = (np.asarray(box.vertices, np.float64), np.asarray(box.faces, np.int64))
+    texcoords = {c.name: uv for c in rig}
+    worn = reconstruct(uv, gt, faces, uv, texcoords, rig, body=body)
+    bare = reconstruct(uv, gt, faces, uv, texcoords, rig)
+    caster = embree.RayMeshIntersector(box)
+
+    def hidden_by_box(cam, vertices):
+        origins = np.repeat(cam.center[None], len(vertices), axis=0)
+        to = gt[vertices] - origins
+        dist = np.linalg.norm(to, axis=1)
+        hit = caster.intersects_first(origins, to / dist[:, None])
+        hidden = np.zeros(len(vertices), bool)
+        met = hit >= 0
+        if met.any():
+            loc, ray, _ = caster.intersects_location(origins[met], (to / dist[:, None])[met], multiple_hits=False)
+            first = np.full(int(met.sum()), np.inf)
+            first[ray] = np.linalg.norm(loc - origins[met][ray], axis=1)
+            hidden[np.flatnonzero(met)] = first < dist[met]
+        return hidden
+
+    through = 0
+    for cam in rig:
+        used = np.flatnonzero(np.isfinite(worn.observations[cam.name][:, 0]))
+        assert len(used) > 0.4 * len(uv)
+        assert not hidden_by_box(cam, used).any(), cam.name
+        through += int(hidden_by_box(cam, np.flatnonzero(np.isfinite(bare.observations[cam.name][:, 0]))).sum())
+    assert through > 100
+    assert worn.rejected_observations["hidden_by_body"] > 100
+    assert bare.rejected_observations["hidden_by_body"] == 0
+    # Where it still triangulates, the body changes nothing: the same exact points.
+    both = worn.triangulated & bare.triangulated
+    assert both.sum() > 0.4 * len(uv)
+    assert np.abs(worn.points[both] - gt[both]).max() < 1e-6
