@@ -1,6 +1,6 @@
 """TSNN learning curve: every method on the same test poses, at growing training sets.
 
-    python examples/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30] [--steps 1500]
+    python benchmarks/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30] [--steps 1500]
            [--methods pca_ridge,gp,paper,unet,unet_all] [--plot docs/tsnn_learning_curve.png]
            [--merge OTHER_WORK ...] [--report-only]
 
