@@ -28,11 +28,14 @@ Cholesky factorisation of the (C,K,K) covariances and the closed-form gradient
 autograd graph is kept and the (C,K,K,P) array of one-dimensional terms never exists
 whole. Each component keeps its own L-BFGS (`mvtex.tsnn.lbfgs`: its own history, line
 search and stopping test, bounds kept by projection), so a component follows the path it
-would follow alone, and finished components cost nothing more. One start (ℓ = 1, σ = 0.1,
-t = e⁻²) on all training poses up to `HYPER_POSES`: with the lengthscale floor and cap kept
-by projection (a lengthscale that reached its cap can come back), that start reaches
-higher likelihoods than the best of three starts did with a clamp, whose flat region
-past the cap holds a coordinate there for good. On the CPU the batch is cut into parts
+would follow alone, and finished components cost nothing more. The bounds (the lengthscale
+floor among them) are kept by projection, so a lengthscale that reached its cap can come
+back; a clamp's flat region past the cap would hold it there for good. One start
+(ℓ = 1, σ = 0.1, t = e⁻²), on all training poses up to `HYPER_POSES`: on the built-in
+shirt it predicts the test poses as well as the best of three starts fitted on fewer
+poses and refined (benchmarks/tsnn_learning_curve.py, `gp` beside `gp_reference`), at a
+fraction of the cost; fitting on a subset and continuing on all poses lands in worse
+optima than starting on all of them. On the CPU the batch is cut into parts
 evaluated side by side on as many Python threads as torch has threads, each operation
 on one thread: one join per evaluation instead of a barrier per operation (on a shared
 machine, per-operation barriers make two threads several times slower than one). The
@@ -75,6 +78,21 @@ _START = (1.0, 0.1, -2.0)
 # Shortest lengthscale, in training standard deviations of the pose coordinate: shorter ones
 # only fit noise (a few hundred poses cannot resolve them in a dozen dimensions).
 _LOG_L_MIN = math.log(0.3)
+
+
+_NOISE_FLOOR = 1e-6  # noise variance floor (y has unit variance): keeps the covariance well conditioned
+
+
+_PART_ROWS = 8  # rows of one part of a batched likelihood evaluation (see `_parts`)
+
+
+_PART_ELEMENTS = 2 ** 23  # (rows, K, K) float64 arrays of one part: 64 MB each
+
+
+_DEVICE_SCALE = 16  # larger tiles and parts on CUDA: fewer, larger kernels
+
+
+_TILE_ELEMENTS = 2 ** 18  # (rows, tile, tile, P) temporaries of the kernel: 2 MB of float64, cache-sized
 
 
 @dataclass(frozen=True)
@@ -156,9 +174,6 @@ class PoseGP(nn.Module):
         return torch.exp(-self.log_lengthscale).cpu().numpy()
 
 
-_TILE_ELEMENTS = 2 ** 18  # (rows, tile, tile, P) temporaries of the kernel: 2 MB of float64, cache-sized
-
-
 def _tiles(n: int, size: int) -> list[tuple[int, int]]:
     return [(i, min(i + size, n)) for i in range(0, n, size)]
 
@@ -216,18 +231,6 @@ def loo_residuals(inverse: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     Williams, eq. 5.12): [A⁻¹y]_i / [A⁻¹]_ii, with A = K + σ²I and `inverse` = A⁻¹ (...,K,K)
     (batched over leading dimensions; y (...,K))."""
     return (inverse @ y[..., None])[..., 0] / torch.diagonal(inverse, dim1=-2, dim2=-1)
-
-
-_NOISE_FLOOR = 1e-6  # noise variance floor (y has unit variance): keeps the covariance well conditioned
-
-
-_PART_ROWS = 8  # rows of one part of a batched likelihood evaluation (see `_parts`)
-
-
-_PART_ELEMENTS = 2 ** 23  # (rows, K, K) float64 arrays of one part: 64 MB each
-
-
-_DEVICE_SCALE = 16  # larger tiles and parts on CUDA: fewer, larger kernels
 
 
 def _bounds(p: int, device) -> tuple[torch.Tensor, torch.Tensor]:
