@@ -100,11 +100,13 @@ def errors(calibrated: Rig, truth: Rig, reference: str) -> dict:
 def main(out: str | Path = "calibrate-demo", num_poses: int = 12) -> dict:
     out = Path(out)
     truth = true_rig()
-    run("board", SPEC, "--out", str(out / "board.png"), "--dpi", "150")
+    # --overwrite: a second run of this example replaces its own files.
+    run("board", SPEC, "--out", str(out / "board.png"), "--dpi", "150", "--overwrite")
     print(f"(rendering the board from {len(truth)} cameras at {num_poses} poses: {out / 'images'})")
     render_images(truth, out / "images", num_poses)
-    result = run("calibrate", str(out / "images"), "--board", SPEC, "--out", str(out / "rig.yaml"), "--quiet", "--json")
-    run("rig", str(out / "rig.yaml"), "--undistort", "--out", str(out / "rig_pinhole.yaml"))
+    result = run("calibrate", str(out / "images"), "--board", SPEC, "--out", str(out / "rig.yaml"),
+                 "--pictures", str(out / "rig_calibration"), "--overwrite", "--quiet", "--json")
+    run("rig", str(out / "rig.yaml"), "--undistort", "--out", str(out / "rig_pinhole.yaml"), "--overwrite")
     run("undistort", str(out / "images"), "--rig", str(out / "rig.yaml"), "--out", str(out / "undistorted"), "--quiet")
     run("rig", str(out / "rig_pinhole.yaml"), "--to-colmap", str(out / "colmap"))
     table = errors(load_rig(out / "rig.yaml"), truth, result["reference"])

@@ -79,7 +79,7 @@ def study(work: Path, num_poses: int, garments: list[str], rig_names: list[str],
                 start = time.perf_counter()
                 out = work / "runs" / f"{garment}_{label.replace(' ', '_')}_s{subdiv}"
                 tc = slide_dataset(dataset, rig, out, poses=test, options=options, workers=1, progress=False)
-                result = evaluate(dataset, rig, tc, progress=False)
+                result = evaluate(dataset, rig, tc, progress=False).to_json()
                 row[f"subdiv{subdiv}"] = {name: _per_rig(result, [c.name for c in load_rig(resolve_rig(name))])
                                           for name in rig_names}
                 print(f"{garment:6s} {label:22s} subdiv {subdiv}: " + "; ".join(

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.data.camera import look_at
+from mvtex.data.camera import Camera, look_at
 from mvtex.data.rig import Rig, save_rig
 
 SIZE, FOCAL, DISTANCE = 512, 1150.0, 2.2
 
 
-def on_circle(name: str, azimuth_deg: float, height: float) -> "Camera":
+def on_circle(name: str, azimuth_deg: float, height: float) -> Camera:
     a = np.radians(azimuth_deg)
     r = np.sqrt(DISTANCE**2 - height**2)
     center = (r * np.sin(a), height, r * np.cos(a))

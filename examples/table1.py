@@ -35,7 +35,7 @@ def main(work: Path, spec: str = "::2", rigs: tuple[str, ...] = ("stereo", "squa
         for subdiv in (0, 1, 2):
             tc_path = work / f"ts_{rig_name}_s{subdiv}"
             slide_dataset(dataset, rig, tc_path, poses=poses, options=SlideOptions(subdiv=subdiv), workers=2)
-            r = evaluate(dataset, rig, open_texcoords(tc_path, dataset.num_vertices), progress=True)
+            r = evaluate(dataset, rig, open_texcoords(tc_path, dataset.num_vertices), progress=True).to_json()
             if subdiv == 0:
                 lines.append(f"| {rig_name} ({r['num_images']} images) | inferred (baseline) | {fmt(r['sqrt_mse']['inferred'])} | 1 "
                              f"| {fmt(r['sqrt_mse_same_chart']['inferred'])} | 1 |")

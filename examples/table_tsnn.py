@@ -78,8 +78,8 @@ def main(work: Path, total: int = 1200) -> dict:
         pred = work / f"pred_s{subdiv}"
         predict(ds, models, pred, poses=test)
         pc = open_texcoords(pred, ds.num_vertices)
-        r = evaluate(ds, stereo.select(["left"]), pc, progress=False)
-        r_ts = evaluate(ds, stereo.select(["left"]), tc, poses=test, progress=False)
+        r = evaluate(ds, stereo.select(["left"]), pc, progress=False).to_json()
+        r_ts = evaluate(ds, stereo.select(["left"]), tc, poses=test, progress=False).to_json()
         if subdiv == 0:
             rows.append(f"| inferred (baseline) | {fmt(r['sqrt_mse']['inferred'])} | 1 | {fmt(r['sqrt_mse_same_chart']['inferred'])} | 1 |")
         rows.append(f"| TSNN{' + subdivision' if subdiv else ''} | {fmt(r['sqrt_mse']['texcoords'])} | {r['ratio']:.2f} "

@@ -59,7 +59,7 @@ def main() -> None:
     held = rig.select([args.held_out])
     pred = args.work / f"pred_trap_{args.held_out}_{args.train_poses}"
     predict(ds, [model], pred, poses=ds.split["test"], rig=held, progress=False)
-    r = evaluate(ds, held, open_texcoords(pred, ds.num_vertices), progress=False)
+    r = evaluate(ds, held, open_texcoords(pred, ds.num_vertices), progress=False).to_json()
     out = {"held_out": args.held_out, "trained_on": others, "train_poses": len(train_poses),
            "train_seconds": round(seconds, 1), "num_images": r["num_images"],
            "same_chart_e3": {"inferred": r["sqrt_mse_same_chart"]["inferred"]["mean"] * 1e3,

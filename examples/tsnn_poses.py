@@ -55,7 +55,7 @@ def main(work: Path, total: int = 1200, sizes: tuple[int, ...] = (120, 240, 480,
         summary = json.loads(summary_path.read_text())
         pred = work / f"pred_left_{m}"
         predict(ds, [model], pred, poses=test, progress=False)
-        r = evaluate(ds, left, open_texcoords(pred, ds.num_vertices), progress=False)
+        r = evaluate(ds, left, open_texcoords(pred, ds.num_vertices), progress=False).to_json()
         if base is None:
             base = r
             rows.insert(2, f"| (baseline: inferred) | {fmt(r['sqrt_mse']['inferred'])} | 1 | "

@@ -23,10 +23,19 @@ def load(name: str):
 @pytest.mark.slow
 def test_quickstart(tmp_path, gl):
     result = load("quickstart").main(tmp_path, 12)
-    assert result["eval"]["ratio"] > 1.0
+    assert result["eval"].ratio > 1.0 and result["eval"].ratio_material > 1.0
     r = result["reconstruction"]
     assert r["rmse_triangulated_m"]["reconstructed"] < r["rmse_triangulated_m"]["inferred"] / 3
     assert (tmp_path / "reconstruction" / "colmap" / "points3D.bin").exists()
+
+
+def test_quickstart_uses_the_public_api_only():
+    import ast
+
+    tree = ast.parse((EXAMPLES / "quickstart.py").read_text())
+    modules = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    modules |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert modules == {"sys", "pathlib", "mvtex"}
 
 
 def test_own_data_import(tmp_path, gl):

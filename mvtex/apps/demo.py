@@ -16,13 +16,28 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+MIN_POSES = 10  # the test split must hold a pose to show, the training split enough for a model
+
 
 @dataclass(frozen=True)
 class DemoOptions:
+    """Options of `run_demo`.
+
+    Attributes:
+        num_poses: poses of the built-in dataset (at least `MIN_POSES`).
+        seed: seed of the dataset.
+        tsnn: also train and evaluate the per-camera model.
+    """
+
     num_poses: int = 120
     seed: int = 0
-    epochs: int | None = None
     tsnn: bool = True
+
+    def __post_init__(self) -> None:
+        from mvtex.util.errors import OptionError
+
+        if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, int) or self.num_poses < MIN_POSES:
+            raise OptionError(f"num_poses must be an integer of at least {MIN_POSES}, got {self.num_poses!r}")
 
 
 def _step(name: str, progress: bool) -> float:
@@ -97,8 +112,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
 
         t = _step("training the texture sliding network of camera 'left'", progress)
         model = out / "tsnn_left"
-        # The per-camera default (gp); epochs matter only for the networks (--arch unet|paper).
-        train_opts = TrainOptions(seed=options.seed, epochs=options.epochs or 30)
+        train_opts = TrainOptions(seed=options.seed)  # the per-camera default: gp
         if not (model / "config.json").exists():
             train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
                   options=train_opts, progress=progress)
@@ -134,19 +148,18 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     return summary
 
 
-def _short(result: dict) -> dict:
-    s = result["sqrt_mse"]
-    c = result["sqrt_mse_same_chart"]
-    m = result["material_rmse_m"]
-    return {"num_images": result["num_images"],
-            "material_inferred_mm": round(m["inferred"]["mean"] * 1e3, 3),
-            "material_texcoords_mm": round(m["texcoords"]["mean"] * 1e3, 3),
-            "ratio_material": round(result["ratio_material"], 2),
-            "inferred_e3": round(s["inferred"]["mean"] * 1e3, 3),
-            "texcoords_e3": round(s["texcoords"]["mean"] * 1e3, 3), "ratio": round(result["ratio"], 2),
-            "same_chart_inferred_e3": round(c["inferred"]["mean"] * 1e3, 3),
-            "same_chart_texcoords_e3": round(c["texcoords"]["mean"] * 1e3, 3),
-            "ratio_same_chart": round(result["ratio_same_chart"], 2)}
+def _short(result) -> dict:
+    """The headline numbers of an `Evaluation`, rounded for the summary."""
+    s, c, m = result.sqrt_mse, result.sqrt_mse_same_chart, result.material_rmse_m
+    return {"num_images": result.num_images,
+            "material_inferred_mm": round(m.inferred.mean * 1e3, 3),
+            "material_texcoords_mm": round(m.texcoords.mean * 1e3, 3),
+            "ratio_material": round(result.ratio_material, 2),
+            "inferred_e3": round(s.inferred.mean * 1e3, 3),
+            "texcoords_e3": round(s.texcoords.mean * 1e3, 3), "ratio": round(result.ratio, 2),
+            "same_chart_inferred_e3": round(c.inferred.mean * 1e3, 3),
+            "same_chart_texcoords_e3": round(c.texcoords.mean * 1e3, 3),
+            "ratio_same_chart": round(result.ratio_same_chart, 2)}
 
 
 def _pair(r: dict) -> str:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 SPEC_PATTERN = re.compile(r"^charuco:(\d+)x(\d+):([0-9.eE+-]+):([0-9.eE+-]+):(DICT_\w+)$")
 
@@ -33,6 +33,7 @@ PNG_SOFTWARE = "mvtex board"
 
 
 MM_PER_INCH = 25.4
+MAX_BOARD_PIXELS = 32768  # side of the printable image (a 1.1 m board at 750 dpi)
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,8 @@ def parse_board_spec(text: str) -> BoardSpec:
     if cols < 3 or rows < 3:
         raise InputError(None, f"board SPEC {text!r}: needs at least 3x3 squares, got {cols}x{rows}")
     if not (np.isfinite(square) and np.isfinite(marker) and 0 < marker < square):
-        raise InputError(None, f"board SPEC {text!r}: needs 0 < MARKER_M < SQUARE_M, got {marker:g} and {square:g}")
+        raise InputError(None, f"board SPEC {text!r}: needs 0 < MARKER_M < SQUARE_M, got SQUARE_M {square:g} and "
+                         f"MARKER_M {marker:g}")
     if not hasattr(cv2.aruco, name):
         raise InputError(None, f"board SPEC {text!r}: unknown dictionary {name} (OpenCV's cv2.aruco.DICT_*, "
                          "e.g. DICT_4X4_50, DICT_5X5_100, DICT_6X6_250)")
@@ -135,8 +137,8 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
 
     Give `dpi` (pixels per inch of the print; default 300) or `pixels_per_square`. The PNG
     carries its dpi (pHYs), so printing it at 100 % scale gives squares of `square_m`; the
-    margin (default: half a square, at least 10 mm) shows the SPEC in small print. A file
-    at `path` is only replaced if mvtex wrote it.
+    margin (default: half a square, at least 10 mm) shows the SPEC in small print. The file
+    is written under a temporary name and renamed into place.
 
     Returns:
         {"path", "spec", "pixels_per_square", "dpi", "width_px", "height_px", "width_mm", "height_mm"}.
@@ -148,18 +150,24 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
 
     path = Path(path)
     if dpi is not None and pixels_per_square is not None:
-        raise InputError(None, "give either dpi or pixels_per_square, not both")
+        raise OptionError("dpi and pixels_per_square: give one, not both")
     if pixels_per_square is None:
         dpi = 300.0 if dpi is None else float(dpi)
         if not (np.isfinite(dpi) and dpi > 0):
-            raise InputError(None, f"dpi must be positive, got {dpi}")
+            raise OptionError(f"dpi must be positive, got {dpi}")
         pixels_per_square = int(round(spec.square_m * 1000 / MM_PER_INCH * dpi))
     else:
         dpi = pixels_per_square / (spec.square_m * 1000 / MM_PER_INCH)
     if pixels_per_square < 8:
-        raise InputError(None, f"{pixels_per_square} pixels per square is too few to print the markers (>= 8)")
+        raise OptionError(f"pixels_per_square must be at least 8 to print the markers, got {pixels_per_square}")
     margin_m = max(spec.square_m / 2, 0.010) if margin_m is None else float(margin_m)
+    if not (np.isfinite(margin_m) and margin_m >= 0):
+        raise OptionError(f"margin_m must be a finite number >= 0, got {margin_m}")
     margin_px = int(round(margin_m * 1000 / MM_PER_INCH * dpi))
+    side = max(spec.cols, spec.rows) * pixels_per_square + 2 * margin_px
+    if side > MAX_BOARD_PIXELS:  # checked before OpenCV allocates the image
+        raise OptionError(f"pixels_per_square {pixels_per_square} makes a board image of {side} pixels a side, more "
+                          f"than {MAX_BOARD_PIXELS}; lower it (or the dpi)")
     image = board_image(spec, pixels_per_square, margin_px)
     text = f"{spec}   square {spec.square_m * 1000:g} mm   print at {dpi:.0f} dpi, 100 %"
     scale = margin_px * 0.35 / 22.0
@@ -169,7 +177,6 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
             y = image.shape[0] - margin_px // 2 + h // 2
             cv2.putText(image, text, (margin_px, y), cv2.FONT_HERSHEY_SIMPLEX, scale, 96,
                         max(1, int(round(scale * 2))), cv2.LINE_AA)
-    _check_overwritable_png(path)
     info = PngImagePlugin.PngInfo()
     info.add_text("Software", PNG_SOFTWARE)
     info.add_text("Description", str(spec))
@@ -179,20 +186,6 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
     return {"path": str(path), "spec": str(spec), "pixels_per_square": int(pixels_per_square), "dpi": float(dpi),
             "width_px": int(width), "height_px": int(height),
             "width_mm": width / dpi * MM_PER_INCH, "height_mm": height / dpi * MM_PER_INCH}
-
-
-def _check_overwritable_png(path: Path) -> None:
-    if not path.exists():
-        return
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as existing:
-            software = existing.info.get("Software", "")
-    except (UnidentifiedImageError, OSError):
-        software = ""
-    if software != PNG_SOFTWARE:
-        raise InputError(path, "exists and was not written by mvtex board; not overwriting it")
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ import numpy as np
 from mvtex.calibration.board import BoardDetector, BoardSpec, Detection
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -72,9 +72,9 @@ class CalibrateOptions:
 
     def __post_init__(self) -> None:
         if self.distortion not in DISTORTION_MODELS:
-            raise InputError(None, f"distortion must be one of {', '.join(DISTORTION_MODELS)}, got {self.distortion!r}")
+            raise OptionError(f"distortion must be one of {', '.join(DISTORTION_MODELS)}, got {self.distortion!r}")
         if self.min_corners < 4:
-            raise InputError(None, f"min_corners must be at least 4, got {self.min_corners}")
+            raise OptionError(f"min_corners must be at least 4, got {self.min_corners}")
 
     def to_json(self) -> dict:
         out = asdict(self)
@@ -164,8 +164,20 @@ def find_images(folder: str | os.PathLike) -> list[CameraImages]:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, "image folder not found")
+    from mvtex.data.camera import check_camera_name
+
     cameras = []
+    seen: dict[str, str] = {}
     for sub in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        # A camera folder's name becomes the camera's name: checked before any detection runs.
+        try:
+            check_camera_name(sub.name)
+        except ValueError as err:
+            raise InputError(sub, f"{err}; rename the folder") from None
+        if sub.name.lower() in seen:
+            raise InputError(sub, f"camera folders {seen[sub.name.lower()]!r} and {sub.name!r} differ only in case "
+                             "(camera names must be unique ignoring case)")
+        seen[sub.name.lower()] = sub.name
         files: dict[str, Path] = {}
         for path in sorted(sub.iterdir()):
             if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES:
@@ -353,7 +365,7 @@ def initial_extrinsics(names: Sequence[str], reference: str, frames: dict[str, l
     return cam_from_ref
 
 
-def project_points(points: np.ndarray, rotvec: np.ndarray, tvec: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
+def project_distorted(points: np.ndarray, rotvec: np.ndarray, tvec: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
     """OpenCV's pinhole + 5-coefficient distortion projection, as `cv2.projectPoints`.
 
     Args:

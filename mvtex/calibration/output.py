@@ -1,5 +1,5 @@
-"""What `mvtex calibrate` writes: the rig YAML and, beside it, `<stem>_calibration/` with
-the record of the calibration and its pictures (the rig, the reprojection residuals).
+"""What `mvtex calibrate` writes: the rig YAML and, on request, a folder with the record of
+the calibration and its pictures (the rig, the reprojection residuals).
 """
 
 from __future__ import annotations
@@ -13,91 +13,55 @@ from mvtex.calibration.board import BoardSpec
 from mvtex.calibration.calibrate import CALIBRATION_FORMAT, CalibrateOptions, Calibration, calibrate, find_images
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError
 
 
-def pictures_folder(rig_path: str | os.PathLike) -> Path:
-    """Where the pictures and the record of a calibration go: `<rig stem>_calibration/`
-    next to the rig."""
-    rig_path = Path(rig_path)
-    return rig_path.with_name(f"{rig_path.stem}_calibration")
-
-
-def check_outputs(rig_path: str | os.PathLike) -> None:
-    """Refuse (InputError) to replace a rig file or a pictures folder mvtex did not write."""
-    rig_path = Path(rig_path)
-    check_rig_overwritable(rig_path)
-    folder = pictures_folder(rig_path)
-    if folder.exists():
-        record = folder / "calibration.json"
-        ours = False
-        if folder.is_dir() and record.is_file():
-            try:
-                import json
-
-                ours = json.loads(record.read_text()).get("format") == CALIBRATION_FORMAT
-            except (ValueError, UnicodeDecodeError, AttributeError):
-                ours = False
-        if not ours:
-            raise InputError(folder, "exists and was not written by mvtex calibrate; not overwriting it")
-
-
-def check_rig_overwritable(path: str | os.PathLike) -> None:
-    """Refuse (InputError) to replace a file that is not an mvtex rig."""
-    path = Path(path)
-    if not path.exists():
-        return
-    head = b""
-    if path.is_file():
-        with open(path, "rb") as f:
-            head = f.read(4096)
-    if b"mvtex-rig" not in head:
-        raise InputError(path, "exists and is not an mvtex rig; not overwriting it")
-
-
-def write_calibration(calibration: Calibration, rig_path: str | os.PathLike) -> dict:
-    """Write the rig YAML and, next to it, `<stem>_calibration/` with `calibration.json`
-    (options, per-camera numbers, frames), `rig.png` (frusta and board poses) and
-    `residuals.png` (per camera, reprojection residuals over the image).
+def write_calibration(calibration: Calibration, rig_path: str | os.PathLike,
+                      pictures: str | os.PathLike | None = None) -> dict:
+    """Write the rig YAML and, given a `pictures` folder, `calibration.json` there (options,
+    per-camera and per-frame numbers, skipped frames), `rig.png` (frusta and board poses)
+    and `residuals.png` (per camera, the reprojection residuals over the image). Each is
+    written under a temporary name and renamed when complete.
 
     Returns:
         {"rig": path, "pictures": [paths]}.
     """
+    import json
+
     from mvtex.data.rig import save_rig
     from mvtex.util.output import atomic_path
 
     rig_path = Path(rig_path)
-    check_outputs(rig_path)
-    folder = pictures_folder(rig_path)
-    with atomic_path(folder) as tmp:
-        tmp.mkdir()
-        record = {"format": CALIBRATION_FORMAT, "version": 1, "rig": rig_path.name,
-                  "options": {**calibration.options.to_json(), "reference": calibration.reference}
-                  if calibration.options else None,
-                  **calibration.summary(),
-                  "frames": list(calibration.frames),
-                  "cameras": {name: {"frames": list(obs.frames), "skipped": list(obs.skipped),
-                                     "corners": int(sum(len(d) for d in obs.detections)),
-                                     "frame_rms_px": calibration.frame_rms_px(name)}
-                              for name, obs in calibration.observations.items()}}
-        import json
-
-        (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
-        plot_rig(calibration.rig, tmp / "rig.png", board=calibration.board,
-                 world_from_board=calibration.world_from_board,
-                 title=f"{len(calibration.rig)} cameras, {len(calibration.frames)} board poses, "
-                       f"RMS {calibration.rms_px:.3f} px")
-        plot_residuals(calibration, tmp / "residuals.png")
+    files = []
+    if pictures is not None:
+        folder = Path(pictures)
+        with atomic_path(folder) as tmp:
+            tmp.mkdir()
+            record = {"format": CALIBRATION_FORMAT, "version": 1, "rig": str(rig_path),
+                      "options": {**calibration.options.to_json(), "reference": calibration.reference}
+                      if calibration.options else None,
+                      **calibration.summary(),
+                      "frames": list(calibration.frames),
+                      "cameras": {name: {"frames": list(obs.frames), "skipped": list(obs.skipped),
+                                         "corners": int(sum(len(d) for d in obs.detections)),
+                                         "frame_rms_px": calibration.frame_rms_px(name)}
+                                  for name, obs in calibration.observations.items()}}
+            (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
+            plot_rig(calibration.rig, tmp / "rig.png", board=calibration.board,
+                     world_from_board=calibration.world_from_board,
+                     title=f"{len(calibration.rig)} cameras, {len(calibration.frames)} board poses, "
+                           f"RMS {calibration.rms_px:.3f} px")
+            plot_residuals(calibration, tmp / "residuals.png")
+        files = [str(folder / "calibration.json"), str(folder / "rig.png"), str(folder / "residuals.png")]
     save_rig(calibration.rig, rig_path)
-    return {"rig": str(rig_path), "pictures": [str(folder / "rig.png"), str(folder / "residuals.png")]}
+    return {"rig": str(rig_path), "pictures": files}
 
 
 def calibrate_folder(images: str | os.PathLike, rig_path: str | os.PathLike, options: CalibrateOptions, *,
-                     progress: bool = True) -> Calibration:
-    """`mvtex calibrate`: find the images, calibrate, write the rig and its pictures."""
-    check_outputs(rig_path)
+                     pictures: str | os.PathLike | None = None, progress: bool = True) -> Calibration:
+    """`mvtex calibrate`: find the images, calibrate, write the rig (and, into `pictures`,
+    the record and pictures of the calibration)."""
     calibration = calibrate(find_images(images), options, progress=progress)
-    write_calibration(calibration, rig_path)
+    write_calibration(calibration, rig_path, pictures)
     return calibration
 
 

@@ -12,15 +12,9 @@ import numpy as np
 
 from mvtex.data.camera import undistort_image, undistorted_camera
 from mvtex.data.rig import Rig, save_rig, undistort_rig
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 UNDISTORT_FORMAT = "mvtex-undistorted"
-
-
-COLMAP_MODEL_FILES = {f"{stem}.{ext}" for stem in ("cameras", "images", "points3D", "rigs", "frames")
-                      for ext in ("bin", "txt")}
-
-
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
@@ -39,36 +33,21 @@ def rig_summary(rig: Rig) -> dict:
             "baseline_m": {"min": float(distances.min()), "max": float(distances.max())} if distances.size else None}
 
 
-def check_rig_target(path: str | os.PathLike) -> None:
-    """Refuse (InputError) to replace a file that is not an mvtex rig."""
-    from mvtex.calibration.output import check_rig_overwritable
-
-    check_rig_overwritable(path)
-
-
 def write_pinhole_rig(rig: Rig, out: str | os.PathLike, alpha: float | None = None) -> Rig:
     """Write the undistorted (pinhole) rig of `rig` (see `mvtex.data.camera.undistorted_camera`)."""
-    check_rig_target(out)
     if alpha is not None and not 0.0 <= alpha <= 1.0:
-        raise InputError(None, f"--alpha must be in [0, 1], got {alpha}")
+        raise OptionError(f"alpha must be in [0, 1], got {alpha}")
     pinhole = undistort_rig(rig, alpha)
     save_rig(pinhole, out)
     return pinhole
 
 
 def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, source: str | os.PathLike | None = None) -> Path:
-    """Write a rig as a COLMAP model (PINHOLE cameras, one image `<camera>.png` each).
-
-    `out` may be missing or hold a COLMAP model; anything else there is left alone.
-    """
+    """Write a rig as a COLMAP model (PINHOLE cameras, one image `<camera>.png` each) into
+    the folder `out` (written whole, then renamed in)."""
     from mvtex.formats.colmap import write_rig
 
     out = Path(out)
-    if out.exists():
-        foreign = [p.name for p in out.iterdir()] if out.is_dir() else [out.name]
-        foreign = [name for name in foreign if name not in COLMAP_MODEL_FILES]
-        if not out.is_dir() or foreign:
-            raise InputError(out, f"exists and is not a COLMAP model folder ({', '.join(foreign[:3])}); not replacing it")
     distorted = [cam.name for cam in rig if np.any(cam.dist != 0)]
     if distorted:
         raise InputError(source, f"cameras {', '.join(distorted)} have distortion; COLMAP PINHOLE needs a pinhole rig: "
@@ -83,7 +62,6 @@ def import_colmap(model: str | os.PathLike, out: str | os.PathLike) -> Rig:
     """Read the cameras of a COLMAP model (PINHOLE or SIMPLE_PINHOLE) and write them as a rig."""
     from mvtex.formats.colmap import read_rig
 
-    check_rig_target(out)
     rig = read_rig(model)
     save_rig(rig, out)
     return rig
@@ -93,10 +71,7 @@ def plot_rig_file(rig: Rig, out: str | os.PathLike, title: str = "") -> None:
     """A 3-D picture of the rig (frusta and names) as PNG."""
     from mvtex.calibration.output import plot_rig
 
-    out = Path(out)
-    if out.exists() and out.suffix.lower() != ".png":
-        raise InputError(out, "exists and is not a PNG; not replacing it")
-    plot_rig(rig, out, title=title)
+    plot_rig(rig, Path(out), title=title)
 
 
 def _camera_images(folder: Path, rig: Rig) -> dict[str, list[tuple[Path, Path]]]:
@@ -127,7 +102,7 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
     Input: `IMAGES/<camera>/<name>.png|jpg` or `IMAGES/<camera>.png|jpg`, camera names of
     the rig. Output `OUT` mirrors it (always PNG) and holds `rig.yaml`, the pinhole rig of
     the undistorted images (render with it), and `undistort.json`. `OUT` is written whole
-    (to a temporary name first) and only replaces an earlier `mvtex undistort` output.
+    (to a temporary name first) and renamed into place.
 
     Returns:
         {"num_images", "cameras": {name: count}, "rig", "alpha"}.
@@ -135,22 +110,16 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
     import cv2
     from tqdm import tqdm
 
-    from mvtex.util.files import read_json, save_png, write_json
+    from mvtex.util.files import save_png, write_json
     from mvtex.util.output import atomic_path
 
     images, out = Path(images), Path(out)
     if not images.is_dir():
         raise InputError(images, "image folder not found")
     if alpha is not None and not 0.0 <= alpha <= 1.0:
-        raise InputError(None, f"--alpha must be in [0, 1], got {alpha}")
-    if out.exists():
-        record = out / "undistort.json"
-        try:
-            ours = read_json(record).get("format") == UNDISTORT_FORMAT
-        except (InputError, AttributeError):  # missing, malformed, or not a JSON object
-            ours = False
-        if not ours:
-            raise InputError(out, "exists and was not written by mvtex undistort; not replacing it")
+        raise OptionError(f"alpha must be in [0, 1], got {alpha}")
+    if out.resolve() == images.resolve() or images.resolve() in out.resolve().parents:
+        raise InputError(out, f"is inside the image folder {images}; write the undistorted images elsewhere")
     plan = _camera_images(images, rig)
     pinhole = {cam.name: undistorted_camera(cam, alpha) for cam in rig}
     total = sum(len(v) for v in plan.values())

@@ -91,10 +91,11 @@ def save_rig(rig: Rig, path: str | os.PathLike) -> None:
 
 
 def load_rig(path: str | os.PathLike) -> Rig:
-    """Read an mvtex-rig YAML; any problem raises InputError naming the file."""
+    """Read an mvtex-rig YAML, or a built-in rig by name (`stereo`, `square4`,
+    `trapezoid12`); any problem raises InputError naming the file."""
     import cv2
 
-    path = Path(path)
+    path = resolve_rig(path)
     if not path.is_file():
         raise InputError(path, "rig file not found")
     try:
@@ -163,18 +164,21 @@ def _camera_from_node(node, path: Path, index: int) -> Camera:
         raise InputError(path, f"camera {index}: R is not a rotation matrix")
     if not name:
         raise InputError(path, f"camera {index}: empty name")
-    try:
-        return Camera(
-            name=name,
-            width=integer("width"),
-            height=integer("height"),
-            K=matrix("K", 9).reshape(3, 3),
-            dist=matrix("dist", 5) if not node.getNode("dist").empty() else np.zeros(5),
-            R=R,
-            t=matrix("t", 3),
-        )
+    fields = dict(width=integer("width"), height=integer("height"), K=matrix("K", 9).reshape(3, 3),
+                  dist=matrix("dist", 5) if not node.getNode("dist").empty() else np.zeros(5), R=R, t=matrix("t", 3))
+    try:  # the fields' own errors above name the file once; Camera's checks are plain ValueErrors
+        return Camera(name=name, **fields)
     except ValueError as err:
         raise InputError(path, str(err)) from None
+
+
+def check_sees(rig: Rig, positions: np.ndarray, source: str | os.PathLike | None = None, *,
+               what: str = "the mesh") -> None:
+    """Refuse (InputError naming `source`, e.g. the rig file) a camera that sees none of the
+    points (..., 3): behind it or outside its image (a rig for another scene, wrong R, t or K)."""
+    blind = [cam.name for cam in rig if not cam.sees(positions)]
+    if blind:
+        raise InputError(source, f"camera {blind[0]!r} sees nothing of {what}: check its R, t and K")
 
 
 def as_rig(rig: "Rig | str | os.PathLike") -> tuple[Rig, Path | None]:

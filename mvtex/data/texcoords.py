@@ -121,11 +121,91 @@ class TexcoordSet:
         """T_N = T_G + d, (n',2) float32."""
         return self.uv + self.displacement(camera, pose)
 
+    def check_dataset(self, dataset) -> None:
+        """Refuse (InputError) a dataset other than the one this set was made from: its mesh
+        (vertex count, and the fingerprint of faces and uv where recorded) and its content
+        (`mvtex.data.dataset.content_fingerprint`, where recorded)."""
+        from mvtex.data.dataset import content_fingerprint
+        from mvtex.util.fingerprint import fingerprint
+
+        header = self.path / "texcoords.json"
+        if self.num_base_vertices != dataset.num_vertices:
+            raise InputError(self.path / "mesh.npz", f"made for a mesh of {self.num_base_vertices} vertices, the dataset "
+                             f"{dataset.path} has {dataset.num_vertices}")
+        recorded = self.meta.get("dataset")
+        if not isinstance(recorded, dict):
+            return
+        if "mesh" in recorded and recorded["mesh"] not in (fingerprint(dataset.faces, dataset.uv),
+                                                           _mesh_fingerprint_0_1(dataset.faces, dataset.uv)):
+            raise InputError(header, f"was made for another mesh than that of {dataset.path} (faces or uv differ)")
+        if "content" in recorded and recorded["content"] != content_fingerprint(dataset):
+            raise InputError(header, f"was made from another dataset than {dataset.path} (its gt, inferred or pose "
+                             "arrays differ): make the set again from this dataset")
+
+    def check_rig(self, rig, source: str | os.PathLike | None = None, cameras: Sequence[str] | None = None) -> None:
+        """Refuse (InputError) a rig that lacks the set's cameras (or `cameras` of them), or
+        whose cameras of those names differ from the ones the set was made with (where it
+        records them: size, K, R, t to 1e-6)."""
+        names = list(self.cameras if cameras is None else cameras)
+        where = f" {source}" if source else ""
+        missing = [c for c in names if c not in rig.names]
+        if missing:
+            raise InputError(self.path, f"cameras {', '.join(missing)} of this texcoord set are not in the rig{where} "
+                             f"(it has {', '.join(rig.names)}): a texcoord set of another rig?")
+        recorded = self.meta.get("rig")
+        if not isinstance(recorded, dict):
+            return
+        for name in names:
+            rec = recorded.get(name)
+            if not isinstance(rec, dict):
+                continue
+            cam = rig[name]
+            try:
+                same = (int(rec["width"]) == cam.width and int(rec["height"]) == cam.height
+                        and np.allclose(rec["K"], cam.K, atol=1e-6) and np.allclose(rec["R"], cam.R, atol=1e-6)
+                        and np.allclose(rec["t"], cam.t, atol=1e-6))
+            except (KeyError, TypeError, ValueError):
+                same = False
+            if not same:
+                raise InputError(self.path / "texcoords.json", f"camera {name!r} of this set was made with other "
+                                 f"parameters than the rig's{where} camera of that name")
+
     def positions(self, positions: np.ndarray) -> np.ndarray:
         """Extend base-mesh positions (n,3) (or (K,n,3)) to this set's subdivided mesh."""
         if ("extension",) not in self._cache:  # camera names are strings: no clash
             self._cache[("extension",)] = extension_matrix(self.parent)
         return apply_extension(self._cache[("extension",)], positions)
+
+
+def _mesh_fingerprint_0_1(faces: np.ndarray, uv: np.ndarray) -> str:
+    """The "mesh" fingerprint texcoord sets of mvtex 0.1 recorded (SHA-1 of shapes, dtypes and
+    bytes), so that `check_dataset` reads them."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for a in (np.ascontiguousarray(faces), np.ascontiguousarray(uv)):
+        h.update(str(a.shape).encode())
+        h.update(str(a.dtype).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def rig_record(rig) -> dict:
+    """What a texcoord set records of the cameras it was made for: name -> width, height,
+    K, R, t (`TexcoordSet.check_rig` compares a rig with it)."""
+    return {cam.name: {"width": cam.width, "height": cam.height, "K": cam.K.tolist(), "R": cam.R.tolist(),
+                       "t": cam.t.tolist()} for cam in rig}
+
+
+def dataset_record(dataset) -> dict:
+    """What a texcoord set records of the dataset it was made from (`TexcoordSet.check_dataset`
+    compares a dataset with it)."""
+    from mvtex.data.dataset import content_fingerprint
+    from mvtex.util.fingerprint import fingerprint
+
+    return {"path": str(Path(dataset.path).resolve()), "name": dataset.name, "num_poses": dataset.num_poses,
+            "num_vertices": dataset.num_vertices, "mesh": fingerprint(dataset.faces, dataset.uv),
+            "content": content_fingerprint(dataset)}
 
 
 def _check_displacements(d: np.ndarray, source: Path) -> None:
@@ -224,51 +304,126 @@ def write_header(path: Path, *, faces: np.ndarray, uv: np.ndarray, parent: np.nd
     (path / "texcoords.json").write_text(json.dumps(meta, indent=2) + "\n")
 
 
-def open_unfinished(partial: Path, command: str, source_prefix: str, *, faces: np.ndarray, uv: np.ndarray,
-                    parent: np.ndarray, source: str, subdiv: int, poses: Sequence[int], cameras: Sequence[str],
-                    done_masks: Sequence[str], **record: Any) -> None:
-    """Make `partial` (``OUT.partial``) the unfinished texcoord set of a `command` run that
-    streams its rows in: the one there is kept if its texcoords.json holds the same poses,
-    cameras, subdiv and `record` values (JSON-like), else deleted and started over (said
-    on stderr); a new one gets the header, zero-filled displacement / assigned arrays per
-    camera and all-False done masks at `done_masks` (paths inside the set), and is renamed
-    into place only when complete.
+class PartialSet:
+    """A texcoord set written row by row into ``OUT.partial`` and renamed to OUT when every
+    row is in: the resumable writer of `slide` and `views`.
+
+    Opening keeps an unfinished set of the same run (its texcoords.json holds the same poses,
+    cameras, subdiv and `record` values) and continues from its done masks; another run's
+    is deleted and started over (said on stderr); a folder that is not an unfinished set of
+    this command is refused. Rows go through the files (positioned writes, then fsync), so
+    they are on disk before a camera's done mask (``<camera>/done.npy``) says so; a kill
+    loses at most the rows in flight.
+
+    Args:
+        out: the finished set's directory.
+        command: the command writing it, for messages ("slide").
+        source_prefix: how the set's "source" starts ("ts", "views-"): what an unfinished set
+            of this command looks like.
+        faces, uv, parent, source, subdiv, poses, cameras: the set's header (`write_header`).
+        record: the other keys of texcoords.json, compared with an unfinished set's
+            (JSON-like values: lists, not tuples).
 
     Raises:
-        InputError: `partial` exists and is not an unfinished set of this command (its
-            texcoords.json is not a texcoord header with a source starting `source_prefix`).
+        InputError: OUT.partial exists and is not an unfinished set of `command`, or its
+            arrays do not have the set's shapes.
     """
-    import shutil
-    import sys
 
-    from mvtex.util.files import create_npy, read_json
+    def __init__(self, out: str | os.PathLike, command: str, source_prefix: str, *, faces: np.ndarray,
+                 uv: np.ndarray, parent: np.ndarray, source: str, subdiv: int, poses: Sequence[int],
+                 cameras: Sequence[str], record: dict[str, Any]):
+        from mvtex.util.files import load_npy
+        from mvtex.util.output import remove_leftovers
 
-    poses = [int(p) for p in poses]
-    if partial.is_dir():
-        try:
-            old = read_json(partial / "texcoords.json")
-        except InputError:
-            old = None
-        if not (isinstance(old, dict) and old.get("format") == FORMAT
-                and str(old.get("source", "")).startswith(source_prefix)):
-            raise InputError(partial, f"exists and is not an unfinished mvtex {command}; move it away and rerun")
-        if all(old.get(k) == v for k, v in record.items()) and old.get("poses") == poses \
-                and old.get("cameras") == list(cameras) and old.get("subdiv") == subdiv:
-            return
-        print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
-        shutil.rmtree(partial)
-    tmp = partial.with_name(partial.name + ".new")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses, cameras=cameras,
-                 **record)
-    for cam in cameras:
-        (tmp / cam).mkdir()
-        create_npy(tmp / cam / "displacement.npy", np.float32, (len(poses), len(uv), 2))
-        create_npy(tmp / cam / "assigned.npy", np.bool_, (len(poses), len(uv)))
-    for mask in done_masks:
-        np.save(tmp / mask, np.zeros(len(poses), bool), allow_pickle=False)
-    os.replace(tmp, partial)
+        self.out = Path(out)
+        self.path = self.out.with_name(self.out.name + ".partial")
+        self.poses = [int(p) for p in poses]
+        self.cameras = list(cameras)
+        self._open(command, source_prefix, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv,
+                   record=record)
+        shape = (len(self.poses), len(uv))
+        self.done: dict[str, np.ndarray] = {}
+        for cam in self.cameras:
+            # A run killed while saving a done mask leaves the mask's hidden temporary and aside
+            # copies: they must not end up in the finished set. No mask (a run stopped while
+            # finishing): that camera is done again.
+            remove_leftovers(self.path / cam, "done.npy")
+            mask = self.path / cam / "done.npy"
+            self.done[cam] = np.array(load_npy(mask, mmap=False), dtype=bool) if mask.is_file() else np.zeros(shape[0], bool)
+            d, a = (load_npy(self.path / cam / name) for name in ("displacement.npy", "assigned.npy"))
+            if d.shape != shape + (2,) or a.shape != shape or self.done[cam].shape != shape[:1]:
+                raise InputError(self.path / cam, "unfinished result has unexpected array shapes; delete it and rerun")
+            del d, a
+
+    def _open(self, command: str, source_prefix: str, *, faces, uv, parent, source, subdiv, record) -> None:
+        import shutil
+        import sys
+
+        from mvtex.util.files import create_npy, read_json
+
+        partial = self.path
+        if partial.is_dir():
+            try:
+                old = read_json(partial / "texcoords.json")
+            except InputError:
+                old = None
+            if not (isinstance(old, dict) and old.get("format") == FORMAT
+                    and str(old.get("source", "")).startswith(source_prefix)):
+                raise InputError(partial, f"exists and is not an unfinished mvtex {command}; move it away and rerun")
+            if all(old.get(k) == v for k, v in record.items()) and old.get("poses") == self.poses \
+                    and old.get("cameras") == self.cameras and old.get("subdiv") == subdiv:
+                return
+            print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
+            shutil.rmtree(partial)
+        tmp = partial.with_name(partial.name + ".new")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=self.poses,
+                     cameras=self.cameras, **record)
+        for cam in self.cameras:
+            (tmp / cam).mkdir()
+            create_npy(tmp / cam / "displacement.npy", np.float32, (len(self.poses), len(uv), 2))
+            create_npy(tmp / cam / "assigned.npy", np.bool_, (len(self.poses), len(uv)))
+            np.save(tmp / cam / "done.npy", np.zeros(len(self.poses), bool), allow_pickle=False)
+        os.replace(tmp, partial)
+
+    @property
+    def rows_done(self) -> int:
+        """(pose, camera) rows already in."""
+        return int(sum(mask.sum() for mask in self.done.values()))
+
+    def todo(self, camera: str) -> list[int]:
+        """Rows (indices into `poses`) of `camera` still to compute."""
+        return np.flatnonzero(~self.done[camera]).tolist()
+
+    def write(self, camera: str, rows: Sequence[int], displacement: np.ndarray, assigned: np.ndarray) -> None:
+        """Write rows of one camera ((r,n',2) float32 and (r,n') bool), then mark them done."""
+        from mvtex.util.files import save_npy, write_npy_rows
+
+        rows = list(rows)
+        write_npy_rows(self.path / camera / "displacement.npy", rows, displacement)
+        write_npy_rows(self.path / camera / "assigned.npy", rows, assigned)
+        self.done[camera][rows] = True
+        save_npy(self.path / camera / "done.npy", self.done[camera])
+
+    def finish(self) -> Path:
+        """Rename the finished set to OUT (an older OUT aside first, deleted after), then drop
+        the done masks: a stop in between leaves a resumable partial or a complete set.
+
+        Raises:
+            RuntimeError: rows still missing (a backend that lost tasks): never rename an
+                incomplete set into place.
+        """
+        from mvtex.util.output import replace_path
+
+        missing = [c for c in self.cameras if not self.done[c].all()]
+        if missing:
+            raise RuntimeError(f"{self.path}: {int((~self.done[missing[0]]).sum())} poses of camera {missing[0]!r} "
+                               "were not computed; rerun to finish them")
+        replace_path(self.path, self.out)
+        for cam in self.cameras:
+            (self.out / cam / "done.npy").unlink(missing_ok=True)
+        return self.out
 
 
 def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray,

@@ -9,8 +9,6 @@ pose subset, on their order or on the number of workers.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import sys
 from dataclasses import dataclass
@@ -19,18 +17,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_sees
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import slide_pose
-from mvtex.sliding.topology import SlideTopology, build_topology
-from mvtex.util.errors import InputError
-from mvtex.util.files import read_row, write_npy_rows
-from mvtex.util.parallel import ThreadState
+from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
+from mvtex.util.files import read_row
+from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
 if TYPE_CHECKING:
     from mvtex.data.dataset import Dataset
     from mvtex.render.context import GLContext
-from mvtex.util.parallel import single_thread_gl
+from mvtex.util.parallel import configure_threads
 
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
 
@@ -39,21 +36,6 @@ _AUTO_WORKERS = 8  # workers=None: one process per core, up to this many
 
 
 _AUTO_MIN_JOBS = 256  # workers=None: fewer jobs left than this run in this process (start-up ≈ 1-2 s a worker)
-
-
-def _fingerprint(*arrays: np.ndarray) -> str:
-    h = hashlib.sha1()
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(str(a.shape).encode())
-        h.update(str(a.dtype).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()[:16]
-
-
-def _rig_record(rig: Rig) -> dict:
-    return {cam.name: {"width": cam.width, "height": cam.height, "K": cam.K.tolist(), "R": cam.R.tolist(),
-                       "t": cam.t.tolist()} for cam in rig}
 
 
 @dataclass(frozen=True)
@@ -67,18 +49,18 @@ class _Spec:
 
 
 @dataclass
-class _WorkerState:
-    """What one thread keeps between chunks of one run: the dataset, its topology and a GL
-    context."""
+class _WorkerState(WorkerState):
+    """What one thread keeps between chunks of one run: the dataset, its topology (and the
+    GL context)."""
 
     dataset: Dataset
     topology: SlideTopology
-    ctx: GLContext
-    owns_ctx: bool
+    body_topo: BodyTopology | None
 
-    def release(self) -> None:
-        if self.owns_ctx:
-            self.ctx.release()
+
+def _body_topology(ds: Dataset, topo: SlideTopology) -> BodyTopology | None:
+    body = ds.body
+    return None if body is None else body_topology(body.faces, topo)
 
 
 _WORKER = ThreadState()
@@ -89,10 +71,10 @@ def _open_state(spec: _Spec) -> _WorkerState:
     from mvtex.data.dataset import load_dataset, reference_shape
     from mvtex.render.context import GLContext
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
-    return _WorkerState(ds, topo, GLContext(), owns_ctx=True)
+    return _WorkerState(GLContext(), True, ds, topo, _body_topology(ds, topo))
 
 
 def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
@@ -106,9 +88,10 @@ def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
         k = poses[row]
         # Read through the files (`read_row`): rows read through the dataset's maps would stay
         # resident, and a long run would end up holding the whole dataset.
+        body = None if state.body_topo is None else (ds.body.pose(k), ds.body.faces)
         d_out[i], a_out[i] = slide_pose(read_row(ds.gt, k), read_row(ds.inferred, k),
                                         ds.faces, ds.uv, cam, topo.subdivision, spec.options, topology=topo,
-                                        ctx=state.ctx)
+                                        ctx=state.ctx, body=body, body_topo=state.body_topo)
     return camera, rows, d_out, a_out
 
 
@@ -151,54 +134,30 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     from mvtex.data.dataset import as_dataset, reference_shape, reference_shape_source
     from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import open_unfinished
-    from mvtex.util.files import load_npy, save_npy
-    from mvtex.util.fingerprint import fingerprint as content_fingerprint
-    from mvtex.util.output import remove_leftovers, replace_path
+    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
+    from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
+    check_backend(workers, scheduler)
     ds = as_dataset(dataset)
     rig, rig_path = as_rig(rig)
     rig = rig.select(cameras, source=rig_path)
     poses = ds.check_poses(poses)
+    check_sees(rig, read_row(ds.inferred, poses[0]), rig_path,
+               what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
     out = Path(out)
-    partial = out.with_name(out.name + ".partial")
     reference = reference_shape(ds)
     topo = build_topology(ds.faces, ds.uv, reference, options.subdiv)
-    n_sub = len(topo.uv)
     record = {
         "options": options.to_json(),
-        "dataset": {"path": str(Path(ds.path).resolve()), "name": ds.name, "num_poses": ds.num_poses,
-                    "num_vertices": ds.num_vertices, "mesh": _fingerprint(ds.faces, ds.uv),
-                    # Content, not only the path: arrays replaced in place must not be mixed.
-                    "content": content_fingerprint(ds.gt, ds.inferred, ds.poses)},
-        "reference": {"shape": reference_shape_source(ds), "fingerprint": _fingerprint(reference)},
-        "rig": _rig_record(rig),
+        "dataset": dataset_record(ds),  # content, not only the path: arrays replaced in place must not be mixed
+        "reference": {"shape": reference_shape_source(ds), "fingerprint": fingerprint(reference)},
+        "rig": rig_record(rig),
     }
-    open_unfinished(partial, "slide", "ts", faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
-                    subdiv=options.subdiv, poses=poses, cameras=rig.names,
-                    done_masks=[f"{cam}/done.npy" for cam in rig.names], **record)
-
-    def write_rows(cam: str, rows: list[int], d: np.ndarray, a: np.ndarray) -> None:
-        # Through the files (on disk before the rows are marked done), not maps: pages
-        # written through a map stay resident while it is open, which would grow with the run.
-        for name, values in (("displacement.npy", d), ("assigned.npy", a)):
-            write_npy_rows(partial / cam / name, rows, values)
-
-    # A run killed while saving a done mask leaves the mask's hidden temporary and aside
-    # copies in the camera's folder: they must not end up in the finished set.
-    for c in rig.names:
-        remove_leftovers(partial / c, "done.npy")
-    # A missing done mask (a run stopped while finishing) means: redo that camera.
-    done = {c: np.array(load_npy(partial / c / "done.npy", mmap=False), dtype=bool)
-            if (partial / c / "done.npy").is_file() else np.zeros(len(poses), bool) for c in rig.names}
-    for c in rig.names:
-        disp, asg = (load_npy(partial / c / name) for name in ("displacement.npy", "assigned.npy"))
-        if disp.shape != (len(poses), n_sub, 2) or asg.shape != (len(poses), n_sub) or done[c].shape != (len(poses),):
-            raise InputError(partial / c, "unfinished result has unexpected array shapes; delete it and rerun")
-        del disp, asg
+    partial = PartialSet(out, "slide", "ts", faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
+                         subdiv=options.subdiv, poses=poses, cameras=rig.names, record=record)
     tasks = []
     for c in rig.names:
-        todo = np.flatnonzero(~done[c]).tolist()
+        todo = partial.todo(c)
         for i in range(0, len(todo), _CHUNK):
             tasks.append((c, todo[i:i + _CHUNK]))
     left = sum(len(r) for _, r in tasks)
@@ -208,7 +167,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     if workers > 1 and not scheduler and len(tasks) < 4 * workers:
         tasks = [(c, rows[i:i + 2]) for c, rows in tasks for i in range(0, len(rows), 2)]
     spec = _Spec(dataset=str(ds.path), rig=rig, options=options,
-                 key=_fingerprint(np.frombuffer(json.dumps(record, sort_keys=True).encode(), np.uint8)))
+                 key=fingerprint_record(record))
     own_ctx = None
     if workers == 1 and not scheduler:
         # The jobs run in this process and reuse what was just built.
@@ -216,40 +175,19 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             from mvtex.render.context import GLContext
 
             ctx = own_ctx = GLContext()
-        _WORKER.set(spec.key, _WorkerState(ds, topo, ctx, owns_ctx=False))
-    total = len(poses) * len(rig)
-    dirty: set = set()
-
-    def flush() -> None:  # the rows are on disk already (`write_rows`); now mark them done
-        for c in dirty:
-            save_npy(partial / c / "done.npy", done[c])
-        dirty.clear()
-
+        _WORKER.set(spec.key, _WorkerState(ctx, False, ds, topo, _body_topology(ds, topo)))
     from mvtex.util.parallel import map_unordered
 
-    bar = tqdm(total=total, initial=total - sum(len(r) for _, r in tasks), desc="slide", unit="job",
+    bar = tqdm(total=len(poses) * len(rig), initial=partial.rows_done, desc="slide", unit="job",
                disable=not progress, file=sys.stderr)
     try:
         for cam, rows, d, a in map_unordered(_slide_chunk, [(spec, c, rows, poses) for c, rows in tasks],
                                              workers=workers, scheduler=scheduler):
-            write_rows(cam, rows, d, a)
-            done[cam][rows] = True
-            dirty.add(cam)
+            partial.write(cam, rows, d, a)  # after every chunk: a stop loses at most the chunks in flight
             bar.update(len(rows))
-            flush()  # after every chunk: an interrupted run loses at most the chunks in flight
     finally:
-        flush()
         bar.close()
         _WORKER.set(None, None)
         if own_ctx is not None:
             own_ctx.release()
-    missing = [c for c in rig.names if not done[c].all()]
-    if missing:  # a backend that lost tasks: never rename an incomplete set into place
-        raise RuntimeError(f"{partial}: {int((~done[missing[0]]).sum())} poses of camera {missing[0]!r} were not "
-                           "computed; rerun to finish them")
-    # Rename the finished set in (an older `out` aside first), then drop the done masks:
-    # a stop in between leaves either a resumable partial or a complete set.
-    replace_path(partial, out)
-    for c in rig.names:
-        (out / c / "done.npy").unlink(missing_ok=True)
-    return out
+    return partial.finish()

@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
 from mvtex.sliding.fill import METHODS
+from mvtex.util.errors import OptionError
 
 if TYPE_CHECKING:
     pass
@@ -43,17 +45,17 @@ class SlideOptions:
 
     def __post_init__(self) -> None:
         if int(self.subdiv) != self.subdiv or not 0 <= self.subdiv <= 4:
-            raise ValueError(f"subdiv must be an integer in [0, 4], got {self.subdiv!r}")
+            raise OptionError(f"subdiv must be an integer in [0, 4], got {self.subdiv!r}")
         if self.fill not in METHODS:
-            raise ValueError(f"fill must be one of {', '.join(METHODS)}, got {self.fill!r}")
-        if self.max_displacement is not None and not self.max_displacement > 0:
-            raise ValueError(f"max_displacement must be positive or None, got {self.max_displacement!r}")
+            raise OptionError(f"fill must be one of {', '.join(METHODS)}, got {self.fill!r}")
+        if self.max_displacement is not None and not 0 < self.max_displacement < math.inf:
+            raise OptionError(f"max_displacement must be a finite number > 0 or None, got {self.max_displacement!r}")
         if not 0 <= self.depth_tolerance < 1:
-            raise ValueError(f"depth_tolerance must be in [0, 1), got {self.depth_tolerance!r}")
-        if self.break_ratio is not None and not self.break_ratio > 1:
-            raise ValueError(f"break_ratio must be > 1, got {self.break_ratio!r}")
+            raise OptionError(f"depth_tolerance must be in [0, 1), got {self.depth_tolerance!r}")
+        if self.break_ratio is not None and not 1 < self.break_ratio < math.inf:
+            raise OptionError(f"break_ratio must be a finite number > 1 or None, got {self.break_ratio!r}")
         if int(self.radius) != self.radius or not 0 <= self.radius <= 4:
-            raise ValueError(f"radius must be an integer in [0, 4], got {self.radius!r}")
+            raise OptionError(f"radius must be an integer in [0, 4], got {self.radius!r}")
 
     def to_json(self) -> dict:
         return asdict(self)

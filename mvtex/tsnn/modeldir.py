@@ -12,23 +12,33 @@ from typing import Any
 import numpy as np
 
 from mvtex.data.mesh import apply_parent, subdivide
-from mvtex.util.output import atomic_path
+from mvtex.util.output import atomic_path, readable
 
 MODEL_FORMAT = "mvtex-tsnn"
 
 
-MODEL_VERSION = 2
-
-
-READABLE_VERSIONS = (1, 2)  # version 1: paper architecture, one camera, no "arch" key
+MODEL_VERSION = 3
+# version 1: paper architecture, one camera, no "arch" key; version 2: the base mesh named
+# by its SHA-256 ("base_mesh_sha256"), version 3 by `mvtex.util.fingerprint` ("base_mesh")
+READABLE_VERSIONS = (1, 2, 3)
 
 
 def mesh_fingerprint(faces: np.ndarray, uv: np.ndarray) -> str:
-    """SHA-256 of a base mesh's faces (int32) and uv (float32): ties a model to its mesh."""
-    h = hashlib.sha256()
+    """The fingerprint of a base mesh's faces (int32) and uv (float32): ties a model to its mesh."""
+    from mvtex.util.fingerprint import fingerprint
+
+    return fingerprint(np.asarray(faces, dtype=np.int32), np.asarray(uv, dtype=np.float32))
+
+
+def made_for_mesh(mesh_record: dict, faces: np.ndarray, uv: np.ndarray) -> bool:
+    """Whether a config.json "mesh" record names this base mesh (in either key a model
+    directory has used)."""
+    if "base_mesh" in mesh_record:
+        return mesh_record["base_mesh"] == mesh_fingerprint(faces, uv)
+    h = hashlib.sha256()  # models written before version 3
     h.update(np.ascontiguousarray(faces, dtype=np.int32).tobytes())
     h.update(np.ascontiguousarray(uv, dtype=np.float32).tobytes())
-    return h.hexdigest()
+    return mesh_record.get("base_mesh_sha256") == h.hexdigest()
 
 
 def rebuild_mesh(faces: np.ndarray, uv: np.ndarray, subdiv: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -104,6 +114,7 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
         # One metadata entry: safetensors writes its metadata map in hash order, which varies
         # from process to process, and a model's bytes should not (the cameras are in config.json).
         save_file(state, str(tmp / "model.safetensors"), metadata={"format": MODEL_FORMAT})
+        readable(tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
         if meta["architecture"]["arch"] == "gp":
             _relevance_plot(tmp / "relevance.png", model.relevance(),

@@ -20,10 +20,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.data.camera import check_camera_name
-from mvtex.data.texcoords import write_header
+from mvtex.data.texcoords import dataset_record, rig_record, write_header
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
-from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, mesh_fingerprint, rebuild_mesh
+from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
 from mvtex.tsnn.train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH
 from mvtex.util.errors import InputError
 from mvtex.util.files import create_npy, read_json, write_npy_rows
@@ -107,8 +107,8 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     for key in ("subdiv", "num_base_vertices", "num_vertices"):
         if not isinstance(mesh.get(key), int) or isinstance(mesh.get(key), bool) or mesh[key] < 0:
             raise InputError(file, f"missing or malformed 'mesh.{key}'")
-    if not isinstance(mesh.get("base_mesh_sha256"), str):
-        raise InputError(file, "missing or malformed 'mesh.base_mesh_sha256'")
+    if not isinstance(mesh.get("base_mesh", mesh.get("base_mesh_sha256")), str):
+        raise InputError(file, "missing or malformed 'mesh.base_mesh'")
     if mesh["subdiv"] > MAX_SUBDIV:
         raise InputError(file, f"mesh.subdiv is {mesh['subdiv']}, at most {MAX_SUBDIV} is supported")
     # Sizes are checked, and the network built on the "meta" device (no memory), before the
@@ -262,13 +262,13 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     poses = dataset.check_poses(poses)
     loaded = [load_model(m) for m in models]
     first = loaded[0]
-    fingerprint = mesh_fingerprint(dataset.faces, dataset.uv)
     for m in loaded:
         cfg = m.path / "config.json"
         if m.subdiv != first.subdiv:
             raise InputError(cfg, f"subdivision level {m.subdiv} differs from {first.path} ({first.subdiv}); "
                              "one texcoord set has one mesh: predict models of one level together")
-        if m.meta["mesh"]["num_base_vertices"] != dataset.num_vertices or m.meta["mesh"]["base_mesh_sha256"] != fingerprint:
+        if m.meta["mesh"]["num_base_vertices"] != dataset.num_vertices or \
+                not made_for_mesh(m.meta["mesh"], dataset.faces, dataset.uv):
             raise InputError(cfg, f"made for another mesh ({m.meta['mesh']['num_base_vertices']} vertices) than "
                              f"{dataset.path} ({dataset.num_vertices} vertices, or different faces/uv)")
         if m.network.config.pose_dim != dataset.poses.shape[1]:
@@ -292,8 +292,11 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     with atomic_path(out) as tmp, tqdm(total=len(poses) * len(jobs), desc="predict", unit="image",
                                        disable=not progress) as bar:
         tmp.mkdir()
+        record = {"dataset": dataset_record(dataset), "models": {name: str(m.path) for name, m, _ in jobs}}
+        if rig is not None:
+            record["rig"] = rig_record(rig.select(names))
         write_header(tmp, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
-                     cameras=names, models={name: str(m.path) for name, m, _ in jobs})
+                     cameras=names, **record)
         for name in names:
             (tmp / name).mkdir()
             create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), len(uv), 2))

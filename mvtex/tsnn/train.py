@@ -31,9 +31,9 @@ A model directory holds:
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
+import re
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -42,7 +42,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.tsnn.modeldir import MODEL_FORMAT, MODEL_VERSION, _write_model, mesh_fingerprint, rebuild_mesh
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 ARCHS = ("gp", "unet", "paper")
 
@@ -54,6 +54,7 @@ MAX_WIDTH = 1024  # channels of the first stage
 
 
 MAX_SUBDIV = 3
+_DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d{1,3})?)$")
 
 
 @dataclass(frozen=True)
@@ -123,32 +124,37 @@ class TrainOptions:
             device = "cuda" if torch.cuda.is_available() else "cpu"
         gpu = device.startswith("cuda")
         if gpu and not torch.cuda.is_available():
-            raise ValueError(f"device {device!r} requested but CUDA is not available")
+            raise OptionError(f"device {device!r} requested but CUDA is not available")
+        def given(value, default):
+            return default if value is None else value
+
         return replace(self, device=device,
-                       resolution=self.resolution or ((512 if self.arch == "paper" else 256) if gpu else 64),
+                       resolution=given(self.resolution, (512 if self.arch == "paper" else 256) if gpu else 64),
                        widths=tuple(self.widths) if self.widths else (8, 16, 32, 64),
-                       batch_size=self.batch_size or (16 if self.arch == "paper" else 8),
-                       width=self.width or 256,
-                       min_width=self.min_width or (16 if gpu else 8),
+                       batch_size=given(self.batch_size, 16 if self.arch == "paper" else 8),
+                       width=given(self.width, 256),
+                       min_width=given(self.min_width, 16 if gpu else 8),
                        deterministic=(not gpu) if self.deterministic is None else self.deterministic)
 
     def validate(self) -> None:
+        if not isinstance(self.device, str) or not _DEVICE.match(self.device):
+            raise OptionError(f"device must be auto, cpu, mps, cuda or cuda:N, got {self.device!r}")
         if self.resolution is not None and (not 8 <= self.resolution <= MAX_RESOLUTION
                                             or self.resolution & (self.resolution - 1)):
-            raise ValueError(f"resolution must be a power of two in 8..{MAX_RESOLUTION}, got {self.resolution}")
+            raise OptionError(f"resolution must be a power of two in 8..{MAX_RESOLUTION}, got {self.resolution}")
         if self.width is not None and not 1 <= self.width <= MAX_WIDTH:
-            raise ValueError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
+            raise OptionError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
         if self.arch is not None and self.arch not in ARCHS:
-            raise ValueError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
+            raise OptionError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
         if not 1 <= self.components <= 256:
-            raise ValueError(f"components must be in 1..256, got {self.components}")
+            raise OptionError(f"components must be in 1..256, got {self.components}")
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+                raise OptionError(f"{name} must be at least 1, got {getattr(self, name)}")
         if not self.lr > 0 or not 0 < self.lr_min_factor <= 1 or not self.weight_assigned > 0 or self.weight_decay < 0:
-            raise ValueError("lr and weight_assigned must be positive, weight_decay >= 0, lr_min_factor in (0, 1]")
+            raise OptionError("lr and weight_assigned must be positive, weight_decay >= 0, lr_min_factor in (0, 1]")
         if self.pose_noise < 0 or not 0 <= self.dropout < 1:
-            raise ValueError("pose_noise must be >= 0 and dropout in [0, 1)")
+            raise OptionError("pose_noise must be >= 0 and dropout in [0, 1)")
 
 
 def _check_texcoord_mesh(dataset, texcoords) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -274,24 +280,30 @@ def _resolve(options: TrainOptions, camera: str | None) -> TrainOptions:
     return options
 
 
+def dataset_fingerprint(dataset) -> str:
+    """What a model depends on of the dataset: its inferred shapes, poses, mesh and body."""
+    from mvtex.util.fingerprint import fingerprint
+
+    return fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv, *dataset.body_arrays())
+
+
 def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: dict, options: TrainOptions,
                 dataset_hash: str | None = None) -> str:
     """Content fingerprint of everything a model is trained from: the dataset's inferred
-    shapes, poses and mesh, the texcoord set's mesh, poses and the cameras' arrays, the
-    split, the cameras' views and the resolved options. config.json records it as
-    "inputs"; `train_cameras` keeps a camera's model that records the key it would train
-    with (the same inputs train the same model: bit for bit for `gp`)."""
-    from mvtex.util.files import dumps_strict
-    from mvtex.util.fingerprint import fingerprint
+    shapes, poses and mesh (and its body, when it has one), the texcoord set's mesh, poses
+    and the cameras' arrays, the split, the cameras' views and the resolved options.
+    config.json records it as "inputs"; `train_cameras` keeps a camera's model that records
+    the key it would train with (the same inputs train the same model: bit for bit for `gp`)."""
+    from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
     record = {
         "version": MODEL_VERSION,
-        "dataset": dataset_hash or fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
+        "dataset": dataset_hash or dataset_fingerprint(dataset),
         "texcoords": {"mesh": fingerprint(texcoords.faces, texcoords.uv, texcoords.parent), "poses": texcoords.poses,
                       "cameras": {c: texcoords.fingerprint(c) for c in cameras}},
         "views": views, "split": split, "options": asdict(options),
     }
-    return hashlib.blake2b(dumps_strict(record, sort_keys=True).encode(), digest_size=8).hexdigest()
+    return fingerprint_record(record)
 
 
 def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
@@ -322,15 +334,12 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
     Raises:
         InputError: a camera or pose missing from the texcoord set or the rig, a texcoord
             mesh that is not the dataset mesh subdivided, overlapping uv charts.
-        ValueError: bad options (`paper` without a camera name).
+        OptionError: bad options (`paper` without a camera name).
     """
     import torch
 
     out = Path(out)
-    try:
-        options = _resolve(options, camera)
-    except ValueError as err:
-        raise InputError(None, f"training options: {err}") from None
+    options = _resolve(options, camera)
     if camera is not None:
         if camera not in texcoords.cameras:
             raise InputError(texcoords.path, f"no camera {camera!r} in this texcoord set "
@@ -338,10 +347,9 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         cameras = [camera]
     else:
         if options.arch in ("paper", "gp"):
-            raise ValueError(f"the {options.arch} architecture maps the pose alone: train it per camera "
-                             "(give a camera name)")
+            raise OptionError(f"arch {options.arch} maps the pose alone: train it per camera (give a camera name)")
         if rig is None:
-            raise ValueError("a network for every camera needs the rig the texcoord set was made with")
+            raise OptionError("rig: a network for every camera needs the rig the texcoord set was made with")
         cameras = list(texcoords.cameras) if cameras is None else [str(c) for c in cameras]
         absent = [c for c in cameras if c not in texcoords.cameras]
         if absent or not cameras:
@@ -352,13 +360,14 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             raise InputError(texcoords.path, f"cameras {', '.join(missing)} of the texcoord set are not in the rig "
                              f"(it has {', '.join(rig.names)})")
     views = {c: rig[c].cam_from_world.tolist() for c in cameras} if rig is not None and camera is None else {}
+    texcoords.check_dataset(dataset)
     faces, uv, parent = _check_texcoord_mesh(dataset, texcoords)
     split = _split(dataset, texcoords)
     if train_poses is not None:
         keep = {int(p) for p in train_poses}
         split["train"] = [p for p in split["train"] if p in keep]
         if not split["train"]:
-            raise ValueError("none of train_poses is a training pose of the texcoord set")
+            raise OptionError("train_poses: none of them is a training pose of the texcoord set")
     device = torch.device(options.device)
     t0 = time.perf_counter()
 
@@ -386,7 +395,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         "output_scale": float(model.output_scale),
         "mesh": {"subdiv": texcoords.subdiv, "num_base_vertices": int(dataset.num_vertices),
                  "num_vertices": int(len(uv)), "num_faces": int(len(faces)),
-                 "base_mesh_sha256": mesh_fingerprint(dataset.faces, dataset.uv)},
+                 "base_mesh": mesh_fingerprint(dataset.faces, dataset.uv)},
         "atlas": {"convention": "texel (r, c) centre at (u, v) = ((c+0.5)/R, (r+0.5)/R); row 0 at v=0",
                   "dilation": options.dilation},
         "dataset": {"path": str(dataset.path), "name": dataset.name},

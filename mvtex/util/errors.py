@@ -1,4 +1,5 @@
-"""The one exception type for bad input: it names the file and what is wrong with it."""
+"""The exceptions for bad input: `InputError` names the file and what is wrong with it;
+`OptionError` is an argument value a function refuses."""
 
 from __future__ import annotations
 
@@ -20,3 +21,16 @@ class InputError(ValueError):
         # Rebuilt from (path, problem), not from the formatted message: an error raised in a
         # worker process (`mvtex.util.parallel`) then reaches the command intact.
         return type(self), (self.path, self.problem)
+
+
+class OptionError(InputError):
+    """A bad argument value (an option of a stage, a count, a weight). The message starts
+    with the argument's name, "resolution must be a power of two in 8..2048, got 100", so
+    that the command line can say which flag it was. It is an `InputError` (exit code 2 from
+    the CLI) and therefore a `ValueError`."""
+
+    def __init__(self, problem: str):
+        super().__init__(None, problem)
+
+    def __reduce__(self):
+        return type(self), (self.problem,)

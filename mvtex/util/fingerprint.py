@@ -28,3 +28,11 @@ def fingerprint(*arrays: np.ndarray, block_bytes: int = 1 << 24) -> str:
         for start in range(0, len(a), rows):
             h.update(np.ascontiguousarray(read_rows(a, start, start + rows)).data)
     return h.hexdigest()
+
+
+def fingerprint_record(record) -> str:
+    """`fingerprint` of a JSON-like record (the bytes of its strict JSON, keys sorted): the
+    key of a run's settings."""
+    from mvtex.util.files import dumps_strict
+
+    return fingerprint(np.frombuffer(dumps_strict(record, sort_keys=True).encode(), np.uint8))

@@ -67,6 +67,14 @@ def remove_leftovers(directory: str | os.PathLike, name: str) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
+def readable(path: str | os.PathLike) -> None:
+    """Give a file the permissions of any file this process creates (0666 less the umask),
+    where a library wrote it private (safetensors writes 0600)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, 0o666 & ~umask)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; move it onto `path` on success.
@@ -84,6 +92,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     target = tmp / path.name
     try:
         yield target
+        if target.is_file() and not target.is_symlink():
+            readable(target)
         replace_path(target, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -155,14 +165,11 @@ def claim_output(path: str | os.PathLike, command: str, *, overwrite: bool = Fal
             another run holding the lock.
     """
     path = check_output(path, command, overwrite=overwrite)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(path, f"cannot create the output folder ({err.strerror or err})") from None
-    if not os.access(path.parent, os.W_OK | os.X_OK):
-        raise InputError(path, f"{path.parent} is not writable")
-    with _locked(path, command):
+    with _new_folders(path.parent, path), _locked(path, command):
+        if not os.access(path.parent, os.W_OK | os.X_OK):
+            raise InputError(path, f"{path.parent} is not writable")
         path = check_output(path, command, overwrite=overwrite)  # may have changed while waiting
+        remove_leftovers(path.parent, path.name)  # of a run of this command that was killed
         created = False
         if in_place:
             try:
@@ -183,6 +190,62 @@ def claim_output(path: str | os.PathLike, command: str, *, overwrite: bool = Fal
             raise
         finally:
             _CLAIMED.reset(token)
+
+
+@contextlib.contextmanager
+def claim_file(path: str | os.PathLike, command: str, *, overwrite: bool = False,
+               inputs: tuple[str | os.PathLike | None, ...] = ()) -> Iterator[Path]:
+    """Hold an output *file* (a rig YAML, a PNG) for one run of `command`.
+
+    A file carries no marker, and a user's file of the same name (last week's calibration,
+    a photo) may be indistinguishable from one mvtex wrote, so an existing file is replaced
+    only with `overwrite`; one of `inputs` (the same file) never, since the input would be
+    gone before the output is made. A link or a directory there is refused. The file's
+    folder is created; one run at a time holds the path (as `claim_output`); the caller
+    writes the file through `atomic_path`, so it appears whole or not at all.
+
+    Raises:
+        InputError: as said above, naming the path.
+    """
+    path = Path(path)
+    if path.is_symlink():
+        raise InputError(path, "is a symbolic link; give the real output path")
+    if path.is_dir():
+        raise InputError(path, "is a directory; give a file name")
+    for source in inputs:
+        if source is not None and path.exists() and Path(source).exists() and os.path.samefile(path, source):
+            raise InputError(path, "is also an input of this command; write the output to another file")
+    if path.exists() and not overwrite:
+        raise InputError(path, "exists; choose another output file or pass --overwrite to replace it")
+    with _new_folders(path.parent, path), _locked(path, command):
+        if path.exists() and not overwrite:  # made while we waited for the lock
+            raise InputError(path, "exists; choose another output file or pass --overwrite to replace it")
+        remove_leftovers(path.parent, path.name)
+        yield path
+
+
+@contextlib.contextmanager
+def _new_folders(folder: Path, output: Path) -> Iterator[None]:
+    """Create `folder` and its missing parents; remove the ones made here, if still empty,
+    when the block fails (a refused or failed run leaves no trace). Errors name `output`."""
+    missing = []
+    probe = Path(folder)
+    while not probe.exists() and probe != probe.parent:
+        missing.append(probe)
+        probe = probe.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(output, f"cannot create its folder ({err.strerror or err})") from None
+    try:
+        yield
+    except BaseException:
+        for made in missing:  # deepest first
+            try:
+                made.rmdir()
+            except OSError:
+                break
+        raise
 
 
 @contextlib.contextmanager

@@ -12,9 +12,10 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 WEIGHT_TOLERANCE = 1e-6
+MAX_VIEWS = 4096  # views one call makes (each is a camera folder of the output set)
 
 
 def parse_weights(text: str) -> dict[str, float]:
@@ -31,12 +32,12 @@ def parse_weights(text: str) -> dict[str, float]:
         except ValueError:
             w = float("nan")
         if not name or not sep or not np.isfinite(w):
-            raise InputError(None, f"--weights: {item!r} is not NAME=NUMBER (e.g. \"left=0.5,right=0.5\")")
+            raise OptionError(f"weights: {item!r} is not NAME=NUMBER (e.g. \"left=0.5,right=0.5\")")
         if name in weights:
-            raise InputError(None, f"--weights: camera {name!r} given twice")
+            raise OptionError(f"weights: camera {name!r} given twice")
         weights[name] = w
     if not weights:
-        raise InputError(None, "--weights: no camera given")
+        raise OptionError("weights: no camera given")
     return weights
 
 
@@ -45,20 +46,20 @@ def check_weights(weights: Mapping[str, float], rig: Rig, source: str | os.PathL
     rig.select(list(weights), source)  # InputError naming unknown cameras
     values = np.array([float(w) for w in weights.values()], np.float64)
     if not np.all(np.isfinite(values)):
-        raise InputError(None, f"weights must be finite numbers, got {dict(weights)}")
+        raise OptionError(f"weights must be finite numbers, got {dict(weights)}")
     if np.any(values < 0):
-        raise InputError(None, f"weights must be >= 0, got {dict(weights)}")
+        raise OptionError(f"weights must be >= 0, got {dict(weights)}")
     if abs(values.sum() - 1.0) > WEIGHT_TOLERANCE:
-        raise InputError(None, f"weights must sum to 1 (within {WEIGHT_TOLERANCE:g}), they sum to {values.sum():.9g}")
+        raise OptionError(f"weights must sum to 1 (within {WEIGHT_TOLERANCE:g}), they sum to {values.sum():.9g}")
     return {str(k): float(v) for k, v in weights.items()}
 
 
 def between_weights(a: str, b: str, steps: int) -> list[dict[str, float]]:
     """`steps` views evenly along the segment a -> b, both ends included (t = i/(steps-1))."""
-    if int(steps) < 2:
-        raise InputError(None, f"--steps must be at least 2, got {steps}")
+    if int(steps) < 2 or int(steps) > MAX_VIEWS:
+        raise OptionError(f"steps must be in 2..{MAX_VIEWS}, got {steps}")
     if a == b:
-        raise InputError(None, f"--between needs two different cameras, got {a},{b}")
+        raise OptionError(f"between needs two different cameras, got {a},{b}")
     out = []
     for i in range(int(steps)):
         t = i / (int(steps) - 1)
@@ -73,10 +74,10 @@ def grid_weights(a: str, b: str, c: str, d: str, steps: int) -> list[dict[str, f
     d at (last row, last column); view (i, j) has s = j/(steps-1) along a->b and
     t = i/(steps-1) along a->c.
     """
-    if int(steps) < 2:
-        raise InputError(None, f"--steps must be at least 2, got {steps}")
+    if int(steps) < 2 or int(steps) ** 2 > MAX_VIEWS:
+        raise OptionError(f"steps must be in 2..{int(MAX_VIEWS ** 0.5)} (steps x steps views), got {steps}")
     if len({a, b, c, d}) != 4:
-        raise InputError(None, f"--grid needs four different cameras, got {a},{b},{c},{d}")
+        raise OptionError(f"grid needs four different cameras, got {a},{b},{c},{d}")
     out = []
     n = int(steps)
     for i in range(n):
@@ -85,6 +86,35 @@ def grid_weights(a: str, b: str, c: str, d: str, steps: int) -> list[dict[str, f
             s = j / (n - 1)
             out.append({a: (1 - s) * (1 - t), b: s * (1 - t), c: (1 - s) * t, d: s * t})
     return out
+
+
+def plan_views(*, weights: str | Mapping[str, float] | None = None, between: Sequence[str] | None = None,
+               grid: Sequence[str] | None = None, steps: int | None = None,
+               name: str = "view") -> tuple[list[dict[str, float]], list[str]]:
+    """The weights and names of the views `mvtex views` makes: one view of `weights`
+    ("A=0.3,B=0.7" or a mapping) named `name`; `steps` views along `between` (two cameras);
+    or `steps` x `steps` views over `grid` (four cameras, row-major from the first), named
+    view_000, view_001, ... Exactly one of weights, between and grid.
+
+    Raises:
+        OptionError: none or several of them, steps missing or given with weights, the wrong
+            number of cameras.
+    """
+    given = [k for k, v in (("weights", weights), ("between", between), ("grid", grid)) if v is not None]
+    if len(given) != 1:
+        raise OptionError(f"weights, between or grid: give exactly one, got {', '.join(given) or 'none'}")
+    if weights is not None:
+        if steps is not None:
+            raise OptionError("steps goes with between or grid, not with weights")
+        return [parse_weights(weights) if isinstance(weights, str) else dict(weights)], [name]
+    corners = list(between if between is not None else grid)
+    kind, count = ("between", 2) if between is not None else ("grid", 4)
+    if steps is None:
+        raise OptionError(f"steps: {kind} needs a number of steps")
+    if len(corners) != count:
+        raise OptionError(f"{kind} needs {count} camera names, got {corners}")
+    views = between_weights(*corners, steps) if count == 2 else grid_weights(*corners, steps)
+    return views, view_names(len(views))
 
 
 def view_names(count: int) -> list[str]:
@@ -129,6 +159,7 @@ def interpolate_camera(rig: Rig, weights: Mapping[str, float], name: str) -> Cam
     cams = [c for c, _ in used]
     centre = np.einsum("p,pi->i", w, np.stack([c.center for c in cams]))
     K = np.einsum("p,pij->ij", w, np.stack([c.K for c in cams]))
+    K[1, 0], K[2] = 0.0, (0.0, 0.0, 1.0)  # exactly, where the weighted sum gives 0.9999999999999999
     dist = np.einsum("p,pi->i", w, np.stack([c.dist for c in cams]))
     rotations = Rotation.from_matrix(np.stack([c.R for c in cams]))
     if len(cams) == 2:

@@ -58,10 +58,10 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
     out = {"views": list(names), "weights": [dict(w) for w in weights], "poses": poses,
            "sqrt_mse": {}, "sqrt_mse_same_chart": {}}
 
-    def record(curve: str, result: dict, baseline: bool = False) -> None:
+    def record(curve: str, result, baseline: bool = False) -> None:
         for key in ("sqrt_mse", "sqrt_mse_same_chart"):
             which = "inferred" if baseline else "texcoords"
-            out[key][curve] = [result["per_camera"][n][key][which]["mean"] for n in names]
+            out[key][curve] = [getattr(getattr(result.per_camera[n], key), which).mean for n in names]
 
     with tempfile.TemporaryDirectory(prefix="mvtex-views-") as tmp:
         for method in methods:

@@ -16,8 +16,8 @@ import numpy as np
 
 from mvtex.data.camera import Camera, check_camera_name
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError
-from mvtex.util.parallel import ThreadState
+from mvtex.util.errors import InputError, OptionError
+from mvtex.util.parallel import ThreadState, check_backend
 from mvtex.views.cameras import check_weights, interpolate_camera
 from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
 
@@ -45,9 +45,9 @@ def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
     """A worker's synthesizer for a run."""
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
-    from mvtex.util.parallel import single_thread_gl
+    from mvtex.util.parallel import configure_threads
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     return ViewSynthesizer(ds, spec.rig, open_texcoords(spec.texcoords, ds.num_vertices), spec.options,
                            spec.rig_source)
@@ -72,6 +72,34 @@ def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
     return (start, *_views_of_poses(synth, spec.cameras, spec.weights, poses))
 
 
+@dataclass(frozen=True)
+class NovelViews:
+    """What `novel_views` made.
+
+    Attributes:
+        out: the texcoord set of the views (its cameras in out/rig.yaml).
+        method: "blend" or "reconstruct".
+        views: view name -> its weights over the array's cameras.
+        poses: dataset pose indices, the set's rows.
+        cameras: view name -> its camera centre (world, m).
+        measured: with `--plot`, the views measured against gt (`mvtex.views.measure.path_plot`).
+    """
+
+    out: Path
+    method: str
+    views: dict[str, dict[str, float]]
+    poses: list[int]
+    cameras: dict[str, list[float]]
+    measured: dict | None = None
+
+    def to_json(self) -> dict:
+        out = {"out": str(self.out), "method": self.method, "views": self.views, "poses": self.poses,
+               "cameras": self.cameras}
+        if self.measured is not None:
+            out["measured"] = self.measured
+        return out
+
+
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
                 rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
@@ -93,25 +121,24 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             `_WRITE_BLOCK` poses; the result does not depend on where they ran.
 
     Returns:
-        {"out", "method", "views": {name: weights}, "poses": [...], "cameras": {name: centre}}.
+        A `NovelViews`; `.to_json()` is the JSON of `mvtex views --json`.
     """
     from tqdm import tqdm
 
     from mvtex.data.rig import save_rig
-    from mvtex.data.texcoords import open_unfinished
-    from mvtex.util.files import dumps_strict, load_npy, save_npy, write_npy_rows
-    from mvtex.util.fingerprint import fingerprint
-    from mvtex.util.output import remove_leftovers, replace_path
+    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
+    from mvtex.util.files import dumps_strict
 
+    check_backend(workers, scheduler)
     if len(weights) != len(names) or not names:
-        raise ValueError("one name per view is needed")
+        raise OptionError("names: one name per view is needed")
     if len(set(names)) != len(names):
-        raise InputError(None, f"view names must be unique, got {list(names)}")
+        raise OptionError(f"names must be unique, got {list(names)}")
     for name in names:  # they become folder names
         try:
             check_camera_name(name)
         except ValueError as err:
-            raise InputError(None, str(err)) from None
+            raise OptionError(f"name: {err}") from None
     weights = [check_weights(w, rig, rig_source) for w in weights]
     synth = ViewSynthesizer(dataset, rig, texcoords, options, rig_source)
     for w in weights:
@@ -131,37 +158,25 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
               "view_options": asdict(options), "from": {"texcoords": str(Path(texcoords.path).resolve()),
                                                         "source": texcoords.source, "cameras": texcoords.cameras},
               # Content, not only paths: a rerun continues only from the same inputs.
-              "inputs": {"dataset": fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
-                         "texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
-                         "rig": {c.name: [c.width, c.height, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in rig}}}
+              "dataset": dataset_record(dataset), "rig": rig_record(Rig(tuple(cameras))),
+              "inputs": {"texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
+                         "array": rig_record(rig.select(synth.array))}}
     record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
-    partial = out.with_name(out.name + ".partial")
     with synth:
-        open_unfinished(partial, "views", "views-", faces=texcoords.faces, uv=texcoords.uv,
-                        parent=texcoords.parent, source=f"views-{options.method}", subdiv=texcoords.subdiv,
-                        poses=poses, cameras=list(names), done_masks=["done.npy"], **record)
-        # A run killed while saving the done mask leaves its hidden temporary and aside
-        # copies; without the mask every block is computed again.
-        remove_leftovers(partial, "done.npy")
-        done = np.zeros(len(poses), bool)
-        if (partial / "done.npy").is_file():
-            done = np.array(load_npy(partial / "done.npy", mmap=False), dtype=bool)
+        partial = PartialSet(out, "views", "views-", faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,
+                             source=f"views-{options.method}", subdiv=texcoords.subdiv, poses=poses,
+                             cameras=list(names), record=record)
 
         def write(start: int, disp: dict, asg: dict) -> None:
-            # Through the files, not maps: pages written through a map stay in the process's
-            # resident memory while it is open, which would grow with the run. The rows are
-            # on disk before the done mask says so.
-            count = len(next(iter(asg.values())))
+            rows = range(start, start + len(next(iter(asg.values()))))
             for name in names:
-                for file, values in (("displacement.npy", disp[name]), ("assigned.npy", asg[name])):
-                    write_npy_rows(partial / name / file, range(start, start + count), values)
-            done[start:start + count] = True
-            save_npy(partial / "done.npy", done)
-            bar.update(count * len(names))
+                partial.write(name, rows, disp[name], asg[name])
+            bar.update(len(rows) * len(names))
 
         size = _WRITE_BLOCK
         if workers > 1 or scheduler:  # blocks small enough that every worker gets several
             size = max(1, min(_WRITE_BLOCK, -(-len(poses) // (4 * max(workers, 2)))))
+        done = np.logical_and.reduce([partial.done[name] for name in names])
         starts = [start for start in range(0, len(poses), size) if not done[start:start + size].all()]
         bar = tqdm(total=len(poses) * len(names), initial=int(done.sum()) * len(names),
                    desc=f"views ({options.method})", unit="view", disable=not progress, file=sys.stderr)
@@ -179,10 +194,7 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             for start, disp, asg in map_unordered(_view_block, tasks, workers=workers, scheduler=scheduler):
                 write(start, disp, asg)
         bar.close()
-    save_rig(Rig(tuple(cameras)), partial / "rig.yaml")
-    # Rename the finished set in (an older `out` aside first), then drop the done mask: a
-    # stop in between leaves either a resumable partial or a complete set.
-    replace_path(partial, out)
-    (out / "done.npy").unlink(missing_ok=True)
-    return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,
-            "cameras": {c.name: c.center.tolist() for c in cameras}}
+    save_rig(Rig(tuple(cameras)), partial.path / "rig.yaml")
+    partial.finish()
+    return NovelViews(out=out, method=options.method, views=record["views"], poses=poses,
+                      cameras={c.name: c.center.tolist() for c in cameras})

@@ -1,33 +1,19 @@
-"""Novel views between the cameras of an array (DESIGN §5 "Novel views", §7 `mvtex views`).
+"""Texture coordinates of novel views between the cameras of an array (DESIGN §5 "Novel
+views"); the novel cameras themselves are `mvtex.views.cameras.interpolate_camera`'s.
 
-A novel view is given by weights w_p ≥ 0, Σ w_p = 1, over array cameras v_p:
-
-    centre   c = Σ w_p c_p              (camera centres, world coordinates)
-    K        K = Σ w_p K_p              (width and height must agree)
-    R        weighted quaternion average of the R_p (SciPy `Rotation.mean`), slerp for two
-             (SciPy `Slerp`; the same rotation as the average for two, in closed form)
-
-A camera with weight 1 *is* that camera (returned unchanged but for its name).
-
-Texture coordinates for the view, two methods:
+Two methods:
 
 - ``blend`` (the paper): T_N(v) = Σ w_p T_N(v_p), i.e. d(v) = Σ w_p d(v_p). A vertex is
   `assigned` where every camera with w_p > 0 assigned it (its d came from rays only).
 - ``reconstruct`` (beyond the paper): triangulate the pose from the array cameras'
   texcoords (`mvtex.recon.triangulate.reconstruct`), texture-slide the inferred mesh against that
   reconstruction from the novel camera itself (`mvtex.sliding.pose.slide_pose`, the
-  reconstruction standing in for the gt mesh), then combine (`ViewOptions.combine`):
-  - "reproject" (default): the slide only says where the view's ray through a vertex meets
-    the cloth (point P); the material there is read from the array cameras that see P
-    (their own texcoords at P's projection), weighted by w_p. A depth error of P shifts
-    its projection only by the baseline angle, so the reconstruction's error is damped.
-  - "hit": the slid material itself where the hit triangle has three triangulated
-    corners, the blend elsewhere.
-  - "all": the slid material everywhere (plain sliding against the reconstruction).
-  Where nothing better is known (no hit, no camera sees P) the blend is kept. Works from
-  TS and TSNN texcoords alike: no gt is read. Measured on the built-in garment (stereo
-  rig, midpoint, same-chart SqrtMSE): "reproject" beats the blend, "hit" ties with it,
-  "all" loses to it (README, examples/views_path.py).
+  reconstruction standing in for the gt mesh): the slide only says where the view's ray
+  through a vertex meets the cloth (point P); the material there is read from the array
+  cameras that see P (their own texcoords at P's projection), weighted by w_p. A depth
+  error of P shifts its projection only by the baseline angle, so the reconstruction's
+  error is damped. Where nothing better is known (no hit, no camera sees P) the blend is
+  kept. Works from TS and TSNN texcoords alike: no gt is read.
 
 For both methods a view with weight 1 on one camera gets that camera's texcoords bit for
 bit: the view is that camera, and its texcoords are the measured ones.
@@ -43,14 +29,13 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import read_row
 from mvtex.views.cameras import _single
 
 METHODS = ("blend", "reconstruct")
 
 
-COMBINES = ("reproject", "hit", "all")
 
 
 # A point counts as seen by an array camera when it is no deeper than the farthest
@@ -64,19 +49,15 @@ class ViewOptions:
 
     Attributes:
         method: "blend" or "reconstruct" (see the module docstring).
-        combine: for "reconstruct": "reproject", "hit" or "all" (module docstring).
         uv_resolution: texels per side of the UV lookup that finds the hit triangle.
     """
 
     method: str = "reconstruct"
-    combine: str = "reproject"
     uv_resolution: int = 1024
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.combine not in COMBINES:
-            raise ValueError(f"combine must be one of {', '.join(COMBINES)}, got {self.combine!r}")
+            raise OptionError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
 
 
 def blend_displacement(displacements: Mapping[str, np.ndarray], assigned: Mapping[str, np.ndarray],
@@ -112,7 +93,8 @@ class PoseContext:
         displacement, assigned: array camera -> (n',2) float32 / (n',) bool.
         inferred: (n,3) float64 inferred positions X_N of the pose.
         reconstruction: `mvtex.recon.triangulate.Reconstruction` or None (method "blend").
-        cache: per array camera, its rasters of the inferred and reconstructed meshes.
+        body: (positions, faces) of the dataset's body in the pose, or None.
+        cache: per array camera, its rasters of the inferred and reconstructed meshes (and the body).
     """
 
     pose: int
@@ -120,6 +102,7 @@ class PoseContext:
     assigned: dict[str, np.ndarray]
     inferred: np.ndarray
     reconstruction: object | None = None
+    body: tuple[np.ndarray, np.ndarray] | None = None
     cache: dict | None = None
 
 
@@ -136,10 +119,8 @@ class ViewSynthesizer:
 
     def __init__(self, dataset, rig: Rig, texcoords, options: ViewOptions = ViewOptions(),
                  rig_source: str | os.PathLike | None = None, ctx=None):
-        check_texcoords_rig(texcoords, rig, rig_source)
-        if texcoords.num_base_vertices != dataset.num_vertices:
-            raise InputError(texcoords.path / "mesh.npz", f"made for a mesh of {texcoords.num_base_vertices} "
-                             f"vertices, the dataset has {dataset.num_vertices}")
+        texcoords.check_rig(rig, rig_source)
+        texcoords.check_dataset(dataset)
         from mvtex.render.context import GLContext
 
         self.dataset = dataset
@@ -197,7 +178,9 @@ class ViewSynthesizer:
         state = PoseContext(pose=int(pose),
                           displacement={c: tc.displacement(c, pose) for c in self.array},
                           assigned={c: tc.assigned(c, pose) for c in self.array},
-                          inferred=read_row(self.dataset.inferred, pose).astype(np.float64))
+                          inferred=read_row(self.dataset.inferred, pose).astype(np.float64),
+                          body=None if self.dataset.body is None else (self.dataset.body.pose(pose),
+                                                                       self.dataset.body.faces))
         if self.options.method == "reconstruct":
             from mvtex.recon.triangulate import reconstruct
 
@@ -229,14 +212,18 @@ class ViewSynthesizer:
         topo, slide_options = self._sliding()
         rec = state.reconstruction
         d_rec, a_rec = slide_pose(rec.points, state.inferred, self.dataset.faces, self.dataset.uv, camera,
-                                  topo.subdivision, slide_options, topology=topo, ctx=self.gl)
-        if self.options.combine == "all":
-            return d_rec, a_rec
-        if self.options.combine == "reproject":
-            return self._reproject(state, camera, weights, d_rec, a_rec, d_blend, a_blend)
-        trusted = self._trusted(d_rec, a_rec, rec.triangulated)
-        d = np.where(trusted[:, None], d_rec, d_blend).astype(np.float32)
-        return d, np.where(trusted, a_rec, a_blend)
+                                  topo.subdivision, slide_options, topology=topo, ctx=self.gl, body=state.body,
+                                  body_topo=self._body_topology())
+        return self._reproject(state, camera, weights, d_rec, a_rec, d_blend, a_blend)
+
+    def _body_topology(self):
+        if self.dataset.body is None:
+            return None
+        if getattr(self, "_body_topo", None) is None:
+            from mvtex.sliding.topology import body_topology
+
+            self._body_topo = body_topology(self.dataset.body.faces, self._sliding()[0])
+        return self._body_topo
 
     def _hit_points(self, d_rec: np.ndarray, a_rec: np.ndarray, points: np.ndarray):
         """Where the slide against the reconstruction hit it, found from the slid uv (the
@@ -286,8 +273,9 @@ class ViewSynthesizer:
             cam = self.rig[name]
             if name not in state.cache:
                 state.cache[name] = (rasterize(self.gl, X_sub, sub_faces, cam),
-                                    rasterize(self.gl, rec.points, self.dataset.faces, cam))
-            r_inf, r_rec = state.cache[name]
+                                     rasterize(self.gl, rec.points, self.dataset.faces, cam),
+                                     None if state.body is None else rasterize(self.gl, *state.body, cam))
+            r_inf, r_rec, r_body = state.cache[name]
             pix, z = cam.project(P)
             H, W = r_inf.tri_id.shape
             inside = (z > 0) & (pix[:, 0] > -0.5) & (pix[:, 0] < W - 0.5) & (pix[:, 1] > -0.5) & (pix[:, 1] < H - 0.5)
@@ -302,6 +290,9 @@ class ViewSynthesizer:
                     front = np.maximum(front, np.where(r_rec.tri_id[rr, cc] >= 0, r_rec.depth[rr, cc], 0.0))
                     cand.append(r_inf.tri_id[rr, cc])
             seen = inside & (z <= front * (1 + _VISIBILITY_TOLERANCE))
+            if r_body is not None:  # and the body nearer than P at its pixel hides it
+                body_depth = r_body.depth[row, col]
+                seen &= ~((r_body.tri_id[row, col] >= 0) & (body_depth * (1 + _VISIBILITY_TOLERANCE) < z))
             cand = np.stack(cand, axis=1)
             ray = np.repeat(np.arange(len(P)), cand.shape[1])
             tri = cand.ravel()
@@ -336,44 +327,3 @@ class ViewSynthesizer:
             sub = charts_through_parent(base, self.texcoords.faces, len(self.texcoords.uv))
             self._chart_cache = (sub, base[np.asarray(self.dataset.faces)[:, 0]])
         return self._chart_cache
-
-    def _trusted(self, d_rec: np.ndarray, a_rec: np.ndarray, triangulated: np.ndarray) -> np.ndarray:
-        """(n',) bool: where the slide against the reconstruction is believed."""
-        tc = self.texcoords
-        faces = np.asarray(self.dataset.faces, np.int64)
-        from mvtex.recon.locate import locate_uv
-
-        hit_uv = tc.uv.astype(np.float64) + d_rec
-        idx = np.flatnonzero(a_rec)
-        point, face, _ = locate_uv(hit_uv[idx], faces, self.dataset.uv, self.options.uv_resolution, ctx=self.gl)
-        good = np.all(triangulated[faces[face]], axis=1)
-        # A point on a shared edge lies in several triangles: all must be good.
-        bad_points = np.unique(point[~good])
-        ok_points = np.setdiff1d(np.unique(point), bad_points)
-        trusted = np.zeros(len(a_rec), bool)
-        trusted[idx[ok_points]] = True
-        return trusted
-
-
-def check_texcoords_rig(texcoords, rig: Rig, rig_source: str | os.PathLike | None = None) -> None:
-    """InputError unless the texcoord set's cameras are in the rig (and, where the set
-    records the cameras it was made with, are the same cameras)."""
-    missing = [c for c in texcoords.cameras if c not in rig.names]
-    if missing:
-        raise InputError(texcoords.path, f"cameras {', '.join(missing)} of this texcoord set are not in the rig "
-                         f"{rig_source or ''} (it has {', '.join(rig.names)}): a texcoord set from another rig?")
-    recorded = texcoords.meta.get("rig")
-    if isinstance(recorded, dict):
-        for name, rec in recorded.items():
-            if name not in rig.names or not isinstance(rec, dict):
-                continue
-            cam = rig[name]
-            try:
-                same = (int(rec["width"]) == cam.width and int(rec["height"]) == cam.height and
-                        np.allclose(rec["K"], cam.K, atol=1e-6) and np.allclose(rec["R"], cam.R, atol=1e-6) and
-                        np.allclose(rec["t"], cam.t, atol=1e-6))
-            except (KeyError, TypeError, ValueError):
-                continue
-            if not same:
-                raise InputError(texcoords.path, f"camera {name!r} of this texcoord set was made with other "
-                                 f"parameters than the rig's {rig_source or ''} camera of that name")

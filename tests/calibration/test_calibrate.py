@@ -48,7 +48,8 @@ def board_images(tmp_path_factory, gl):
 def calibrated(board_images, tmp_path_factory):
     folder, rig = board_images
     out = tmp_path_factory.mktemp("calib_out") / "rig.yaml"
-    return out, rig, _run_json(["calibrate", str(folder), "--board", SPEC, "--out", str(out), "--quiet", "--json"])
+    return out, rig, _run_json(["calibrate", str(folder), "--board", SPEC, "--out", str(out),
+                                "--pictures", str(out.with_name("rig_calibration")), "--quiet", "--json"])
 
 
 def _run_json(argv) -> dict:
@@ -124,7 +125,7 @@ def test_calibration_record_and_pictures(calibrated):
 
 
 def test_projection_matches_opencv():
-    from mvtex.calibration.calibrate import project_points
+    from mvtex.calibration.calibrate import project_distorted
 
     rng = np.random.default_rng(3)
     points = rng.uniform(-0.3, 0.3, (50, 3)) + [0, 0, 1.2]
@@ -132,7 +133,7 @@ def test_projection_matches_opencv():
     intrinsics = np.array([610.0, 605.0, 320.0, 241.0, -0.21, 0.08, 0.001, -0.002, 0.01])
     K = np.array([[610.0, 0, 320], [0, 605, 241], [0, 0, 1]])
     expected, _ = cv2.projectPoints(points, rvec, tvec, K, intrinsics[4:])
-    np.testing.assert_allclose(project_points(points, rvec, tvec, intrinsics), expected.reshape(-1, 2), atol=1e-9)
+    np.testing.assert_allclose(project_distorted(points, rvec, tvec, intrinsics), expected.reshape(-1, 2), atol=1e-9)
 
 
 @pytest.mark.gl
@@ -192,15 +193,24 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_foreign_outputs_are_not_replaced(tmp_path, capsys):
+def test_existing_outputs_are_not_replaced_without_overwrite(tmp_path, capsys):
     foreign = tmp_path / "notes.yaml"
     foreign.write_text("my notes\n")
-    _fails(["calibrate", str(tmp_path), "--board", SPEC, "--out", str(foreign)], capsys, "not an mvtex rig")
-    _fails(["board", SPEC, "--out", str(foreign)], capsys, "not written by mvtex board")
-    _fails(["rig", "stereo", "--undistort", "--out", str(foreign)], capsys, "not an mvtex rig")
-    _fails(["undistort", str(tmp_path), "--rig", "stereo", "--out", str(tmp_path)], capsys,
-           "not written by mvtex undistort")
+    _fails(["calibrate", str(tmp_path), "--board", SPEC, "--out", str(foreign)], capsys, "exists", "--overwrite")
+    _fails(["board", SPEC, "--out", str(foreign)], capsys, "exists", "--overwrite")
+    _fails(["rig", "stereo", "--undistort", "--out", str(foreign)], capsys, "exists", "--overwrite")
+    _fails(["rig", "stereo", "--plot", str(foreign)], capsys, "exists", "--overwrite")
+    (tmp_path / "images").mkdir()
+    _fails(["undistort", str(tmp_path / "images"), "--rig", "stereo", "--out", str(tmp_path)], capsys,
+           "mvtex did not write", "--overwrite")
     assert foreign.read_text() == "my notes\n"
+    # An mvtex rig is an mvtex rig, but it may be last week's calibration: --overwrite it is.
+    main(["rig", "stereo", "--undistort", "--out", str(tmp_path / "pinhole.yaml")])
+    _fails(["rig", "stereo", "--undistort", "--out", str(tmp_path / "pinhole.yaml")], capsys, "exists")
+    assert main(["rig", "stereo", "--undistort", "--out", str(tmp_path / "pinhole.yaml"), "--overwrite"]) == 0
+    # An input is never its own output, not even with --overwrite.
+    _fails(["rig", str(tmp_path / "pinhole.yaml"), "--undistort", "--out", str(tmp_path / "pinhole.yaml"),
+            "--overwrite"], capsys, "is also an input")
 
 
 def test_board_png_prints_to_scale_and_detects(tmp_path):
@@ -223,7 +233,8 @@ def test_board_png_prints_to_scale_and_detects(tmp_path):
     rows = detection.ids // (spec.cols - 1) + 1
     expected = (np.stack([cols, rows], 1) * pps + margin) * 0.25 - 0.5
     np.testing.assert_allclose(detection.pixels, expected, atol=0.15)
-    assert main(["board", SPEC, "--out", str(out), "--pixels-per-square", "40"]) == 0  # replaces its own file
+    assert main(["board", SPEC, "--out", str(out), "--pixels-per-square", "40"]) == 2  # an existing file...
+    assert main(["board", SPEC, "--out", str(out), "--pixels-per-square", "40", "--overwrite"]) == 0  # ...on request
 
 
 def test_board_image_geometry():
@@ -311,7 +322,7 @@ def test_rig_colmap_round_trip(tmp_path, capsys):
            "distortion", "--undistort")
     (tmp_path / "busy").mkdir()
     (tmp_path / "busy" / "notes.txt").write_text("keep")
-    _fails(["rig", "square4", "--to-colmap", str(tmp_path / "busy")], capsys, "not a COLMAP model")
+    _fails(["rig", "square4", "--to-colmap", str(tmp_path / "busy")], capsys, "mvtex did not write")
     assert (tmp_path / "busy" / "notes.txt").read_text() == "keep"
 
 

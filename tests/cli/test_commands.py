@@ -7,7 +7,7 @@ import shutil
 
 import numpy as np
 import pytest
-from helpers import run
+from helpers import grid_mesh, run, wave, write_obj
 
 from mvtex.cli import main
 from mvtex.data.camera import Camera
@@ -80,7 +80,7 @@ def test_bad_inputs_exit_2_naming_the_file(tmp_path, tiny_dataset, rig_file, cap
     _assert_one_line_error(code, err, f"{broken / 'split.json'}: malformed JSON")
 
     code, _, err = run(capsys, "render", tiny_dataset, "--rig", rig_file, "--pose", 99, "--out", tmp_path / "o")
-    _assert_one_line_error(code, err, "pose 99 out of range")
+    _assert_one_line_error(code, err, "99 out of range")
 
     code, _, err = run(capsys, "render", tiny_dataset, "--rig", rig_file, "--pose", 0, "--out", tmp_path / "o",
                        "--cameras", "zz")
@@ -97,11 +97,11 @@ def test_import_mismatched_vertex_counts(tmp_path, capsys):
     write_obj(tmp_path / "g1.obj", rest2, uv2, f2)
     write_obj(tmp_path / "i0.obj", rest, uv, faces)
     write_obj(tmp_path / "i1.obj", rest, uv, faces)
-    code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred", tmp_path / "i*.obj",
+    code, _, err = run(capsys, "import", "--out", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred", tmp_path / "i*.obj",
                        "--quiet")
     _assert_one_line_error(code, err, f"{tmp_path / 'g1.obj'}: 30 vertices, expected 25")
     assert not (tmp_path / "ds").exists()
-    code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "none*.obj", "--inferred", tmp_path / "i*.obj")
+    code, _, err = run(capsys, "import", "--out", tmp_path / "ds", "--gt", tmp_path / "none*.obj", "--inferred", tmp_path / "i*.obj")
     _assert_one_line_error(code, err, "no gt files match")
 
 
@@ -117,7 +117,7 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
     import trimesh
 
     out_dir = tmp_path / "demo"
-    code, out, err = run(capsys, "demo", "--out", out_dir, "--poses", 10, "--epochs", 2, "--json", "--quiet")
+    code, out, err = run(capsys, "demo", "--out", out_dir, "--num-poses", 10, "--json", "--quiet")
     assert code == 0, err
     summary = json.loads(out)
     assert summary == json.loads((out_dir / "summary.json").read_text())
@@ -144,7 +144,7 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
     for eye in summary["preview"]["eyes"].values():
         assert eye["ssim"]["texcoords"] > eye["ssim"]["inferred"]
     # A second run finds every step's output and reports the same numbers.
-    code, out2, _ = run(capsys, "demo", "--out", out_dir, "--poses", 10, "--epochs", 2, "--json", "--quiet")
+    code, out2, _ = run(capsys, "demo", "--out", out_dir, "--num-poses", 10, "--json", "--quiet")
     assert code == 0
     again = json.loads(out2)
     assert again["texture_sliding"] == summary["texture_sliding"] and again["tsnn"] == summary["tsnn"]
@@ -157,14 +157,14 @@ def test_slide_flags_reach_the_options(tmp_path, tiny_dataset, rig_file, gl, cap
     base = ["slide", tiny_dataset, "--rig", rig_file, "--poses", "1,4", "--subdiv", 0, "--workers", 1, "--quiet"]
     code, _, err = run(capsys, *base, "--out", tmp_path / "on", "--break-ratio", "1.01")
     assert code == 0, err
-    code, _, err = run(capsys, *base, "--out", tmp_path / "off", "--break-ratio", "off", "--radius", 2,
-                       "--depth-tolerance", "0.01", "--cross-chart", "on")
+    code, _, err = run(capsys, *base, "--out", tmp_path / "off", "--no-break-ratio", "--radius", 2,
+                       "--depth-tolerance", "0.01", "--cross-chart")
     assert code == 0, err
     options = json.loads((tmp_path / "off" / "texcoords.json").read_text())["options"]
     assert options["break_ratio"] is None and options["radius"] == 2
     assert options["depth_tolerance"] == 0.01 and options["cross_chart"] is True
     assert json.loads((tmp_path / "on" / "texcoords.json").read_text())["options"]["break_ratio"] == 1.01
-    code, _, err = run(capsys, *base, "--out", tmp_path / "off2", "--break-ratio", "off")
+    code, _, err = run(capsys, *base, "--out", tmp_path / "off2", "--no-break-ratio")
     assert code == 0, err
     broken = 0
     for cam in ("a", "b"):
@@ -173,7 +173,36 @@ def test_slide_flags_reach_the_options(tmp_path, tiny_dataset, rig_file, gl, cap
         assert np.all(off | ~on)
         broken += int(off.sum() - on.sum())
     assert broken > 0  # a ratio of 1.01 does break edges on the folded sheet
-    for bad in (["--break-ratio", "0.5"], ["--break-ratio", "x"], ["--radius", "9"], ["--depth-tolerance", "2"]):
+    for bad in (["--break-ratio", "0.5"], ["--break-ratio", "x"], ["--radius", "9"], ["--depth-tolerance", "2"],
+                ["--cross-chart", "maybe"]):
         code, _, err = run(capsys, *base, "--out", tmp_path / "bad", *bad)
         _assert_one_line_error(code, err, "")
         assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.gl
+def test_old_spellings_work_with_a_deprecation_warning(tmp_path, tiny_dataset, rig_file, capsys):
+    """Renamed flags keep working for one minor version: the same result, one warning line
+    each on stderr naming the new spelling."""
+    code, _, err = run(capsys, "synth", tmp_path / "old", "--poses", 10, "--json")
+    assert code == 0 and "OUT as a positional argument is deprecated" in err and "use --num-poses N" in err
+    assert run(capsys, "synth", "--out", tmp_path / "new", "--num-poses", 10, "--json")[0] == 0
+    for name in ("gt.npy", "inferred.npy", "poses.npy"):
+        assert (tmp_path / "old" / name).read_bytes() == (tmp_path / "new" / name).read_bytes()
+    base = ["slide", tiny_dataset, "--rig", rig_file, "--poses", "1", "--subdiv", 0, "--quiet"]
+    code, _, err = run(capsys, *base, "--out", tmp_path / "a", "--break-ratio", "off", "--cross-chart", "on")
+    assert code == 0 and "use --no-break-ratio" in err and "--cross-chart on is deprecated" in err
+    assert run(capsys, *base, "--out", tmp_path / "b", "--no-break-ratio", "--cross-chart")[0] == 0
+    for cam in ("a", "b"):
+        assert (tmp_path / "a" / cam / "displacement.npy").read_bytes() == \
+            (tmp_path / "b" / cam / "displacement.npy").read_bytes()
+    assert json.loads((tmp_path / "a" / "texcoords.json").read_text())["options"] == \
+        json.loads((tmp_path / "b" / "texcoords.json").read_text())["options"]
+    faces, uv, rest = grid_mesh(6, 5)
+    for k in range(2):
+        write_obj(tmp_path / f"g{k}.obj", wave(rest, 0.01, k), uv, faces)
+    (tmp_path / "poses.txt").write_text("0 1\n1 0\n")
+    code, _, err = run(capsys, "import", tmp_path / "imp", "--gt", tmp_path / "g*.obj", "--inferred",
+                       tmp_path / "g*.obj", "--poses", tmp_path / "poses.txt", "--quiet")
+    assert code == 0 and "use --pose-vectors FILE" in err
+    assert np.load(tmp_path / "imp" / "poses.npy").tolist() == [[0, 1], [1, 0]]

@@ -38,7 +38,7 @@ def test_version(capsys):
 def test_synth_json(tmp_path, capsys):
     from mvtex.data.dataset import load_dataset
 
-    stats = run_json(capsys, "synth", tmp_path / "shirt", "--poses", 10)
+    stats = run_json(capsys, "synth", "--out", tmp_path / "shirt", "--num-poses", 10)
     ds = load_dataset(tmp_path / "shirt")
     assert stats["num_vertices"] == ds.num_vertices and stats["num_faces"] == len(ds.faces)
     assert json.loads((tmp_path / "shirt" / "dataset.json").read_text())["stats"] == stats
@@ -112,7 +112,7 @@ def test_eval_json_matches_the_library(gl, tiny_dataset, rig_file, slid_sheet, c
     assert result["num_images"] == 4 and set(result["per_camera"]) == {"a", "b"}
     assert result["ratio"] > 1 and result["ratio_same_chart"] > 1
     assert result == json.loads(json.dumps(evaluate(tiny_dataset, rig_file, slid_sheet, poses=[0, 4], progress=False,
-                                                    ctx=gl)))
+                                                    ctx=gl).to_json()))
 
 
 @pytest.mark.gl
@@ -133,7 +133,7 @@ def test_train_json_then_predict(gl, tiny_dataset, slid_sheet, tmp_path, capsys)
     from mvtex.tsnn.predict import load_model, predict_displacements
 
     out = tmp_path / "model"
-    result = run_json(capsys, "train", tiny_dataset, "--texcoords", slid_sheet, "--camera", "a", "--out", out,
+    result = run_json(capsys, "train", tiny_dataset, "--texcoords", slid_sheet, "--cameras", "a", "--out", out,
                       "--arch", "paper", "--epochs", 1, "--resolution", 32, "--device", "cpu", "--quiet")
     assert result["camera"] == "a" and result["resolution"] == 32
     code, _, err = run(capsys, "predict", tiny_dataset, "--model", out, "--out", tmp_path / "pred", "--poses", "1,5",
@@ -155,7 +155,7 @@ def test_import_through_main(tmp_path, capsys):
     for k in range(2):
         write_obj(tmp_path / f"gt_{k}.obj", wave(rest, 0.01, k), uv, faces)
         write_obj(tmp_path / f"inf_{k}.obj", wave(rest, 0.003, k), uv, faces)
-    code, out, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "gt_*.obj", "--inferred",
+    code, out, err = run(capsys, "import", "--out", tmp_path / "ds", "--gt", tmp_path / "gt_*.obj", "--inferred",
                          tmp_path / "inf_*.obj", "--name", "sheet", "--quiet")
     assert code == 0, err
     ds = load_dataset(tmp_path / "ds")

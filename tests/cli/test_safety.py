@@ -51,12 +51,12 @@ def foreign(tmp_path) -> Path:
 def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_dataset, rig_file, slid_sheet0, capsys):
     out = foreign(tmp_path)
     argv = {
-        "synth": ["synth", out, "--poses", 10],
-        "import": ["import", out, "--gt", tmp_path / "*.obj", "--inferred", tmp_path / "*.obj"],
+        "synth": ["synth", "--out", out, "--num-poses", 10],
+        "import": ["import", "--out", out, "--gt", tmp_path / "*.obj", "--inferred", tmp_path / "*.obj"],
         "render": ["render", tiny_dataset, "--rig", rig_file, "--pose", 0, "--out", out],
         "slide": ["slide", tiny_dataset, "--rig", rig_file, "--out", out],
         "triangulate": ["triangulate", tiny_dataset, "--rig", rig_file, "--texcoords", slid_sheet0, "--pose", 0, "--out", out],
-        "train": ["train", tiny_dataset, "--texcoords", slid_sheet0, "--camera", "a", "--out", out],
+        "train": ["train", tiny_dataset, "--texcoords", slid_sheet0, "--cameras", "a", "--out", out],
         "predict": ["predict", tiny_dataset, "--model", tmp_path / "m", "--out", out],
         "demo": ["demo", "--out", out],
     }[command]
@@ -75,24 +75,24 @@ def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_
 
 def test_own_output_is_replaced_and_overwrite_replaces_a_foreign_one(tmp_path, capsys):
     out = foreign(tmp_path)
-    code, _, err = run(capsys, "synth", out, "--poses", 10, "--overwrite", "--json")
+    code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 10, "--overwrite", "--json")
     assert code == 0, err
     assert not (out / "keep.txt").exists() and json.loads((out / MARKER).read_text())["command"] == "synth"
     first = (out / "gt.npy").read_bytes()
-    code, _, err = run(capsys, "synth", out, "--poses", 11, "--seed", 1, "--json")  # its own output: no flag needed
+    code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 11, "--seed", 1, "--json")  # its own output: no flag needed
     assert code == 0, err
     assert (out / "gt.npy").read_bytes() != first
-    code, _, err = run(capsys, "import", out, "--gt", "x*.obj", "--inferred", "y*.obj")  # another command's
+    code, _, err = run(capsys, "import", "--out", out, "--gt", "x*.obj", "--inferred", "y*.obj")  # another command's
     one_line_error(code, err, "the output of `mvtex synth`")
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporaries, no lock left
 
 
 def test_a_file_at_out_and_an_uncreatable_out_exit_2(tmp_path, capsys):
     (tmp_path / "f").write_text("mine")
-    code, _, err = run(capsys, "synth", tmp_path / "f", "--poses", 10)
+    code, _, err = run(capsys, "synth", "--out", tmp_path / "f", "--num-poses", 10)
     one_line_error(code, err, tmp_path / "f", "not a directory")
     assert (tmp_path / "f").read_text() == "mine"
-    code, _, err = run(capsys, "synth", tmp_path / "f" / "sub", "--poses", 10)
+    code, _, err = run(capsys, "synth", "--out", tmp_path / "f" / "sub", "--num-poses", 10)
     one_line_error(code, err, tmp_path / "f" / "sub")
 
 
@@ -102,7 +102,7 @@ def test_an_unwritable_parent_exits_2(tmp_path, capsys):
     locked.mkdir()
     locked.chmod(0o500)
     try:
-        code, _, err = run(capsys, "synth", locked / "d", "--poses", 10)
+        code, _, err = run(capsys, "synth", "--out", locked / "d", "--num-poses", 10)
         one_line_error(code, err, locked / "d")
     finally:
         locked.chmod(0o700)
@@ -398,12 +398,12 @@ def test_nan_in_dataset_arrays_names_the_file(tmp_path, tiny_dataset, rig_file, 
     (["slide", "{ds}", "--rig", "{rig}", "--max-displacement", "inf"], "--max-displacement"),
     (["slide", "{ds}", "--rig", "{rig}", "--workers", "0"], "--workers"),
     (["eval", "{ds}", "--rig", "{rig}", "--texcoords", "{tc}", "--workers", "-2"], "--workers"),
-    (["train", "{ds}", "--texcoords", "{tc}", "--camera", "a", "--epochs", "0"], "--epochs"),
-    (["train", "{ds}", "--texcoords", "{tc}", "--camera", "a", "--resolution", "0"], "--resolution"),
-    (["train", "{ds}", "--texcoords", "{tc}", "--camera", "a", "--resolution", "100"], "--resolution"),
-    (["train", "{ds}", "--texcoords", "{tc}", "--camera", "a", "--device", "banana"], "--device"),
-    (["demo", "--epochs", "0"], "--epochs"),
-    (["synth", "{out}", "--poses", "-5"], "--poses"),
+    (["train", "{ds}", "--texcoords", "{tc}", "--cameras", "a", "--epochs", "0"], "--epochs"),
+    (["train", "{ds}", "--texcoords", "{tc}", "--cameras", "a", "--resolution", "0"], "--resolution"),
+    (["train", "{ds}", "--texcoords", "{tc}", "--cameras", "a", "--resolution", "100"], "--resolution"),
+    (["train", "{ds}", "--texcoords", "{tc}", "--cameras", "a", "--device", "banana"], "--device"),
+    (["demo", "--num-poses", "3"], "--num-poses"),
+    (["synth", "--out", "{out}", "--num-poses", "-5"], "--num-poses"),
 ])
 def test_bad_option_values_exit_2_in_one_line(argv, needle, tmp_path, tiny_dataset, rig_file, slid_sheet0, capsys):
     values = {"{ds}": tiny_dataset, "{rig}": rig_file, "{tc}": slid_sheet0, "{out}": tmp_path / "o"}
@@ -420,7 +420,7 @@ def test_empty_validation_split_exits_2(tmp_path, tiny_dataset, slid_sheet0, cap
     ds = tmp_path / "ds"
     shutil.copytree(tiny_dataset, ds)
     (ds / "split.json").write_text(json.dumps({"train": [0, 1, 2], "val": [], "test": [3, 4, 5]}))
-    code, _, err = run(capsys, "train", ds, "--texcoords", slid_sheet0, "--camera", "a", "--out", tmp_path / "m",
+    code, _, err = run(capsys, "train", ds, "--texcoords", slid_sheet0, "--cameras", "a", "--out", tmp_path / "m",
                        "--epochs", "1", "--quiet")
     one_line_error(code, err, "validation poses")
     assert not (tmp_path / "m").exists()
@@ -451,7 +451,7 @@ def test_truncated_npz_in_every_loader(tmp_path, tiny_dataset, rig_file, slid_sh
                  ["slide", ds, "--rig", rig_file, "--out", tmp_path / "o"],
                  ["eval", ds, "--rig", rig_file, "--texcoords", slid_sheet0],
                  ["triangulate", ds, "--rig", rig_file, "--texcoords", slid_sheet0, "--pose", 0, "--out", tmp_path / "o"],
-                 ["train", ds, "--texcoords", slid_sheet0, "--camera", "a", "--out", tmp_path / "o"],
+                 ["train", ds, "--texcoords", slid_sheet0, "--cameras", "a", "--out", tmp_path / "o"],
                  ["bench", ds, "--rig", rig_file]):
         code, _, err = run(capsys, *argv, "--quiet")
         one_line_error(code, err, ds / "mesh.npz", "not a readable .npz")
@@ -636,7 +636,7 @@ def test_nan_in_the_targets_of_parallel_views_and_training_exits_2_before_any_wo
     rig = slid_sheet0.parent / "rig.yaml"
     for argv, out in ((["views", tiny_dataset, "--rig", rig, "--texcoords", tc, "--between", "a,b", "--steps", 2,
                         "--method", "blend"], tmp_path / "v"),
-                      (["train", tiny_dataset, "--texcoords", tc, "--camera", "b,a", "--arch", "gp"], tmp_path / "m")):
+                      (["train", tiny_dataset, "--texcoords", tc, "--cameras", "b,a", "--arch", "gp"], tmp_path / "m")):
         code, _, err = run(capsys, *argv, "--out", out, "--workers", 2, "--quiet")
         one_line_error(code, err, "displacement.npy", "NaN")
         assert not out.exists()
@@ -709,8 +709,8 @@ def test_import_pose_files(content, needle, tmp_path, capsys):
         write_obj(tmp_path / f"g{k}.obj", rest, uv, faces)
     poses = tmp_path / ("poses.npy" if content.startswith(b"\x93") else "poses.txt")
     poses.write_bytes(content)
-    code, _, err = run(capsys, "import", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred",
-                       tmp_path / "g*.obj", "--poses", poses, "--quiet")
+    code, _, err = run(capsys, "import", "--out", tmp_path / "ds", "--gt", tmp_path / "g*.obj", "--inferred",
+                       tmp_path / "g*.obj", "--pose-vectors", poses, "--quiet")
     one_line_error(code, err, poses, needle)
     assert not (tmp_path / "ds").exists()
 
@@ -723,7 +723,7 @@ def test_every_writer_marks_its_output_and_may_replace_it(command, tmp_path, tin
 
         faces, uv, rest = grid_mesh(4, 4)
         write_obj(tmp_path / "g.obj", rest, uv, faces)
-        argv = ["import", out, "--gt", tmp_path / "*.obj", "--inferred", tmp_path / "*.obj"]
+        argv = ["import", "--out", out, "--gt", tmp_path / "*.obj", "--inferred", tmp_path / "*.obj"]
     elif command == "render":
         argv = ["render", tiny_dataset, "--rig", rig_file, "--pose", 0, "--out", out]
     elif command == "triangulate":
@@ -792,7 +792,7 @@ def test_two_slides_on_one_output_the_second_is_refused(tmp_path, slow_dataset, 
 def test_a_symlink_at_out_is_refused(tmp_path, capsys):
     (tmp_path / "real").mkdir()
     (tmp_path / "link").symlink_to(tmp_path / "real")
-    code, _, err = run(capsys, "synth", tmp_path / "link", "--poses", 10)
+    code, _, err = run(capsys, "synth", "--out", tmp_path / "link", "--num-poses", 10)
     one_line_error(code, err, "symbolic link")
 
 

@@ -57,21 +57,21 @@ def test_baseline_and_texcoords_match_direct_computation(gl, tiny_dataset, front
     result = evaluate(tiny_dataset, front_rig, tc_path, heatmaps=heat, progress=False)
     all_b = [v for c in base.values() for v in c]
     all_t = [v for c in tex.values() for v in c]
-    assert result["num_images"] == 4
-    assert result["sqrt_mse"]["inferred"]["mean"] == pytest.approx(np.mean(all_b), rel=1e-5)
-    assert result["sqrt_mse"]["inferred"]["std"] == pytest.approx(np.std(all_b), rel=1e-4, abs=1e-9)
-    assert result["sqrt_mse"]["texcoords"]["mean"] == pytest.approx(np.mean(all_t), rel=1e-5)
-    assert result["ratio"] == pytest.approx(np.mean(all_b) / np.mean(all_t), rel=1e-5)
+    assert result.num_images == 4
+    assert result.sqrt_mse.inferred.mean == pytest.approx(np.mean(all_b), rel=1e-5)
+    assert result.sqrt_mse.inferred.std == pytest.approx(np.std(all_b), rel=1e-4, abs=1e-9)
+    assert result.sqrt_mse.texcoords.mean == pytest.approx(np.mean(all_t), rel=1e-5)
+    assert result.ratio == pytest.approx(np.mean(all_b) / np.mean(all_t), rel=1e-5)
     for name in ("a", "b"):
-        per = result["per_camera"][name]
-        assert per["num_images"] == 2
-        assert per["sqrt_mse"]["inferred"]["mean"] == pytest.approx(np.mean(base[name]), rel=1e-5)
+        per = result.per_camera[name]
+        assert per.num_images == 2
+        assert per.sqrt_mse.inferred.mean == pytest.approx(np.mean(base[name]), rel=1e-5)
     assert sorted(p.name for p in heat.glob("*.png")) == ["pose_00001_a.png", "pose_00001_b.png",
                                                           "pose_00004_a.png", "pose_00004_b.png"]
     # A rig holding some of the set's cameras evaluates just those.
     only_b = evaluate(tiny_dataset, front_rig.select(["b"]), tc_path, progress=False)
-    assert list(only_b["per_camera"]) == ["b"] and only_b["num_images"] == 2
-    assert only_b["sqrt_mse"]["texcoords"]["mean"] == pytest.approx(np.mean(tex["b"]), rel=1e-5)
+    assert list(only_b.per_camera) == ["b"] and only_b.num_images == 2
+    assert only_b.sqrt_mse.texcoords.mean == pytest.approx(np.mean(tex["b"]), rel=1e-5)
 
 
 def test_sliding_beats_baseline_on_tiny_dataset(gl, tiny_dataset, front_rig, tmp_path):
@@ -80,7 +80,7 @@ def test_sliding_beats_baseline_on_tiny_dataset(gl, tiny_dataset, front_rig, tmp
 
     tc = slide_dataset(tiny_dataset, front_rig, tmp_path / "ts", poses=[0, 3], options=SlideOptions(subdiv=1), progress=False)
     result = evaluate(tiny_dataset, front_rig, tc, progress=False)
-    assert result["ratio"] > 2.0
+    assert result.ratio > 2.0
 
 
 def test_heatmap_colours():
@@ -117,9 +117,9 @@ def test_same_chart_statistic_excludes_chart_boundaries(gl, front_rig, tmp_path)
         e, _, s_all = direct_sqrt_mse(gl, gt[0], faces, uv, inferred[0], faces, uv, cam)
         err, _ = uv_error_image(gl, gt[0], faces, uv, inferred[0], faces, uv, cam)
         s_same = np.sqrt(np.mean(err[same].astype(np.float64) ** 2))
-        per = result["per_camera"][cam.name]
-        assert per["sqrt_mse"]["inferred"]["mean"] == pytest.approx(s_all, rel=1e-5)
-        assert per["sqrt_mse_same_chart"]["inferred"]["mean"] == pytest.approx(s_same, rel=1e-5)
+        per = result.per_camera[cam.name]
+        assert per.sqrt_mse.inferred.mean == pytest.approx(s_all, rel=1e-5)
+        assert per.sqrt_mse_same_chart.inferred.mean == pytest.approx(s_same, rel=1e-5)
         assert s_same < 0.5 * s_all
 
 
@@ -155,13 +155,13 @@ def test_material_error_is_scale_times_uv_error_on_flat_sheet(gl, tiny_dataset, 
                              assigned={c: np.ones(d.shape[:2], bool) for c, d in disp.items()})
     heat = tmp_path / "heat"
     result = evaluate(tiny_dataset, front_rig, tc_path, heatmaps=heat, progress=False)
-    for part in (result, *result["per_camera"].values()):
+    for part in (result, *result.per_camera.values()):
         for key in ("inferred", "texcoords"):
-            expected = SHEET_SIZE * part["sqrt_mse"][key]["mean"]
-            assert part["material_rmse_m"][key]["mean"] == pytest.approx(expected, rel=1e-4)
-            assert part["material_rmse_m"][key]["std"] == pytest.approx(SHEET_SIZE * part["sqrt_mse"][key]["std"],
+            expected = SHEET_SIZE * getattr(part.sqrt_mse, key).mean
+            assert getattr(part.material_rmse_m, key).mean == pytest.approx(expected, rel=1e-4)
+            assert getattr(part.material_rmse_m, key).std == pytest.approx(SHEET_SIZE * getattr(part.sqrt_mse, key).std,
                                                                         rel=1e-3, abs=1e-8)
-        assert part["ratio_material"] == pytest.approx(part["ratio"], rel=1e-4)
+        assert part.ratio_material == pytest.approx(part.ratio, rel=1e-4)
     # The heatmaps gain a second row (material error in mm) under the uv row.
     from imageio.v3 import imread
 
@@ -286,6 +286,46 @@ def test_dataset_without_rest_reports_null_material_error(gl, sheet, front_rig, 
                         source="test", subdiv=0, poses=[2], displacement=disp,
                         assigned={c: np.ones(d.shape[:2], bool) for c, d in disp.items()})
     result = evaluate(path, front_rig, tc, progress=False)
-    assert result["material_rmse_m"] is None and result["ratio_material"] is None
-    assert result["per_camera"]["a"]["material_rmse_m"] is None
-    assert result["ratio"] == pytest.approx(1.0)
+    assert result.material_rmse_m is None and result.ratio_material is None
+    assert result.per_camera["a"].material_rmse_m is None
+    assert result.ratio == pytest.approx(1.0)
+
+
+def test_evaluate_equals_separate_renders_on_the_shirt(gl, tmp_path):
+    """`evaluate` reads gt, baseline and texcoords from one pair raster; its numbers equal
+    those of three separate renders (`uv_error_image`, `material_error_image`: the base
+    inferred mesh with T_G, the subdivided one with T_N) on the built-in shirt (seams,
+    openings), and so does a set whose faces are in another order (separate rasters)."""
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.evaluation.material import MaterialMap, material_error_image
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.synth.generate import SynthOptions, write_synth
+
+    write_synth(tmp_path / "d", SynthOptions(num_poses=3, body=False))
+    ds = load_dataset(tmp_path / "d")
+    rig = as_rig("trapezoid12")[0].select(["cam00", "cam05"])
+    tc = open_texcoords(slide_dataset(ds, rig, tmp_path / "tc", poses=[1], options=SlideOptions(subdiv=1),
+                                      progress=False, ctx=gl), ds.num_vertices)
+    order = np.random.default_rng(0).permutation(len(tc.faces))
+    shuffled = save_texcoords(tmp_path / "shuffled", faces=tc.faces[order], uv=tc.uv, parent=tc.parent, source="ts",
+                              subdiv=1, poses=[1], displacement={c: tc.displacement(c, 1)[None] for c in rig.names},
+                              assigned={c: np.ones((1, len(tc.uv)), bool) for c in rig.names})
+    results = [evaluate(ds, rig, t, progress=False, ctx=gl) for t in (tc.path, shuffled)]
+    material = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=gl)
+    gt, inferred = np.asarray(ds.gt[1], np.float64), np.asarray(ds.inferred[1], np.float64)
+    for cam in rig:
+        X, tex = tc.positions(inferred), tc.texcoords(cam.name, 1)
+        s_b = uv_error_image(gl, gt, ds.faces, ds.uv, inferred, ds.faces, ds.uv, cam)[1]
+        s_t = uv_error_image(gl, gt, ds.faces, ds.uv, X, tc.faces, tex, cam)[1]
+        m_b = material_error_image(gl, gt, ds.faces, ds.rest, inferred, ds.faces, ds.uv, cam, material)[1]
+        m_t = material_error_image(gl, gt, ds.faces, ds.rest, X, tc.faces, tex, cam, material)[1]
+        for result in results:
+            per = result.per_camera[cam.name]
+            # Pixel centres exactly on an edge may fall either way between the renders.
+            assert per.sqrt_mse.inferred.mean == pytest.approx(s_b, rel=2e-3)
+            assert per.sqrt_mse.texcoords.mean == pytest.approx(s_t, rel=2e-3)
+            assert per.material_rmse_m.inferred.mean == pytest.approx(m_b, rel=2e-3)
+            assert per.material_rmse_m.texcoords.mean == pytest.approx(m_t, rel=2e-3)
+            assert s_t > 1e-3 and m_t > 1e-4  # the case measures something

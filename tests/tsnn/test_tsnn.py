@@ -468,12 +468,17 @@ def test_cli_trains_one_network_for_all_cameras_and_predicts_a_rig(rig_data, tmp
     assert "per camera" in capsys.readouterr().err
 
 
-def test_cli_resolution_limit_is_the_training_limit():
-    """The CLI repeats the training module's limit (to keep `mvtex --help` light); they agree."""
-    import mvtex.cli
-    from mvtex.tsnn.train import MAX_RESOLUTION
+def test_cli_resolution_limit_is_the_training_limit(tiny_dataset, slid_sheet0, tmp_path, capsys):
+    """The command line has no limit of its own: the training options' rule, in the flag's name."""
+    from helpers import one_line_error, run
 
-    assert mvtex.cli.MAX_RESOLUTION == MAX_RESOLUTION
+    from mvtex.tsnn.train import MAX_RESOLUTION, TrainOptions
+
+    with pytest.raises(ValueError, match="resolution must be a power of two") as raised:
+        TrainOptions(resolution=2 * MAX_RESOLUTION).validate()
+    code, _, err = run(capsys, "train", tiny_dataset, "--texcoords", slid_sheet0, "--cameras", "a", "--arch", "paper",
+                       "--resolution", 2 * MAX_RESOLUTION, "--out", tmp_path / "m", "--quiet")
+    assert one_line_error(code, err).endswith("--" + str(raised.value))
 
 
 def test_gp_loo_residuals_equal_explicit_refits():
@@ -537,11 +542,11 @@ def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_p
 
     ds, rig, tc, root = rig_data
     base = [str(ds.path), "--texcoords", str(tc.path), "--arch", "gp", "--components", "4", "--quiet"]
-    assert main(["train", *base, "--camera", "a,c", "--workers", "2", "--out", str(tmp_path / "both"), "--json"]) == 0
+    assert main(["train", *base, "--cameras", "a,c", "--workers", "2", "--out", str(tmp_path / "both"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["cameras"] == ["a", "c"] and set(summary["models"]) == {"a", "c"}
     for cam in ("a", "c"):
-        assert main(["train", *base, "--camera", cam, "--out", str(tmp_path / cam)]) == 0
+        assert main(["train", *base, "--cameras", cam, "--out", str(tmp_path / cam)]) == 0
         assert (tmp_path / "both" / cam / "model.safetensors").read_bytes() == \
             (tmp_path / cam / "model.safetensors").read_bytes()
         configs = [json.loads((d / "config.json").read_text()) for d in (tmp_path / "both" / cam, tmp_path / cam)]
@@ -553,9 +558,9 @@ def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_p
     assert open_texcoords(tmp_path / "pred", ds.num_vertices).cameras == ["a", "c"]
     capsys.readouterr()
     # --workers without several cameras, and a camera the set does not have: exit 2, one line.
-    assert main(["train", *base, "--camera", "a", "--workers", "2", "--out", str(tmp_path / "x")]) == 2
+    assert main(["train", *base, "--cameras", "a", "--workers", "2", "--out", str(tmp_path / "x")]) == 2
     assert "several cameras" in capsys.readouterr().err
-    assert main(["train", *base, "--camera", "a,zz", "--out", str(tmp_path / "y")]) == 2
+    assert main(["train", *base, "--cameras", "a,zz", "--out", str(tmp_path / "y")]) == 2
     err = capsys.readouterr().err
     assert "zz" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "y" / "a").exists()
 
@@ -619,7 +624,7 @@ def test_several_camera_train_keeps_finished_models_on_a_rerun(rig_data, tmp_pat
     tc_path = tmp_path / "tc"  # a copy: this test rewrites it
     shutil.copytree(tc.path, tc_path)
     out = tmp_path / "models"
-    base = ["train", str(ds.path), "--texcoords", str(tc_path), "--arch", "gp", "--camera", "a,c", "--out", str(out),
+    base = ["train", str(ds.path), "--texcoords", str(tc_path), "--arch", "gp", "--cameras", "a,c", "--out", str(out),
             "--quiet", "--json"]
 
     def stamp(cam):

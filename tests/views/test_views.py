@@ -136,7 +136,7 @@ def test_reconstruct_beats_blend_at_the_stereo_midpoint(tmp_path, garment):
     (["--weights", "a=half"], "NAME=NUMBER"),
     (["--between", "a,zz", "--steps", "3"], "zz"),
     (["--between", "a,b"], "--steps"),
-    (["--grid", "a,b", "--steps", "3"], "4 comma"),
+    (["--grid", "a,b", "--steps", "3"], "4 camera names"),
     (["--weights", "a=0.5,b=0.5", "--name", "../x"], "not allowed"),
 ])
 def test_bad_weights_exit_2_with_one_line(tmp_path, sheet_set, capsys, args, needle):
@@ -207,19 +207,19 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
     monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", stop_after_one)
     out = tmp_path / "v"
     assert run(capsys, *argv, "--out", out)[0] == 130  # as Ctrl-C
-    assert not out.exists() and (tmp_path / "v.partial" / "done.npy").is_file()
+    assert not out.exists() and (tmp_path / "v.partial" / "view_000" / "done.npy").is_file()
 
     def count(synth, cameras, weights, poses):
         blocks.append(list(poses))
         return real(synth, cameras, weights, poses)
 
     # As if killed while saving the done mask: its hidden temporary copy is left behind.
-    (tmp_path / "v.partial" / ".done.npy.k1ll3d.tmp").mkdir()
-    (tmp_path / "v.partial" / ".done.npy.k1ll3d.tmp" / "done.npy").write_bytes(b"")
+    (tmp_path / "v.partial" / "view_000" / ".done.npy.k1ll3d.tmp").mkdir()
+    (tmp_path / "v.partial" / "view_000" / ".done.npy.k1ll3d.tmp" / "done.npy").write_bytes(b"")
     monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", count)
     assert run(capsys, *argv, "--out", out)[0] == 0
     assert blocks == [[0, 2], [4]]  # the second run computed only the block the first did not finish
-    assert not (tmp_path / "v.partial").exists() and not (out / "done.npy").exists()
+    assert not (tmp_path / "v.partial").exists() and not list(out.rglob("done.npy"))
     assert {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()
             and p.name != ".mvtex-output.json"} == {k: v for k, v in whole.items() if k.name != ".mvtex-output.json"}
 
