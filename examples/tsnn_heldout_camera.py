@@ -19,7 +19,7 @@ from pathlib import Path
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("work", type=Path, help="working directory (shared with tsnn_learning_curve.py)")
+    parser.add_argument("work", type=Path, help="working directory (shared with benchmarks/tsnn_learning_curve.py)")
     parser.add_argument("--held-out", default="cam05", help="camera left out of training (default cam05)")
     parser.add_argument("--train-poses", type=int, default=240, help="training poses (default 240)")
     parser.add_argument("--epochs", type=int, default=10, help="most epochs (default 10)")

@@ -1,6 +1,6 @@
 """How the TSNN's test accuracy grows with the number of training poses, on the built-in
 garment (camera `left` of the stereo rig, no subdivision), with the paper architecture;
-examples/tsnn_learning_curve.py compares every method at these sizes.
+benchmarks/tsnn_learning_curve.py compares every method at these sizes.
 
     python examples/tsnn_poses.py WORKDIR [TOTAL_POSES] [TRAIN_SIZES]
 

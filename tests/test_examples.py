@@ -1,4 +1,5 @@
-"""The examples a user reads first must run (small sizes)."""
+"""The examples a user reads first must run (small sizes); every example and benchmark
+script imports names that exist."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 import pytest
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+BENCHMARKS = EXAMPLES.parent / "benchmarks"
 pytestmark = pytest.mark.gl
 
 
@@ -92,9 +94,11 @@ def test_paper_scale_runs_small(tmp_path):
         load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
 
 
-@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.py")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", sorted([*EXAMPLES.glob("*.py"), *BENCHMARKS.glob("*.py")]),
+                         ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_every_example_imports_names_that_exist(path):
-    """Every `from mvtex... import name` in an example (at any depth) names something real."""
+    """Every `from mvtex... import name` in an example or a benchmark (at any depth) names
+    something real."""
     import ast
     import importlib
 

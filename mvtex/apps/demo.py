@@ -184,7 +184,7 @@ def _text(summary: dict) -> str:
         r = summary["tsnn"]
         lines.append(f"TSNN (camera left, {r['num_images']} test poses): {_pair(r)}")
         lines.append(f"  trained on {r['train_poses']} poses only; accuracy grows with the number of poses "
-                     "(README, examples/tsnn_learning_curve.py)")
+                     "(README, benchmarks/tsnn_learning_curve.py)")
     if "views" in summary:
         v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
         lines.append("novel view at the stereo midpoint (same-chart SqrtMSE e-3): " +

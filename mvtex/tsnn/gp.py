@@ -15,12 +15,37 @@ lengthscales; the second, additive term (a sum of one-dimensional squared expone
 carries what each pose coordinate does on its own, which a few hundred poses in a dozen
 dimensions pin down far better than the interactions (on the built-in shirt, same-chart
 ratio at 240 training poses 2.09 -> 2.26). Every component has its own lengthscales ℓ_c,
-s_c, t_c and noise, chosen by maximising the log marginal likelihood (L-BFGS,
-deterministic on the CPU); prediction is the posterior mean k_c(θ, Θ) α_c with
-α_c = (K_c + σ_c² I)⁻¹ y_c. Nothing is learned per texel, so it needs no atlas: it reads
-and writes d at the vertices. The exact GP costs O(K³) in the number of training poses, so
-at most `MAX_TRAIN` (evenly spaced) training poses are used; beyond that the networks have
-the data they need.
+s_c, t_c and noise, chosen by maximising the log marginal likelihood; prediction is the
+posterior mean k_c(θ, Θ) α_c with α_c = (K_c + σ_c² I)⁻¹ y_c, and a component whose
+leave-one-out error is no better than predicting 0 gets α_c = 0. Nothing is learned per
+texel, so it needs no atlas: it reads and writes d at the vertices. The exact GP costs
+O(K³) in the number of training poses, so at most `MAX_TRAIN` (evenly spaced) training
+poses are used; beyond that the networks have the data they need.
+
+The fit. The C likelihoods are independent, so they are evaluated together: a batched
+Cholesky factorisation of the (C,K,K) covariances and the closed-form gradient
+½ tr((A⁻¹ - ααᵀ) ∂A/∂θ), summed tile by tile over the upper triangle of pose pairs, so no
+autograd graph is kept and the (C,K,K,P) array of one-dimensional terms never exists
+whole. Each component keeps its own L-BFGS (`mvtex.tsnn.lbfgs`: its own history, line
+search and stopping test, bounds kept by projection), so a component follows the path it
+would follow alone, and finished components cost nothing more. The bounds (the lengthscale
+floor among them) are kept by projection, so a lengthscale that reached its cap can come
+back; a clamp's flat region past the cap would hold it there for good. One start
+(ℓ = 1, σ = 0.1, t = e⁻²), on all training poses up to `HYPER_POSES`: on the built-in
+shirt it predicts the test poses as well as the best of three starts fitted on fewer
+poses and refined (benchmarks/tsnn_learning_curve.py, `gp` beside `gp_reference`), at a
+fraction of the cost; fitting on a subset and continuing on all poses lands in worse
+optima than starting on all of them. On the CPU the batch is cut into parts
+evaluated side by side on as many Python threads as torch has threads, each operation
+on one thread: one join per evaluation instead of a barrier per operation (on a shared
+machine, per-operation barriers make two threads several times slower than one). The
+parts do not depend on the thread count, so the fit is deterministic and the same bits
+on one thread or several. The same code takes CUDA tensors (float64, larger tiles).
+
+GPyTorch's batched exact GPs (ScaleKernel(RBFKernel(ARD)) + ScaleKernel(AdditiveStructure
+Kernel(the same RBFKernel))) compute the same likelihood (benchmarks/gp_fit.py checks it)
+but by autograd through (C,P,K,K) kernel tensors: 5-10 times slower per evaluation here,
+with memory growing as C·P·K², and a dependency; so the fit is written here.
 
 It is an `nn.Module` with buffers only, so a model directory stores it like the networks
 (model.safetensors + config.json "architecture": {"arch": "gp", ...}).
@@ -28,6 +53,7 @@ It is an `nn.Module` with buffers only, so a model directory stores it like the 
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Callable
@@ -42,22 +68,31 @@ MAX_TRAIN = 2000  # training poses an exact GP is fitted on (O(K^3) time, O(K^2)
 MAX_COMPONENTS = 256
 
 
-HYPER_POSES = 400  # training poses the hyperparameters are fitted on, before refining on all
+HYPER_POSES = 1000  # training poses the hyperparameters are fitted on (evenly spaced); the posterior uses all
 
 
-_REFINE_ITERATIONS = 100  # on the shirt at 960 poses: 30 -> same-chart ratio 2.998, 100 -> 3.02
-
-
-_REFINE_ELEMENTS = 2e7  # refinement poses K' with K'^2 P below this (the additive kernel's autograd memory)
-
-
-# (lengthscale, noise std, log std of the additive part) starts, standardised units
-_STARTS = ((1.0, 0.1, -2.0), (4.0, 0.1, -2.0), (1.0, 0.5, 0.0))
+# (lengthscale, noise std, log std of the additive part) at the start, standardised units
+_START = (1.0, 0.1, -2.0)
 
 
 # Shortest lengthscale, in training standard deviations of the pose coordinate: shorter ones
 # only fit noise (a few hundred poses cannot resolve them in a dozen dimensions).
 _LOG_L_MIN = math.log(0.3)
+
+
+_NOISE_FLOOR = 1e-6  # noise variance floor (y has unit variance): keeps the covariance well conditioned
+
+
+_PART_ROWS = 8  # rows of one part of a batched likelihood evaluation (see `_parts`)
+
+
+_PART_ELEMENTS = 2 ** 23  # (rows, K, K) float64 arrays of one part: 64 MB each
+
+
+_DEVICE_SCALE = 16  # larger tiles and parts on CUDA: fewer, larger kernels
+
+
+_TILE_ELEMENTS = 2 ** 18  # (rows, tile, tile, P) temporaries of the kernel: 2 MB of float64, cache-sized
 
 
 @dataclass(frozen=True)
@@ -129,10 +164,8 @@ class PoseGP(nn.Module):
 
     def forward(self, poses: torch.Tensor) -> torch.Tensor:
         z = (poses.to(torch.float64) - self.pose_mean) / self.pose_std
-        coef = torch.empty(len(z), self.config.components, dtype=torch.float64, device=z.device)
-        for c in range(self.config.components):
-            k = _kernel(z, self.inputs, self.log_lengthscale[c], self.log_signal[c], self.log_additive[c])
-            coef[:, c] = k @ self.alpha[:, c]
+        k = kernel_matrix(z, self.inputs, self.log_lengthscale, self.log_signal, self.log_additive)  # (C,B,K)
+        coef = torch.einsum("cbk,kc->bc", k, self.alpha)
         d = self.mean + coef @ self.basis
         return d.reshape(len(z), -1, 2).to(torch.float32)
 
@@ -141,97 +174,233 @@ class PoseGP(nn.Module):
         return torch.exp(-self.log_lengthscale).cpu().numpy()
 
 
+def _tiles(n: int, size: int) -> list[tuple[int, int]]:
+    return [(i, min(i + size, n)) for i in range(0, n, size)]
+
+
+def _tile_size(rows: int, p: int, device) -> int:
+    budget = _TILE_ELEMENTS * (1 if torch.device(device).type == "cpu" else _DEVICE_SCALE)
+    return max(8, int(math.sqrt(budget / max(1, rows * p))))
+
+
+def _tile_terms(a: torch.Tensor, b: torch.Tensor, half: torch.Tensor):
+    """The squared differences of one tile and its two kernel terms, without their variances.
+
+    Args:
+        a: (n,P), b: (m,P) standardised poses. half: (R,P) -1/(2ℓ²) of R kernels.
+
+    Returns:
+        d2 (n,m,P) (θ_i - θ'_i)², ard exp(-½ Σ_i r_i²) (R,n,m), additive Σ_i exp(-½ r_i²)
+        (R,n,m) and e (R,n,m,P) the terms exp(-½ r_i²).
+    """
+    d2 = (a[:, None, :] - b[None, :, :]).square()
+    e = torch.exp(d2[None] * half[:, None, None, :])
+    ard = torch.exp(torch.einsum("klp,rp->rkl", d2, half))
+    return d2, ard, e.sum(-1), e
+
+
+def kernel_matrix(a: torch.Tensor, b: torch.Tensor, log_lengthscale: torch.Tensor, log_signal: torch.Tensor,
+                  log_additive: torch.Tensor) -> torch.Tensor:
+    """Kernel matrices of R kernels, (R, len(a), len(b)) float64: a squared-exponential ARD
+    kernel plus an additive one (a sum over pose coordinates of one-dimensional squared
+    exponentials, same lengthscales), computed tile by tile (no (R,n,m,P) array whole).
+
+    Args:
+        a: (n,P), b: (m,P) standardised poses. log_lengthscale: (R,P). log_signal, log_additive: (R,).
+    """
+    rows, p = log_lengthscale.shape
+    size = _tile_size(rows, p, a.device)
+    half = -0.5 * torch.exp(-2 * log_lengthscale)
+    s2, t2 = torch.exp(2 * log_signal)[:, None, None], torch.exp(2 * log_additive)[:, None, None]
+    out = torch.empty(rows, len(a), len(b), dtype=a.dtype, device=a.device)
+    for i0, i1 in _tiles(len(a), size):
+        for j0, j1 in _tiles(len(b), size):
+            _, ard, additive, _ = _tile_terms(a[i0:i1], b[j0:j1], half)
+            out[:, i0:i1, j0:j1] = s2 * ard + t2 * additive
+    return out
+
+
 def _kernel(a: torch.Tensor, b: torch.Tensor, log_lengthscale: torch.Tensor, log_signal: torch.Tensor,
             log_additive: torch.Tensor) -> torch.Tensor:
-    """Kernel matrix (len(a), len(b)): a squared-exponential ARD kernel plus an additive one
-    (a sum over pose coordinates of one-dimensional squared exponentials, same lengthscales)."""
-    scale = torch.exp(-log_lengthscale)
-    a, b = a * scale, b * scale
-    k = torch.exp(2 * log_signal - 0.5 * torch.cdist(a, b).square())
-    additive = torch.zeros_like(k)
-    for i in range(a.shape[1]):  # one (n, m) matrix at a time, not an (n, m, P) array
-        additive = additive + torch.exp(-0.5 * (a[:, i, None] - b[None, :, i]).square())
-    return k + torch.exp(2 * log_additive) * additive
+    """The kernel matrix (len(a), len(b)) of one set of hyperparameters (see `kernel_matrix`)."""
+    return kernel_matrix(a, b, log_lengthscale[None], log_signal.reshape(1), log_additive.reshape(1))[0]
 
 
 def loo_residuals(inverse: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     """Leave-one-out residuals y_i - E[y_i | y_-i] of a GP in closed form (Rasmussen &
-    Williams, eq. 5.12): [A⁻¹y]_i / [A⁻¹]_ii, with A = K + σ²I and `inverse` = A⁻¹ (K,K)."""
-    return (inverse @ y) / torch.diagonal(inverse)
+    Williams, eq. 5.12): [A⁻¹y]_i / [A⁻¹]_ii, with A = K + σ²I and `inverse` = A⁻¹ (...,K,K)
+    (batched over leading dimensions; y (...,K))."""
+    return (inverse @ y[..., None])[..., 0] / torch.diagonal(inverse, dim1=-2, dim2=-1)
 
 
-def _fit_component(z: torch.Tensor, y: torch.Tensor, iterations: int,
-                   hyper: np.ndarray | None = None) -> tuple[torch.Tensor, ...]:
-    """One GP: hyperparameters by maximum marginal likelihood, then its posterior weights.
+def _bounds(p: int, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Lower and upper bounds of a parameter row [log ℓ (P), log s, log σ, log t]."""
+    inf = math.inf
+    lo = torch.tensor([_LOG_L_MIN] * p + [-6.0, -inf, -8.0], dtype=torch.float64, device=device)
+    hi = torch.tensor([6.0] * p + [3.0, inf, 3.0], dtype=torch.float64, device=device)
+    return lo, hi
 
-    The likelihood has poor local optima (a lengthscale collapsing onto one pose coordinate
-    to explain noise), so L-BFGS starts from `_STARTS` and the lowest negative log
-    likelihood wins; lengthscales are bounded below by exp(`_LOG_L_MIN`). The
-    hyperparameters are fitted on the rows `hyper` (all when None), the posterior uses
-    every row. A component whose leave-one-out error is no better than predicting 0 gets
-    α = 0.
+
+def _covariance(z: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    """A = K + (σ² + floor) I of R parameter rows (R, P+3) (already within bounds): (R,K,K).
+    Only the tiles on and above the diagonal are computed; the others are their transposes."""
+    rows, p = len(params), z.shape[1]
+    size = _tile_size(rows, p, z.device)
+    half = -0.5 * torch.exp(-2 * params[:, :p])
+    s2, t2 = torch.exp(2 * params[:, p])[:, None, None], torch.exp(2 * params[:, p + 2])[:, None, None]
+    a = torch.empty(rows, len(z), len(z), dtype=z.dtype, device=z.device)
+    tiles = _tiles(len(z), size)
+    for n, (i0, i1) in enumerate(tiles):
+        for j0, j1 in tiles[n:]:
+            _, ard, additive, _ = _tile_terms(z[i0:i1], z[j0:j1], half)
+            a[:, i0:i1, j0:j1] = s2 * ard + t2 * additive
+            if j0 != i0:
+                a[:, j0:j1, i0:i1] = a[:, i0:i1, j0:j1].transpose(1, 2)
+    a.diagonal(dim1=1, dim2=2).add_((torch.exp(2 * params[:, p + 1]) + _NOISE_FLOOR)[:, None])
+    return a
+
+
+def _negative_log_likelihood(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Negative log marginal likelihoods ½ yᵀA⁻¹y + ½ log|A| of R GPs and their gradients.
+
+    The gradient is the closed form ∂/∂θ = ½ tr((A⁻¹ - ααᵀ) ∂A/∂θ), α = A⁻¹y (Rasmussen &
+    Williams, eq. 5.9), summed tile by tile with the kernel terms computed again (cheaper
+    than keeping them): no autograd graph and no (R,K,K,P) array. Parameters outside their
+    bounds act at the bound, with no gradient (as a clamp would).
 
     Args:
-        z: (K,P) standardised poses. y: (K,) targets, unit variance.
+        z: (K,P) standardised poses. y: (R,K) targets. params: (R,P+3) rows
+            [log ℓ (P), log s, log σ, log t].
 
     Returns:
-        log_lengthscale (P,), log_signal (), log_additive (), alpha (K,) (in y's units).
+        nll (R,) (inf where A is not positive definite) and its gradient (R,P+3).
     """
-    p = z.shape[1]
-    floor = 1e-6  # noise variance floor (y has unit variance): keeps the covariance well conditioned
-    zh, yh = (z, y) if hyper is None else (z[hyper], y[hyper])
-
-    def covariance(points, log_l, log_s, log_n, log_a):
-        return (_kernel(points, points, log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0), log_a.clamp(-8.0, 3.0))
-                + (torch.exp(2 * log_n) + floor) * torch.eye(len(points), dtype=torch.float64))
-
-    def objective(params):
-        chol, info = torch.linalg.cholesky_ex(covariance(zh, *params))
-        if int(info):
-            return None
-        a = torch.cholesky_solve(yh[:, None], chol)[:, 0]
-        return 0.5 * (yh @ a) + torch.log(torch.diagonal(chol)).sum()
-
-    best = fallback = None
-    starts = [[torch.full((p,), math.log(lengthscale), dtype=torch.float64), torch.zeros((), dtype=torch.float64),
-               torch.tensor(math.log(noise), dtype=torch.float64), torch.tensor(additive, dtype=torch.float64)]
-              for lengthscale, noise, additive in _STARTS]
-    while starts:
-        params = [q.clone().requires_grad_(True) for q in starts.pop(0)]
-        optimiser = torch.optim.LBFGS(params, lr=0.5, max_iter=iterations, history_size=20,
-                                      line_search_fn="strong_wolfe", tolerance_grad=1e-7, tolerance_change=1e-10)
-
-        def closure():
-            optimiser.zero_grad()
-            nll = objective(params)
-            if nll is None:  # not positive definite here: a large value the line search backs off from
-                nll = sum(q.sum() for q in params) * 0.0 + 1e30
-            nll.backward()
-            return nll
-
-        optimiser.step(closure)
-        with torch.no_grad():
-            nll = objective(params)
-        if nll is not None and torch.isfinite(nll) and (best is None or float(nll) < best[0]):
-            best = (float(nll), [q.detach() for q in params])
-        if not starts and hyper is not None and best is not None:
-            # Refine the subset's best on more poses (all, up to a memory budget): a few
-            # iterations from a good start.
-            refine = evenly_spaced(len(z), max(len(hyper), int(math.sqrt(_REFINE_ELEMENTS / p))))
-            zh, yh, hyper, iterations = z[refine], y[refine], None, _REFINE_ITERATIONS
-            starts, fallback, best = [best[1]], best[1], None
-    if best is None and fallback is None:
-        raise ValueError("no Gaussian-process fit: the covariance is singular at every start")
-    log_l, log_s, log_n, log_a = best[1] if best is not None else fallback
-    chol, info = torch.linalg.cholesky_ex(covariance(z, log_l, log_s, log_n, log_a))
-    if int(info):
-        raise ValueError("no Gaussian-process fit: the covariance of all training poses is singular")
+    rows, p = len(params), z.shape[1]
+    lo, hi = _bounds(p, z.device)
+    inside = (params >= lo) & (params <= hi)
+    q = torch.maximum(torch.minimum(params, hi), lo)
+    a = _covariance(z, q)
+    chol, info = torch.linalg.cholesky_ex(a)
+    del a
+    bad = info != 0
+    if bool(bad.any()):  # factor the identity there, so the rest of the batch goes on
+        chol = torch.where(bad[:, None, None], torch.eye(len(z), dtype=z.dtype, device=z.device), chol)
+    alpha = torch.cholesky_solve(y[:, :, None], chol)[:, :, 0]
+    nll = 0.5 * (y * alpha).sum(1) + torch.log(torch.diagonal(chol, dim1=1, dim2=2)).sum(1)
     inverse = torch.cholesky_inverse(chol)
-    alpha = inverse @ y
-    # A component the GP predicts no better than its mean (0) from the other poses is left at 0.
-    if not float(loo_residuals(inverse, y).square().mean()) < float(y.square().mean()):
-        alpha = torch.zeros_like(alpha)
-    return log_l.clamp(_LOG_L_MIN, 6.0), log_s.clamp(-6.0, 3.0), log_a.clamp(-8.0, 3.0), alpha
+    del chol
+    inverse_square = torch.exp(-2 * q[:, :p])
+    half = -0.5 * inverse_square
+    s2, t2 = torch.exp(2 * q[:, p]), torch.exp(2 * q[:, p + 2])
+    g_ard = torch.zeros(rows, dtype=z.dtype, device=z.device)
+    g_additive = torch.zeros_like(g_ard)
+    g_length = torch.zeros(rows, p, dtype=z.dtype, device=z.device)
+    tiles = _tiles(len(z), _tile_size(rows, p, z.device))
+    for n, (i0, i1) in enumerate(tiles):
+        for j0, j1 in tiles[n:]:
+            twice = 1.0 if j0 == i0 else 2.0  # an off-diagonal tile stands for its transpose too
+            w = inverse[:, i0:i1, j0:j1] - alpha[:, i0:i1, None] * alpha[:, None, j0:j1]
+            d2, ard, additive, e = _tile_terms(z[i0:i1], z[j0:j1], half)
+            w_ard = w * ard
+            g_ard += twice * w_ard.sum((1, 2))
+            g_additive += twice * (w * additive).sum((1, 2))
+            # ∂A/∂log ℓ_i = (s² ard + t² e_i) d2_i / ℓ_i²
+            g_length += (0.5 * twice) * (s2[:, None] * torch.einsum("rkl,klp->rp", w_ard, d2)
+                                         + t2[:, None] * torch.einsum("rkl,rklp->rp", w, e.mul_(d2)))
+    g_length *= inverse_square
+    trace = torch.diagonal(inverse, dim1=1, dim2=2).sum(1) - (alpha * alpha).sum(1)
+    grad = torch.cat([g_length, (s2 * g_ard)[:, None], (torch.exp(2 * q[:, p + 1]) * trace)[:, None],
+                      (t2 * g_additive)[:, None]], 1) * inside
+    nll = torch.where(bad, torch.full_like(nll, math.inf), nll)
+    return nll, torch.where(bad[:, None], torch.zeros_like(grad), grad)
+
+
+def _parts(rows: int, k: int, device) -> list[slice]:
+    """Consecutive parts of a batch of rows on K poses: on the CPU at most `_PART_ROWS` rows,
+    and a few (rows,K,K) arrays within `_PART_ELEMENTS` (on CUDA, `_DEVICE_SCALE` times
+    that, and rows without a limit). The split depends on the batch alone, never on the
+    number of threads, so neither do a row's bits."""
+    if torch.device(device).type == "cpu":
+        size = max(1, min(_PART_ROWS, _PART_ELEMENTS // (k * k)))
+    else:
+        size = max(1, _PART_ELEMENTS * _DEVICE_SCALE // (k * k))
+    return [slice(i, min(i + size, rows)) for i in range(0, rows, size)]
+
+
+def _map(pool, fn, parts):
+    return list(pool.map(fn, parts)) if pool is not None else [fn(part) for part in parts]
+
+
+@contextlib.contextmanager
+def _workers(device):
+    """Threads that evaluate the parts of a batch side by side, each on one torch thread
+    (None on CUDA: one device). Inside, torch runs one thread per operation: the parts are
+    the parallel work, one join per batch instead of a barrier per operation (on a shared
+    machine those barriers make two intra-op threads several times slower than one)."""
+    if torch.device(device).type != "cpu":
+        yield None
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        pool = ThreadPoolExecutor(threads, thread_name_prefix="mvtex-gp") if threads > 1 else None
+        with pool or contextlib.nullcontext():
+            yield pool
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _objective(z: torch.Tensor, y: torch.Tensor, pool=None):
+    """The `lbfgs.minimise` objective of parameter rows on poses z (K,P), targets y (R,K)."""
+
+    def objective(x: torch.Tensor, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        parts = _map(pool, lambda part: _negative_log_likelihood(z, y[rows[part]], x[part]),
+                     _parts(len(x), len(z), z.device))
+        return torch.cat([f for f, _ in parts]), torch.cat([g for _, g in parts])
+
+    return objective
+
+
+def _start(c: int, p: int, device) -> torch.Tensor:
+    """(C, P+3) starting rows `_START`."""
+    length, noise, additive = _START
+    row = torch.tensor([math.log(length)] * p + [0.0, math.log(noise), additive], dtype=torch.float64, device=device)
+    return row.expand(c, -1).clone()
+
+
+def _fit_hyperparameters(z: torch.Tensor, y: torch.Tensor, iterations: int, pool=None) -> torch.Tensor:
+    """Hyperparameter rows (C,P+3) [log ℓ, log s, log σ, log t] of C GPs on poses z (K,P)
+    with unit-variance targets y (C,K), by maximum marginal likelihood, all at once (on the
+    threads of `pool`, or of its own `_workers`)."""
+    from mvtex.tsnn.lbfgs import minimise
+
+    lo, hi = _bounds(z.shape[1], z.device)
+    with _workers(z.device) if pool is None else contextlib.nullcontext(pool) as threads:
+        result = minimise(_objective(z, y, threads), _start(len(y), z.shape[1], z.device), iterations, lo, hi)
+    if not bool(torch.isfinite(result.f).all()):
+        raise ValueError("no Gaussian-process fit: the covariance is singular at the start")
+    return result.x
+
+
+def _posterior(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, pool=None) -> torch.Tensor:
+    """α = A⁻¹y (C,K) of C GPs on every pose; 0 for a component whose leave-one-out error
+    is no better than predicting 0."""
+    lo, hi = _bounds(z.shape[1], z.device)
+    q = torch.maximum(torch.minimum(params, hi), lo)
+
+    def part_alpha(part: slice) -> torch.Tensor:
+        chol, info = torch.linalg.cholesky_ex(_covariance(z, q[part]))
+        if bool((info != 0).any()):
+            raise ValueError("no Gaussian-process fit: the covariance of all training poses is singular")
+        inverse = torch.cholesky_inverse(chol)
+        a = (inverse @ y[part, :, None])[:, :, 0]
+        useless = ~(loo_residuals(inverse, y[part]).square().mean(1) < y[part].square().mean(1))
+        return torch.where(useless[:, None], torch.zeros_like(a), a)
+
+    with _workers(z.device) if pool is None else contextlib.nullcontext(pool) as threads:
+        return torch.cat(_map(threads, part_alpha, _parts(len(y), len(z), z.device)))
 
 
 def evenly_spaced(k: int, count: int) -> np.ndarray:
@@ -240,15 +409,16 @@ def evenly_spaced(k: int, count: int) -> np.ndarray:
 
 
 def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iterations: int = 60,
-                progress: Callable[[int, int], None] | None = None) -> PoseGP:
+                progress: Callable[[int, int], None] | None = None, device: str | torch.device = "cpu") -> PoseGP:
     """Fit a `PoseGP` to training displacements.
 
     Args:
         poses: (K,P) training pose vectors; K at most `MAX_TRAIN` (the caller subsamples).
         d: (K,n',2) their displacements.
         components: principal components modelled (fewer when K - 1 is smaller).
-        iterations: L-BFGS iterations per component.
-        progress: called with (components done, components) after each one.
+        iterations: most L-BFGS iterations per component.
+        progress: called with (components done, components) when the fit is done.
+        device: where the likelihoods are evaluated; the model comes back on the CPU.
     """
     x = np.asarray(poses, dtype=np.float64)
     y = np.asarray(d, dtype=np.float64).reshape(len(d), -1)
@@ -267,25 +437,32 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iteratio
     coef = centred @ basis.T  # (K,C)
     config = GPConfig(pose_dim=p, num_vertices=y.shape[1] // 2, num_train=k, components=len(order))
     model = PoseGP(config)
-    z = torch.from_numpy((x - mean_x) / std_x)
-    # Hyperparameters from at most HYPER_POSES evenly spaced poses (O(K^3) per likelihood
-    # evaluation); the posterior conditions on all of them.
-    hyper = None if k <= HYPER_POSES else evenly_spaced(k, HYPER_POSES)
+    z = (x - mean_x) / std_x
     with torch.no_grad():
         model.pose_mean.copy_(torch.from_numpy(mean_x))
         model.pose_std.copy_(torch.from_numpy(std_x))
-        model.inputs.copy_(z)
+        model.inputs.copy_(torch.from_numpy(z))
         model.basis.copy_(torch.from_numpy(basis))
         model.mean.copy_(torch.from_numpy(mean_d))
-    for c in range(len(order)):
-        scale = float(coef[:, c].std()) or 1.0
-        log_l, log_s, log_a, alpha = _fit_component(z, torch.from_numpy(coef[:, c] / scale), iterations, hyper)
-        with torch.no_grad():
-            model.log_lengthscale[c] = log_l
-            model.log_signal[c] = log_s + math.log(scale)  # kernel in coefficient units...
-            model.log_additive[c] = log_a + math.log(scale)
-            model.alpha[:, c] = alpha / scale  # ...and α / scale: k α = scale² k̃ α̃ / scale = scale k̃ α̃
-        if progress is not None:
-            progress(c + 1, len(order))
+    if len(order):
+        scale = coef.std(0)
+        scale = np.where(scale > 0, scale, 1.0)  # each GP fits unit-variance targets
+        zt = torch.from_numpy(z).to(device)
+        yt = torch.from_numpy((coef / scale).T.copy()).to(device)
+        # Hyperparameters from at most HYPER_POSES evenly spaced poses (O(K^3) per likelihood
+        # evaluation); the posterior conditions on all of them.
+        hyper = torch.from_numpy(evenly_spaced(k, HYPER_POSES)).to(device)
+        with torch.no_grad(), _workers(device) as pool:
+            params = _fit_hyperparameters(zt[hyper], yt[:, hyper], iterations, pool)
+            alpha = _posterior(zt, yt, params, pool).cpu()
+            lo, hi = _bounds(p, "cpu")
+            params = torch.maximum(torch.minimum(params.cpu(), hi), lo)
+            log_scale = torch.from_numpy(np.log(scale))
+            model.log_lengthscale.copy_(params[:, :p])
+            model.log_signal.copy_(params[:, p] + log_scale)  # kernel in coefficient units...
+            model.log_additive.copy_(params[:, p + 2] + log_scale)
+            model.alpha.copy_((alpha / torch.from_numpy(scale)[:, None]).T)  # ...and α / scale: k α = scale k̃ α̃
+    if progress is not None:
+        progress(len(order), len(order))
     model.eval()
     return model

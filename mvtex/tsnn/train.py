@@ -67,7 +67,7 @@ class TrainOptions:
             conditions on the camera) or "paper" (pose only; one camera). None: "gp" for
             one camera, "unet" for all cameras. On the built-in garment's test poses `gp` is
             the most accurate at every size measured, 120 to 960 training poses (README,
-            examples/tsnn_learning_curve.py).
+            benchmarks/tsnn_learning_curve.py).
         components: principal components of d that `gp` models (each its own GP).
         widths: channels per U-Net level (None: (8, 16, 32, 64)).
         epochs: most passes over the training poses.
@@ -368,7 +368,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         split["train"] = [p for p in split["train"] if p in keep]
         if not split["train"]:
             raise OptionError("train_poses: none of them is a training pose of the texcoord set")
-    device = torch.device(options.device if options.arch != "gp" else "cpu")
+    device = torch.device(options.device)
     t0 = time.perf_counter()
 
     previous_deterministic = torch.are_deterministic_algorithms_enabled()
@@ -377,7 +377,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
             torch.manual_seed(options.seed)
             if options.arch == "gp":
-                result = _train_gp(dataset, texcoords, cameras[0], split, options, progress)
+                result = _train_gp(dataset, texcoords, cameras[0], split, options, device, progress)
             else:
                 result = _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options, device,
                                 progress)
@@ -540,8 +540,9 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
     return model.cpu(), config, history, best[1], losses
 
 
-def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, progress):
-    """`gp`: fit the Gaussian processes of one camera (on the CPU, float64); `_train`'s results."""
+def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, device, progress):
+    """`gp`: fit the Gaussian processes of one camera (float64, on `device`; the model comes
+    back on the CPU); `_train`'s results."""
     from tqdm import tqdm
 
     from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced, fit_pose_gp
@@ -557,7 +558,8 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, pro
         bar.total = total
         bar.update(done - bar.n)
 
-    model = fit_pose_gp(train.x.numpy(), train.d_numpy, components=options.components, progress=advance)
+    model = fit_pose_gp(train.x.numpy(), train.d_numpy, components=options.components, progress=advance,
+                        device=device)
     bar.close()
 
     def vertices(data: _Data, idx):

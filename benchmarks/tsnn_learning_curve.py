@@ -1,8 +1,8 @@
 """TSNN learning curve: every method on the same test poses, at growing training sets.
 
-    python examples/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30] [--steps 1500]
+    python benchmarks/tsnn_learning_curve.py WORK [--sizes 120,240,480,960] [--epochs 30] [--steps 1500]
            [--methods pca_ridge,gp,paper,unet,unet_all] [--plot docs/tsnn_learning_curve.png]
-           [--merge OTHER_WORK ...] [--report-only]
+           [--dataset DATA --texcoords TS] [--threads 1] [--merge OTHER_WORK ...] [--report-only]
 
 On the built-in garment (`mvtex synth --poses 1200`: 960 training, 120 validation, 120
 test poses), targets from texture sliding with 1 subdivision on the stereo rig, scored on
@@ -13,12 +13,18 @@ camera `left` over the 120 test poses:
                 coefficients; components and penalty chosen on the validation poses
     gp          `mvtex train --arch gp` (the default per camera): Gaussian processes of the pose
                 on the principal components of d, camera left
+    gp_reference  the same model fitted component by component (benchmarks/_gp_reference.py),
+                what `gp` is measured against: `--methods gp,gp_reference` fits both at each
+                size, one after the other on the same poses, and prints them side by side
+                (fit times, same-chart and material ratios, and the load average of each fit)
     paper       the paper's network (pose -> FC -> transposed convolutions), camera left
     unet        geometry images of X_N + pose -> U-Net, camera left
     unet_all    one U-Net for both cameras of the rig, conditioned on the camera
 
 Every method sees the first N training poses (N = --sizes) and the same validation poses
-(early stopping / model choice). Results are cached in WORK/results.json, so a rerun
+(early stopping / model choice). The dataset and texcoord set are made in WORK unless
+--dataset and --texcoords name existing ones (`python -m mvtex synth DATA --poses 1200`,
+`python -m mvtex slide DATA --rig stereo --out TS --subdiv 1`). Results are cached in WORK/results.json, so a rerun
 resumes; runs split over several processes (one WORK each, sharing the dataset and the
 texcoord set by links) are put together with --merge and --report-only. Prints a Markdown table (paper metric: SqrtMSE of uv over all pixels and over
 same-chart pixels; material error in mm when `mvtex eval` reports it).
@@ -27,15 +33,18 @@ same-chart pixels; material error in mm when `mvtex eval` reports it).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 
-METHODS = ("pca_ridge", "gp", "paper", "unet", "unet_all")
+METHODS = ("pca_ridge", "gp", "gp_reference", "paper", "unet", "unet_all")
 LABELS = {"inferred": "inferred (baseline)", "pca_ridge": "PCA of d + quadratic ridge",
-          "gp": "Gaussian processes on PCA of d (gp)", "paper": "paper TSNN (pose only)",
+          "gp": "Gaussian processes on PCA of d (gp)",
+          "gp_reference": "gp fitted component by component (reference)", "paper": "paper TSNN (pose only)",
           "unet": "U-Net on geometry images", "unet_all": "U-Net, both cameras, camera-conditioned"}
 
 
@@ -94,9 +103,34 @@ def summary_of(result: dict) -> dict:
     return out
 
 
-def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: int) -> dict:
-    import torch
+@contextlib.contextmanager
+def timed_gp_fit(reference: bool, info: dict):
+    """`train` fits `gp` with the library's fit or the reference; records the fit's seconds
+    and the 1-minute load average before and after it in `info`."""
+    from _gp_reference import fit_pose_gp as reference_fit
 
+    from mvtex.tsnn import gp
+
+    library = gp.fit_pose_gp
+    fit = reference_fit if reference else library
+
+    def timed(*args, **kwargs):
+        info["load_before"] = round(os.getloadavg()[0], 2)
+        t0 = time.perf_counter()
+        model = fit(*args, **kwargs)
+        info["fit_seconds"] = round(time.perf_counter() - t0, 2)
+        info["load_after"] = round(os.getloadavg()[0], 2)
+        return model
+
+    gp.fit_pose_gp = timed
+    try:
+        yield
+    finally:
+        gp.fit_pose_gp = library
+
+
+def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: int, dataset: Path | None = None,
+        texcoords: Path | None = None) -> dict:
     from mvtex.data.dataset import load_dataset
     from mvtex.data.rig import builtin_rig_path, load_rig
     from mvtex.data.texcoords import open_texcoords, save_texcoords
@@ -107,15 +141,14 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
     from mvtex.tsnn.predict import predict
     from mvtex.tsnn.train import TrainOptions, train
 
-    torch.set_num_threads(1)  # on a shared 2-core machine one thread is several times faster
     work.mkdir(parents=True, exist_ok=True)
-    data = work / "shirt1200"
+    data = dataset or work / "shirt1200"
     if not (data / "dataset.json").exists():
         write_synth(data, SynthOptions(num_poses=1200))
     ds = load_dataset(data)
     stereo = load_rig(builtin_rig_path("stereo"))
     left = stereo.select(["left"])
-    ts = work / "ts_stereo1"
+    ts = texcoords or work / "ts_stereo1"
     if not (ts / "texcoords.json").exists():
         slide_dataset(ds, stereo, ts, poses=ds.select("all"), options=SlideOptions(subdiv=1))
     tc = open_texcoords(ts, ds.num_vertices)
@@ -147,11 +180,12 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
                 save_texcoords(pred_dir, faces=tc.faces, uv=tc.uv, parent=tc.parent, source="pca_ridge",
                                subdiv=tc.subdiv, poses=test, displacement={"left": d_test},
                                assigned={"left": np.ones(d_test.shape[:2], bool)})
-            elif method == "gp":
+            elif method in ("gp", "gp_reference"):
                 model = work / f"model_{method}_{m}"
-                summary = train(ds, tc, model, camera="left", options=TrainOptions(arch="gp"), train_poses=poses,
-                                progress=False)
-                info = {"train_seconds": summary["seconds"]}
+                with timed_gp_fit(method == "gp_reference", info):
+                    summary = train(ds, tc, model, camera="left", options=TrainOptions(arch="gp", device="cpu"),
+                                    train_poses=poses, progress=False)
+                info["train_seconds"] = summary["seconds"]
                 predict(ds, [model], pred_dir, poses=test, rig=left, progress=False)
             else:
                 arch = "paper" if method == "paper" else "unet"
@@ -199,8 +233,30 @@ def table(results: dict, sizes: list[int], methods: list[str]) -> str:
                 row += (f" {r['material_m']['texcoords']['mean'] * 1e3:.2f} | {r['ratio_material']:.2f} |"
                         if "material_m" in r else " | |")
             epochs = f", {r['epochs_run']} epochs" if "epochs_run" in r else ""
-            rows.append(row + f" {r['seconds']:.0f} s{epochs} |")
+            fit = f", fit {r['fit_seconds']:.1f} s" if "fit_seconds" in r else ""
+            rows.append(row + f" {r['seconds']:.0f} s{epochs}{fit} |")
     return "\n".join(rows)
+
+
+def gp_comparison(results: dict, sizes: list[int]) -> str:
+    """`gp` beside `gp_reference` at each size both were run at: fit times (and the load
+    average before and after each fit), same-chart and material ratios, and the changes."""
+    head = ("| training poses | fit s, reference | fit s, gp | speed-up | same-chart ratio, reference | gp | change |"
+            " material ratio, reference | gp | change | load (reference; gp) |")
+    rows = [head, "|" + "---|" * (head.count("|") - 1)]
+    for m in sizes:
+        ref, new = results.get(f"gp_reference/{m}"), results.get(f"gp/{m}")
+        if ref is None or new is None or "fit_seconds" not in ref or "fit_seconds" not in new:
+            continue
+        chart = (new["ratio_same_chart"] / ref["ratio_same_chart"] - 1) * 100
+        material = (f"{ref['ratio_material']:.3f} | {new['ratio_material']:.3f} | "
+                    f"{(new['ratio_material'] / ref['ratio_material'] - 1) * 100:+.1f} %"
+                    if ref.get("ratio_material") and new.get("ratio_material") else " | | ")
+        rows.append(f"| {m} | {ref['fit_seconds']:.1f} | {new['fit_seconds']:.1f} | "
+                    f"{ref['fit_seconds'] / new['fit_seconds']:.1f}x | {ref['ratio_same_chart']:.3f} | "
+                    f"{new['ratio_same_chart']:.3f} | {chart:+.1f} % | {material} | "
+                    f"{ref['load_before']}-{ref['load_after']}; {new['load_before']}-{new['load_after']} |")
+    return "\n".join(rows) if len(rows) > 2 else ""
 
 
 def plot(results: dict, sizes: list[int], methods: list[str], path: Path) -> None:
@@ -238,6 +294,10 @@ def main() -> None:
     parser.add_argument("--merge", type=Path, action="append", default=[],
                         help="add the cached results of another WORK (runs split over processes)")
     parser.add_argument("--report-only", action="store_true", help="print the cached results, compute nothing")
+    parser.add_argument("--dataset", type=Path, help="an existing 1,200-pose dataset (default: made in WORK)")
+    parser.add_argument("--texcoords", type=Path, help="its texcoord set, stereo rig, 1 subdivision (default: made in WORK)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: on a shared 2-core machine "
+                        "one thread trains the networks several times faster)")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     methods = [m for m in args.methods.split(",") if m]
@@ -248,13 +308,19 @@ def main() -> None:
     if args.report_only:
         results = json.loads(cache.read_text()) if cache.exists() else {}
     else:
-        results = run(args.work, sizes, methods, args.epochs, args.steps)
+        import torch
+
+        torch.set_num_threads(args.threads)
+        results = run(args.work, sizes, methods, args.epochs, args.steps, args.dataset, args.texcoords)
     for other in args.merge:
         for key, value in json.loads((other / "results.json").read_text()).items():
             results.setdefault(key, value)
     if "inferred" not in results:
         parser.error(f"no results in {cache}")
     print(table(results, sizes, methods))
+    comparison = gp_comparison(results, sizes)
+    if comparison:
+        print("\n" + comparison)
     if args.plot:
         plot(results, sizes, methods, args.plot)
         print(f"wrote {args.plot}")
