@@ -1,10 +1,10 @@
 """Novel views from TSNN texcoords: networks for the two stereo cameras, then `blend` and
 `reconstruct` between them, against direct texture sliding at each view (with gt).
 
-    python examples/views_tsnn.py WORKDIR [TOTAL_POSES] [PATH_POSES] [EPOCHS]
+    python benchmarks/views_tsnn.py WORKDIR [TOTAL_POSES] [PATH_POSES] [EPOCHS]
 
 Default: a 1,200-pose dataset (960 training poses: with fewer the network barely learns,
-see examples/tsnn_poses.py), networks at the CPU defaults (no subdivision), the path
+see benchmarks/tsnn_poses.py), networks at the CPU defaults (no subdivision), the path
 measured on the first 12 test poses. About 20-30 minutes on a 2-core CPU.
 """
 

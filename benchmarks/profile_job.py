@@ -2,7 +2,7 @@
 (`mvtex.sliding.hits.find_hits_raster` + `displacement_from_hits`) on the jobs of a dataset, in
 one process, after a warm-up.
 
-    python examples/profile_job.py DATASET [--rig stereo] [--poses 0:40] [--repeats 2]
+    python benchmarks/profile_job.py DATASET [--rig stereo] [--poses 0:40] [--repeats 2]
 
 Prints a Markdown table (milliseconds per job and share of the job), the machine and the
 command. The steps are timed by wrapping the functions named in the table for the run;
@@ -114,7 +114,7 @@ def main(dataset: str, rig_spec: str, spec: str, repeats: int) -> tuple[str, dic
     ]
     ms["rows"] = [value for _, value in rows]
     table = "\n".join(f"| {label} | {value:.1f} | {100 * value / ms['job']:.0f} % |" for label, value in rows)
-    command = shlex.join(["python", "examples/profile_job.py", dataset, "--rig", rig_spec, "--poses", spec,
+    command = shlex.join(["python", "benchmarks/profile_job.py", dataset, "--rig", rig_spec, "--poses", spec,
                           "--repeats", str(repeats)])
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return (f"Machine: {platform.platform()}, {os.cpu_count()} logical cores, GL {renderer}, load average "
