@@ -102,14 +102,14 @@ def main(dataset: str, rig_spec: str, spec: str, repeats: int) -> tuple[str, dic
     n = repeats * len(jobs)
     ms = {step: 1e3 * seconds / n for step, seconds in totals.items()}
     rows = [
-        ("the pair raster on llvmpipe (`raster.rasterize_pair`)", ms["raster"]),
-        (f"harmonic fill (`extrapolate.fill`), of which CHOLMOD (`extrapolate.solve_spd`) {ms['solve']:.1f} ms",
+        ("the pair raster on llvmpipe (`render.raster.rasterize_pair`)", ms["raster"]),
+        (f"harmonic fill (`sliding.fill.fill`), of which CHOLMOD (`sliding.fill.solve_spd`) {ms['solve']:.1f} ms",
          ms["fill"]),
-        ("candidate windows and exact ray/triangle tests (`hitsearch.nearest_occluder`, `first_hits`)",
+        ("candidate windows and exact ray/triangle tests (`sliding.kernels.nearest_occluder`, `first_hits`)",
          ms["occluder"] + ms["first_hits"]),
         ("projections, owned faces, candidate set (rest of `find_hits_raster`)",
          ms["hits"] - ms["raster"] - ms["occluder"] - ms["first_hits"] - ms["inside"]),
-        ("vertex normals for the inside test (`hitsearch.seen_from_inside`)", ms["inside"]),
+        ("vertex normals for the inside test (`sliding.kernels.seen_from_inside`)", ms["inside"]),
         ("T_N, rejection rules, bookkeeping, subdivided positions", ms["displacement"] - ms["fill"] + ms["positions"]),
     ]
     ms["rows"] = [value for _, value in rows]

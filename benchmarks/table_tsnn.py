@@ -6,7 +6,7 @@ by ray vs by fill (Table 4 form), and reconstruction from TSNN texcoords (stereo
 
 Default: a 1,200-pose dataset (960 training poses; with fewer the network barely learns,
 see benchmarks/tsnn_poses.py). Trains three networks (left and right without subdivision,
-left with one level) with the paper architecture (`arch="paper"`; the default U-Net is
+left with one level) with the paper architecture (`arch="paper"`; every model is
 compared in benchmarks/tsnn_learning_curve.py): about 15-20 minutes on a 2-core CPU.
 """
 
