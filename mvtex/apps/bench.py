@@ -16,6 +16,7 @@ import os
 import platform
 import sys
 import time
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -25,7 +26,7 @@ from mvtex.data.rig import Rig, check_sees
 from mvtex.sliding.hits import Hits, find_hits_raster, in_front, intersect_pairs, owning_vertices
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import displacement_from_hits
-from mvtex.sliding.topology import SlideTopology, build_topology
+from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
 from mvtex.util.parallel import check_backend
 
 if TYPE_CHECKING:
@@ -48,15 +49,25 @@ def _first_hits(intersector, origins: np.ndarray, dirs: np.ndarray, num_faces: i
 
 
 def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray, topo: SlideTopology,
-                     camera: Camera, options: SlideOptions) -> Hits:
-    """Same contract as `sliding.find_hits_raster`, by ray casting with Embree."""
+                     camera: Camera, options: SlideOptions, *,
+                     body: tuple[np.ndarray, BodyTopology] | None = None) -> Hits:
+    """Same contract as `sliding.find_hits_raster`, by ray casting with Embree (the body,
+    if given, in every scene: the pixels', the depth test's and the gt hits')."""
     from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
 
     n = len(X)
     origin = camera.center
     W, H = camera.width, camera.height
-    inf_rt = _intersector(X, topo.faces)
-    gt_rt = _intersector(gt, faces)
+    m_sub, m = len(topo.faces), len(faces)
+    X_all, sub_faces_all, gt_all, faces_all = X, topo.faces, gt, np.asarray(faces, np.int64)
+    if body is not None:
+        body_positions = np.asarray(body[0], np.float64)
+        X_all = np.concatenate([X, body_positions])
+        sub_faces_all = np.concatenate([topo.faces, body[1].faces + len(X)])
+        gt_all = np.concatenate([gt, body_positions])
+        faces_all = np.concatenate([faces_all, body[1].faces + len(gt)])
+    inf_rt = _intersector(X_all, sub_faces_all)
+    gt_rt = _intersector(gt_all, faces_all)
     pixels, z = camera.project(X)
     # Rule 1: cast a ray through every pixel centre of the projected bounding box.
     front = z > 0
@@ -65,23 +76,24 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     cols, rows = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
     pix = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float64)
     dirs_px = camera.pixel_rays(pix)
-    owner = _first_hits(inf_rt, np.broadcast_to(origin, dirs_px.shape), dirs_px, len(topo.faces))
-    owned = np.zeros(len(topo.faces), bool)
-    owned[owner[owner >= 0]] = True
+    owner = _first_hits(inf_rt, np.broadcast_to(origin, dirs_px.shape), dirs_px, len(sub_faces_all))
+    owned = np.zeros(m_sub, bool)
+    owned[owner[(owner >= 0) & (owner < m_sub)]] = True
     cand = owning_vertices(owned, topo, camera, pixels, z)
-    # Rule 2: the first inferred surface along the vertex ray is not (much) nearer.
+    # Rule 2: the first surface along the vertex ray (inferred cloth or body) is not (much) nearer.
     dirs = X[cand] - origin
     unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    occ = _first_hits(inf_rt, np.broadcast_to(origin, unit.shape), unit, len(topo.faces))
+    occ = _first_hits(inf_rt, np.broadcast_to(origin, unit.shape), unit, len(sub_faces_all))
     t_occ = np.full(len(cand), np.inf)
     has = occ >= 0
-    t_occ[has] = intersect_pairs(origin, dirs[has], X, topo.faces, occ[has])[0]
+    t_occ[has] = intersect_pairs(origin, dirs[has], X_all, sub_faces_all, occ[has])[0]
     # Embree's float32 hit can miss in float64 by a hair at an edge: then it is not an occluder.
     vis = in_front(t_occ, options)
     cand, dirs, unit = cand[vis], dirs[vis], unit[vis]
     visible = np.zeros(n, bool)
     visible[cand] = True
-    tri = _first_hits(gt_rt, np.broadcast_to(origin, unit.shape), unit, len(faces))
+    tri = _first_hits(gt_rt, np.broadcast_to(origin, unit.shape), unit, len(faces_all))
+    tri[tri >= m] = -1  # the body first: that material is hidden from the camera
     tri_hit = np.full(n, -1, np.int64)
     bary = np.zeros((n, 3))
     back = np.zeros(n, bool)
@@ -96,15 +108,24 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
                                                       np.ascontiguousarray(origin, dtype=np.float64)))
 
 
-def _job(ctx: GLContext, path: str, gt, inferred, faces, uv, topo, camera, options):
+def _job(ctx: GLContext, path: str, gt, inferred, faces, uv, topo, camera, options, body=None):
+    """One sliding job on `path` ("raster" or "raycast"); body: (positions, BodyTopology) or None."""
     gt = np.asarray(gt, np.float64)
     inferred = np.asarray(inferred, np.float64)
     X = topo.positions(inferred)
     if path == "raster":
-        hits = find_hits_raster(ctx, gt, inferred, faces, X, topo, camera, options)
+        hits = find_hits_raster(ctx, gt, inferred, faces, X, topo, camera, options, body=body)
     else:
-        hits = find_hits_embree(gt, inferred, faces, X, topo, camera, options)
+        hits = find_hits_embree(gt, inferred, faces, X, topo, camera, options, body=body)
     return displacement_from_hits(hits, faces, uv, X, topo, options)
+
+
+def _bodies(ds, topo: SlideTopology, poses) -> dict:
+    """Pose -> (body positions, BodyTopology) of a dataset with a body, else pose -> None."""
+    if ds.body is None:
+        return {k: None for k in poses}
+    body_topo = body_topology(ds.body.faces, topo)
+    return {k: (ds.body.pose(k), body_topo) for k in poses}
 
 
 def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: int, barrier) -> tuple[int, float]:
@@ -113,21 +134,23 @@ def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: 
     jobs, fastest pass in seconds)."""
     from mvtex.data.dataset import load_dataset, reference_shape
     from mvtex.render.context import GLContext
-    from mvtex.util.parallel import single_thread_gl
+    from mvtex.util.parallel import configure_threads
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(dataset_path, validate=False)
     options = SlideOptions(subdiv=subdiv)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
     faces = ds.faces.astype(np.int64)
+    bodies = _bodies(ds, topo, sorted({k for k, _ in jobs}))
     with GLContext() as ctx:
-        _job(ctx, "raster", ds.gt[jobs[0][0]], ds.inferred[jobs[0][0]], faces, ds.uv, topo, rig[jobs[0][1]], options)
+        k0 = jobs[0][0]
+        _job(ctx, "raster", ds.gt[k0], ds.inferred[k0], faces, ds.uv, topo, rig[jobs[0][1]], options, bodies[k0])
         barrier.wait()
         best = np.inf
         for _ in range(repeats):
             start = time.perf_counter()
             for k, cam in jobs:
-                _job(ctx, "raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options)
+                _job(ctx, "raster", ds.gt[k], ds.inferred[k], faces, ds.uv, topo, rig[cam], options, bodies[k])
             best = min(best, time.perf_counter() - start)
     return len(jobs), best
 
@@ -148,8 +171,43 @@ def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats
     return sum(count for count, _ in done) / max(seconds for _, seconds in done)
 
 
+@dataclass(frozen=True)
+class BenchResult:
+    """What `run_bench` measured (`to_json()` is `mvtex bench --json`).
+
+    Attributes:
+        jobs, poses, cameras, subdiv, num_vertices, image_size: what was timed.
+        sliding: {"raster"|"raycast": {"jobs_per_s", "seconds"} (one process, the fastest pass;
+            with the dataset's body when it has one), "raster_workers": {"workers",
+            "jobs_per_s"} (None when workers == 1)}.
+        body: for a dataset with a body, {"num_faces", "raster_without_body": {"jobs_per_s",
+            "seconds"}, "overhead": raster seconds with the body / without - 1}, measured side
+            by side; None without a body.
+        speedup: raster over ray cast, measured side by side.
+        agreement: {"displacement": share of vertices assigned by both paths whose d agree to
+            1e-5, "assigned_flags": share with equal flags}.
+        eval: {"images_per_s"}. machine: cores, GL renderer, platform, Python.
+    """
+
+    jobs: int
+    poses: int
+    cameras: list[str]
+    subdiv: int
+    num_vertices: int
+    image_size: list[int]
+    sliding: dict
+    body: dict | None
+    speedup: float
+    agreement: dict
+    eval: dict
+    machine: dict
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
 def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
-              progress: bool = True, workers: int = 2, ctx: GLContext | None = None) -> dict:
+              progress: bool = True, workers: int = 2, ctx: GLContext | None = None) -> BenchResult:
     """Measure jobs/s of the raster and ray-cast sliding paths and the eval throughput.
 
     Args:
@@ -163,9 +221,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         ctx: `raster.GLContext` for this process (created, and released, if None).
 
     Returns:
-        JSON-able dict: jobs, sliding.{raster,raycast}.jobs_per_s, speedup (raster over
-        ray cast, both in one process), sliding.raster_workers.{workers,jobs_per_s}, agreement.{displacement (fraction of vertices assigned by both whose d
-        agree to 1e-5), assigned_flags (fraction with equal flags)}, eval.images_per_s, machine.
+        A `BenchResult`.
     """
     from tqdm import tqdm
 
@@ -183,7 +239,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         with GLContext() as own:
             return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,
                              workers=workers, ctx=own)
-    from mvtex.evaluation.uv import masked_uv_error, texcoord_image
+    from mvtex.evaluation.evaluate import ImageEvaluator
 
     options = SlideOptions(subdiv=subdiv)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)
@@ -191,21 +247,29 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     jobs = [(k, cam) for k in poses for cam in rig]
     gts = {k: np.asarray(ds.gt[k], np.float64) for k in poses}
     infs = {k: np.asarray(ds.inferred[k], np.float64) for k in poses}
-    # Warm up both paths (GL context, shader compilation, Embree import).
-    for path in ("raster", "raycast"):
-        _job(ctx, path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options)
+    bodies = _bodies(ds, topo, poses)
+    # (name, path, with the body): the body-free raster pass only for a dataset with a body.
+    passes = [("raster", "raster", True), ("raycast", "raycast", True)]
+    if ds.body is not None:
+        passes.append(("raster_without_body", "raster", False))
+    # Warm up every path (GL context, shader compilation, Embree import).
+    for _, path, worn in passes:
+        _job(ctx, path, gts[poses[0]], infs[poses[0]], faces, ds.uv, topo, rig.cameras[0], options,
+             bodies[poses[0]] if worn else None)
     results: dict = {}
-    bar = tqdm(total=2 * repeats * len(jobs), desc="bench", unit="job", disable=not progress, file=sys.stderr)
-    # The passes of the two paths alternate, so that both meet the same moments of a shared
+    bar = tqdm(total=len(passes) * repeats * len(jobs), desc="bench", unit="job", disable=not progress,
+               file=sys.stderr)
+    # The passes of the paths alternate, so that all meet the same moments of a shared
     # machine; the fastest pass of each counts.
-    timing = {"raster": np.inf, "raycast": np.inf}
+    timing = {name: np.inf for name, _, _ in passes}
     for _ in range(repeats):
-        for path in ("raster", "raycast"):
+        for name, path, worn in passes:
             start = time.perf_counter()
             for k, cam in jobs:
-                results[path, k, cam.name] = _job(ctx, path, gts[k], infs[k], faces, ds.uv, topo, cam, options)
+                results[name, k, cam.name] = _job(ctx, path, gts[k], infs[k], faces, ds.uv, topo, cam, options,
+                                                  bodies[k] if worn else None)
                 bar.update(1)
-            timing[path] = min(timing[path], time.perf_counter() - start)
+            timing[name] = min(timing[name], time.perf_counter() - start)
     bar.close()
     parallel = None
     if workers > 1:
@@ -219,31 +283,31 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         agree += int((np.abs(d_r[common] - d_e[common]).max(axis=1) <= 1e-5).sum())
         flags += int((a_r == a_e).sum())
         total += len(a_r)
-    # Evaluation: per image one gt, one baseline and one (subdivided) texcoords render.
-    start = time.perf_counter()
-    for k, cam in jobs:
-        uv_g, r_g = texcoord_image(ctx, gts[k], faces, ds.uv, cam)
-        uv_b, r_b = texcoord_image(ctx, infs[k], faces, ds.uv, cam)
-        masked_uv_error(uv_b, r_b.mask, uv_g, r_g.mask)
-        d, _ = results["raster", k, cam.name]
-        uv_t, r_t = texcoord_image(ctx, topo.positions(infs[k]), topo.faces, topo.uv + d, cam)
-        masked_uv_error(uv_t, r_t.mask, uv_g, r_g.mask)
-    eval_time = time.perf_counter() - start
-    return {
-        "jobs": len(jobs),
-        "poses": len(poses),
-        "cameras": rig.names,
-        "subdiv": subdiv,
-        "num_vertices": len(topo.uv),
-        "image_size": [rig.cameras[0].width, rig.cameras[0].height],
-        "sliding": {
-            "raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
-            "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
-            "raster_workers": {"workers": int(workers), "jobs_per_s": parallel},
-        },
-        "speedup": timing["raycast"] / timing["raster"],
-        "agreement": {"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
-        "eval": {"images_per_s": len(jobs) / eval_time},
-        "machine": {"cpu_count": os.cpu_count(), "gl_renderer": ctx.renderer, "platform": platform.platform(),
-                    "python": platform.python_version(), "processes": 1},
-    }
+    # Evaluation: what `evaluate` does per image (uv and material errors, baseline and
+    # texcoords, the body in the renders), on the raster path's texcoords.
+    evaluator = ImageEvaluator(ctx, ds, topo.faces, topo.uv, topo.subdivision.parent)
+    k0, cam0 = jobs[0]
+    evaluator(k0, cam0, topo.uv + results["raster", k0, cam0.name][0], gt=gts[k0], inferred=infs[k0])  # warm-up
+    eval_time = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for k, cam in jobs:
+            evaluator(k, cam, topo.uv + results["raster", k, cam.name][0], gt=gts[k], inferred=infs[k])
+        eval_time = min(eval_time, time.perf_counter() - start)
+    body = None
+    if ds.body is not None:
+        body = {"num_faces": int(len(ds.body.faces)),
+                "raster_without_body": {"jobs_per_s": len(jobs) / timing["raster_without_body"],
+                                        "seconds": timing["raster_without_body"]},
+                "overhead": timing["raster"] / timing["raster_without_body"] - 1}
+    return BenchResult(
+        jobs=len(jobs), poses=len(poses), cameras=rig.names, subdiv=subdiv, num_vertices=len(topo.uv),
+        image_size=[rig.cameras[0].width, rig.cameras[0].height],
+        sliding={"raster": {"jobs_per_s": len(jobs) / timing["raster"], "seconds": timing["raster"]},
+                 "raycast": {"jobs_per_s": len(jobs) / timing["raycast"], "seconds": timing["raycast"]},
+                 "raster_workers": {"workers": int(workers), "jobs_per_s": parallel}},
+        body=body, speedup=timing["raycast"] / timing["raster"],
+        agreement={"displacement": agree / max(both, 1), "assigned_flags": flags / max(total, 1)},
+        eval={"images_per_s": len(jobs) / eval_time},
+        machine={"cpu_count": os.cpu_count(), "gl_renderer": ctx.renderer, "platform": platform.platform(),
+                 "python": platform.python_version(), "processes": 1})

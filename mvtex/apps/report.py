@@ -157,7 +157,7 @@ def demo_preview(dataset, stereo, out: str | os.PathLike, pose: int, *, progress
         return read_json(folder / "preview.json")
     tc = open_texcoords(Path(out) / "ts_stereo", dataset.num_vertices)
     return stereo_preview(dataset, stereo, tc, pose, folder, options=PreviewOptions(path=True, frames_per_segment=4),
-                          progress=progress)
+                          progress=progress).to_json()
 
 
 def _pictures(out: Path, folder: str, limit: int) -> list[str]:

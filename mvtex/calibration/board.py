@@ -33,6 +33,7 @@ PNG_SOFTWARE = "mvtex board"
 
 
 MM_PER_INCH = 25.4
+MAX_BOARD_PIXELS = 32768  # side of the printable image (a 1.1 m board at 750 dpi)
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,8 @@ def parse_board_spec(text: str) -> BoardSpec:
     if cols < 3 or rows < 3:
         raise InputError(None, f"board SPEC {text!r}: needs at least 3x3 squares, got {cols}x{rows}")
     if not (np.isfinite(square) and np.isfinite(marker) and 0 < marker < square):
-        raise InputError(None, f"board SPEC {text!r}: needs 0 < MARKER_M < SQUARE_M, got {marker:g} and {square:g}")
+        raise InputError(None, f"board SPEC {text!r}: needs 0 < MARKER_M < SQUARE_M, got SQUARE_M {square:g} and "
+                         f"MARKER_M {marker:g}")
     if not hasattr(cv2.aruco, name):
         raise InputError(None, f"board SPEC {text!r}: unknown dictionary {name} (OpenCV's cv2.aruco.DICT_*, "
                          "e.g. DICT_4X4_50, DICT_5X5_100, DICT_6X6_250)")
@@ -159,7 +161,13 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
     if pixels_per_square < 8:
         raise OptionError(f"pixels_per_square must be at least 8 to print the markers, got {pixels_per_square}")
     margin_m = max(spec.square_m / 2, 0.010) if margin_m is None else float(margin_m)
+    if not (np.isfinite(margin_m) and margin_m >= 0):
+        raise OptionError(f"margin_m must be a finite number >= 0, got {margin_m}")
     margin_px = int(round(margin_m * 1000 / MM_PER_INCH * dpi))
+    side = max(spec.cols, spec.rows) * pixels_per_square + 2 * margin_px
+    if side > MAX_BOARD_PIXELS:  # checked before OpenCV allocates the image
+        raise OptionError(f"pixels_per_square {pixels_per_square} makes a board image of {side} pixels a side, more "
+                          f"than {MAX_BOARD_PIXELS}; lower it (or the dpi)")
     image = board_image(spec, pixels_per_square, margin_px)
     text = f"{spec}   square {spec.square_m * 1000:g} mm   print at {dpi:.0f} dpi, 100 %"
     scale = margin_px * 0.35 / 22.0

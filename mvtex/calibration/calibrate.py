@@ -164,8 +164,20 @@ def find_images(folder: str | os.PathLike) -> list[CameraImages]:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, "image folder not found")
+    from mvtex.data.camera import check_camera_name
+
     cameras = []
+    seen: dict[str, str] = {}
     for sub in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        # A camera folder's name becomes the camera's name: checked before any detection runs.
+        try:
+            check_camera_name(sub.name)
+        except ValueError as err:
+            raise InputError(sub, f"{err}; rename the folder") from None
+        if sub.name.lower() in seen:
+            raise InputError(sub, f"camera folders {seen[sub.name.lower()]!r} and {sub.name!r} differ only in case "
+                             "(camera names must be unique ignoring case)")
+        seen[sub.name.lower()] = sub.name
         files: dict[str, Path] = {}
         for path in sorted(sub.iterdir()):
             if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES:

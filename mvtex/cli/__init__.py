@@ -36,6 +36,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one command. Returns 0 on success, 2 on bad usage or bad input (one line on
     stderr naming the file and the problem), 130 when interrupted; any other failure is a
     bug and propagates with its traceback (exit 1 from the `mvtex` script)."""
+    from mvtex.util.parallel import configure_threads
+
+    configure_threads()
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)

@@ -40,7 +40,7 @@ def cmd_bench(args):
     poses = dataset.select(args.poses)
     result = run_bench(dataset, rig_path, poses=poses, subdiv=args.subdiv, workers=args.workers,
                        progress=not args.quiet)
-    emit(args, result, dumps_strict(result, indent=2))
+    emit(args, result, dumps_strict(result.to_json(), indent=2))
 
 
 def cmd_demo(args):

@@ -100,7 +100,7 @@ class Deprecated(argparse.Action):
 def positional_out(p: argparse.ArgumentParser, help_out: str) -> None:
     """`--out OUT` (required) for a command whose OUT used to be positional (still accepted)."""
     p.add_argument("out_positional", nargs="?", type=Path, metavar="OUT",
-                   help=f"deprecated spelling of --out OUT")
+                   help="deprecated spelling of --out OUT")
     p.add_argument("--out", type=Path, help=help_out)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from mvtex.cli.common import (
@@ -25,6 +26,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of poses and folds (default 0)")
     p.add_argument("--garment", default="shirt", choices=("shirt", "skirt"),
                    help="shirt: a T-shirt on a mannequin; skirt: a flared skirt on hips and legs (default shirt)")
+    p.add_argument("--body", action=argparse.BooleanOptionalAction, default=True,
+                   help="write the mannequin as the dataset's body (default); --no-body: the garment alone")
     add_common(p)
     p.set_defaults(run=cmd_synth)
 
@@ -35,6 +38,8 @@ def register(sub) -> None:
     p.add_argument("--pose-vectors", type=Path, help="pose vectors: .npy (K,P) or text rows (default: the frame index)")
     p.add_argument("--poses", dest="pose_vectors", type=Path, action=Deprecated, new="--pose-vectors FILE",
                    metavar="FILE")
+    p.add_argument("--body", dest="body_glob", metavar="GLOB",
+                   help="glob of the body's meshes (OBJ/PLY, one connectivity), paired with --gt in sorted order")
     p.add_argument("--name", help="dataset name (default: the folder name)")
     add_common(p)
     p.set_defaults(run=cmd_import)
@@ -53,20 +58,11 @@ def register(sub) -> None:
 
 def cmd_synth(args):
     from mvtex.synth.generate import SynthOptions, write_synth
-    from mvtex.util.errors import OptionError
 
     resolve_positional_out(args)
-    try:
-        options = SynthOptions(num_poses=args.num_poses, seed=args.seed, garment=args.garment)
-    except ValueError as err:
-        raise OptionError(str(err)) from None
+    options = SynthOptions(num_poses=args.num_poses, seed=args.seed, garment=args.garment, body=args.body)
     with output(args, "synth"):
-        try:
-            stats = write_synth(args.out, options)
-        except ValueError as err:
-            if not isinstance(err, OptionError) and type(err) is ValueError:
-                raise OptionError(str(err)) from None
-            raise
+        stats = write_synth(args.out, options)
     emit(args, stats, f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                           for k, v in stats.items()))
 
@@ -77,7 +73,7 @@ def cmd_import(args):
     resolve_positional_out(args)
     with output(args, "import"):
         path = import_sequences(args.out, args.gt, args.inferred, args.pose_vectors, name=args.name,
-                                progress=not args.quiet)
+                                body_glob=args.body_glob, progress=not args.quiet)
     emit(args, {"out": str(path)}, f"wrote {path}")
 
 

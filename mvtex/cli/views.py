@@ -46,6 +46,8 @@ def register(sub) -> None:
 
 
 def cmd_views(args):
+    from dataclasses import replace
+
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
     from mvtex.util.errors import OptionError
@@ -62,16 +64,21 @@ def cmd_views(args):
     rig, rig_path = load_rig(args.rig)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
-    with output(args, "views"):
+    import contextlib
+
+    from mvtex.util.output import claim_file
+
+    plot = claim_file(args.plot, "views", overwrite=args.overwrite) if args.plot else contextlib.nullcontext()
+    with output(args, "views"), plot:
         result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses, options=options,
                              rig_source=rig_path, progress=not args.quiet, workers=args.workers or 1,
                              scheduler=args.scheduler)
-    if args.plot is not None:
-        from mvtex.views.measure import path_plot
+        if args.plot is not None:
+            from mvtex.views.measure import path_plot
 
-        result["measured"] = path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
-                                       progress=not args.quiet)
-    emit(args, result, f"wrote {len(names)} view(s) x {len(result['poses'])} pose(s) ({args.method}) to {args.out}")
+            result = replace(result, measured=path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
+                                                        progress=not args.quiet))
+    emit(args, result, f"wrote {len(names)} view(s) x {len(result.poses)} pose(s) ({args.method}) to {args.out}")
 
 
 def cmd_preview(args):
@@ -88,7 +95,6 @@ def cmd_preview(args):
     with output(args, "preview"):
         result = stereo_preview(dataset, rig, tc, args.pose, args.out, weights=weights, options=options,
                                 rig_source=rig_path, progress=not args.quiet, overwrite=args.overwrite)
-    eyes = result["eyes"]
-    emit(args, result, f"pose {result['pose']}: SSIM inferred -> texcoords: left {eyes['left']['ssim']['inferred']:.3f}"
-         f" -> {eyes['left']['ssim']['texcoords']:.3f}, right {eyes['right']['ssim']['inferred']:.3f} -> "
-         f"{eyes['right']['ssim']['texcoords']:.3f}; wrote {args.out}")
+    left, right = result.eyes["left"].ssim, result.eyes["right"].ssim
+    emit(args, result, f"pose {result.pose}: SSIM inferred -> texcoords: left {left[0]:.3f} -> {left[1]:.3f}, "
+         f"right {right[0]:.3f} -> {right[1]:.3f}; wrote {args.out}")

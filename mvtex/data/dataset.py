@@ -7,6 +7,12 @@ pose selection specs, and import from OBJ/PLY sequences.
     gt.npy, inferred.npy   float32 (K,n,3)
     poses.npy      float32 (K,P)
     split.json     optional {"train": [...], "val": [...], "test": [...]}
+    body.npz       optional, with body.npy: faces int32 (mb,3) of the wearer's body (or any
+                   opaque thing that is not cloth), counter-clockwise seen from outside
+    body.npy       optional, with body.npz: float32 (K,nb,3), row k = the body in pose k
+
+dataset.json may record the body's size as "body": {"num_vertices": nb, "num_faces": mb};
+readers do not require it.
 """
 
 from __future__ import annotations
@@ -19,13 +25,37 @@ from typing import Sequence
 import numpy as np
 
 from mvtex.util.errors import InputError
-from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_rows
+from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_row, read_rows
 from mvtex.util.output import atomic_path
 
 FORMAT = "mvtex-dataset"
 
 
 VERSION = 1
+
+
+BODY_FILES = ("body.npz", "body.npy")
+
+
+@dataclass(frozen=True)
+class Body:
+    """The wearer's body (or any opaque non-cloth thing), the same under gt and inferred cloth.
+
+    Attributes:
+        faces: (mb,3) int32, counter-clockwise seen from outside.
+        positions: (K,nb,3) float32, memory-mapped (row k = pose k).
+    """
+
+    faces: np.ndarray
+    positions: np.ndarray
+
+    def pose(self, k: int) -> np.ndarray:
+        """The body's vertices in pose k, (nb,3) float64, read through the file (not the map)."""
+        return read_row(self.positions, int(k)).astype(np.float64)
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.positions.shape[1])
 
 
 @dataclass(frozen=True)
@@ -38,6 +68,7 @@ class Dataset:
         faces: (m,3) int32. uv: (n,2) float32 (T_G). rest: (n,3) float32 or None.
         gt, inferred: (K,n,3) float32 (memory-mapped). poses: (K,P) float32.
         split: dict with "train", "val", "test" lists of pose indices.
+        body: the wearer's body (`Body`), or None when the dataset has no body files.
     """
 
     path: Path
@@ -49,6 +80,7 @@ class Dataset:
     inferred: np.ndarray
     poses: np.ndarray
     split: dict[str, list[int]]
+    body: Body | None = None
 
     @property
     def num_poses(self) -> int:
@@ -63,12 +95,20 @@ class Dataset:
         return parse_pose_spec(spec or default, self.num_poses, self.split, source=self.path)
 
     def check_poses(self, poses) -> list[int]:
-        """Pose indices as ints; InputError (naming the dataset) when none or one out of range."""
+        """Pose indices as ints; InputError (naming the dataset) when none, one out of range
+        or one given twice."""
         poses = [int(p) for p in poses]
         if not poses:
             raise InputError(self.path, "no pose selected")
         _check_range(poses, self.num_poses, self.path)
+        if len(set(poses)) != len(poses):
+            raise InputError(self.path, f"pose {next(p for p in poses if poses.count(p) > 1)} is selected twice")
         return poses
+
+    def body_arrays(self) -> tuple[np.ndarray, ...]:
+        """What the body adds to a content fingerprint: (positions, faces), or () without a body,
+        so that a dataset without body files fingerprints as it always did."""
+        return () if self.body is None else (self.body.positions, self.body.faces)
 
 
 def as_dataset(dataset: "Dataset | str | os.PathLike") -> Dataset:
@@ -94,6 +134,15 @@ def reference_shape(dataset: Dataset) -> np.ndarray:
 def reference_shape_source(dataset: Dataset) -> str:
     """Which shape `reference_shape` takes: "rest" or "gt[0]"."""
     return "rest" if dataset.rest is not None else "gt[0]"
+
+
+def content_fingerprint(dataset: Dataset) -> str:
+    """The fingerprint (`mvtex.util.fingerprint`) of a dataset's content: gt, inferred and
+    pose arrays, and the body's when it has one. Texcoord sets and models record it, so
+    that they are never used with another dataset's content under the same path."""
+    from mvtex.util.fingerprint import fingerprint
+
+    return fingerprint(dataset.gt, dataset.inferred, dataset.poses, *dataset.body_arrays())
 
 
 def default_split(num_poses: int, seed: int = 0) -> dict[str, list[int]]:
@@ -129,13 +178,24 @@ def parse_pose_spec(spec: str, num_poses: int, split: dict[str, list[int]] | Non
             parts = spec.split(":")
             if len(parts) > 3:
                 raise ValueError
-            sl = slice(*(int(p) if p.strip() else None for p in parts))
-            indices = list(range(num_poses))[sl]
+            bounds = [int(p) if p.strip() else None for p in parts]
+            if bounds[2:] and bounds[2] == 0:
+                raise ValueError
+            for b in bounds[:2]:
+                if b is not None and not -num_poses <= b <= num_poses:
+                    raise InputError(source, f"pose spec {spec!r} reaches past the poses of the dataset "
+                                     f"(it has {num_poses}: 0..{num_poses - 1})")
+            indices = list(range(num_poses))[slice(*bounds)]
         else:
             indices = [int(p) for p in spec.split(",") if p.strip()]
+    except InputError:
+        raise
     except ValueError:
         raise InputError(source, f"bad pose spec {spec!r} (use all, train, val, test, a:b or 3,5,7)") from None
     _check_range(indices, num_poses, source)
+    if len(set(indices)) != len(indices):
+        twice = next(i for i in indices if indices.count(i) > 1)
+        raise InputError(source, f"pose spec {spec!r} lists pose {twice} twice")
     if not indices:
         raise InputError(source, f"pose spec {spec!r} selects no pose")
     return indices
@@ -168,6 +228,11 @@ def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = No
         raise InputError(source, f"vertex count {array.shape[1]} does not match mesh.npz ({n})")
     if k is not None and array.shape[0] != k:
         raise InputError(source, f"pose count {array.shape[0]} does not match ({k})")
+    _check_finite(array, source)
+
+
+def _check_finite(array: np.ndarray, source: Path) -> None:
+    """NaN / Inf check of a (K,n,3) array, naming the first bad pose."""
     # Chunked so a large memory-mapped array is never loaded whole (nor left resident).
     for start in range(0, array.shape[0], 64):
         block = read_rows(array, start, start + 64)
@@ -205,10 +270,58 @@ def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
         for key, expected in (("num_poses", gt.shape[0]), ("num_vertices", n), ("pose_dim", poses.shape[1])):
             if key in meta and (type(meta[key]) is not int or meta[key] != expected):
                 raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
+    body = _load_body(path, gt.shape[0], meta, validate)
     split = _load_split(path, gt.shape[0])
     return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
                    uv=uv.astype(np.float32), rest=None if rest is None else rest.astype(np.float32),
-                   gt=gt, inferred=inferred, poses=poses, split=split)
+                   gt=gt, inferred=inferred, poses=poses, split=split, body=body)
+
+
+def validate_body_faces(faces: np.ndarray, num_vertices: int, source: str | os.PathLike | None) -> None:
+    """Body faces: integers of shape (mb,3), mb >= 1, indices in [0, num_vertices)."""
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise InputError(source, f"body faces must have shape (mb,3), got {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise InputError(source, f"body faces must be integers, got {faces.dtype}")
+    if faces.min() < 0 or faces.max() >= num_vertices:
+        raise InputError(source, f"body face index out of range [0, {num_vertices}): min {faces.min()}, "
+                         f"max {faces.max()}")
+
+
+def _load_body(path: Path, num_poses: int, meta: dict, validate: bool) -> Body | None:
+    """body.npz + body.npy, both or neither; checked like gt (never loaded whole)."""
+    present = [(path / name).is_file() for name in BODY_FILES]
+    if not any(present):
+        return None
+    if not all(present):
+        have, missing = (BODY_FILES[0], BODY_FILES[1]) if present[0] else (BODY_FILES[1], BODY_FILES[0])
+        raise InputError(path / missing, f"file not found ({have} is there: the body needs both files)")
+    archive = load_npz(path / "body.npz")
+    if "faces" not in archive:
+        raise InputError(path / "body.npz", "missing array 'faces'")
+    faces = archive["faces"]
+    positions = load_npy(path / "body.npy")
+    file = path / "body.npy"
+    if positions.dtype != np.float32:
+        raise InputError(file, f"body positions must be float32, got {positions.dtype}")
+    if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[1] == 0:
+        raise InputError(file, f"expected shape (K,nb,3), got {positions.shape}")
+    if positions.shape[0] != num_poses:
+        raise InputError(file, f"pose count {positions.shape[0]} does not match gt.npy ({num_poses})")
+    validate_body_faces(faces, positions.shape[1], path / "body.npz")
+    if validate:
+        _check_finite(positions, file)
+        record = meta.get("body")
+        if record is not None:
+            expected = {"num_vertices": positions.shape[1], "num_faces": len(faces)}
+            if not isinstance(record, dict):
+                raise InputError(path / "dataset.json", f"body must be an object, got {record!r}")
+            for key, value in expected.items():
+                if key in record and (type(record[key]) is not int or record[key] != value):
+                    raise InputError(path / "dataset.json",
+                                     f"body {key} is {record[key]} but the body files say {value}")
+    return Body(faces=faces.astype(np.int32), positions=positions)
 
 
 def _load_split(path: Path, num_poses: int) -> dict[str, list[int]]:
@@ -229,15 +342,40 @@ def _load_split(path: Path, num_poses: int) -> dict[str, list[int]]:
     return out
 
 
+def check_body_arrays(body_faces, body, num_poses: int, source: str | os.PathLike | None) -> None:
+    """What `save_dataset` accepts as a body: both or neither; (mb,3) faces in range and
+    (K,nb,3) finite positions with K = num_poses."""
+    if (body_faces is None) != (body is None):
+        raise InputError(source, "a body needs both body_faces and body positions (or neither)")
+    if body is None:
+        return
+    shape = np.shape(body)
+    if len(shape) != 3 or shape[2] != 3 or shape[1] == 0 or shape[0] != num_poses:
+        raise InputError(source, f"body positions must be ({num_poses},nb,3), got {shape}")
+    validate_body_faces(body_faces, shape[1], source)
+
+
+def metadata(name: str, num_poses: int, num_vertices: int, pose_dim: int, body_faces=None, body=None,
+             **extra_meta) -> dict:
+    """dataset.json's content, in the order `save_dataset` writes it."""
+    meta = {"format": FORMAT, "version": VERSION, "name": name, "units": "m", "num_poses": int(num_poses),
+            "num_vertices": int(num_vertices), "pose_dim": int(pose_dim)}
+    if body is not None:
+        meta["body"] = {"num_vertices": int(np.shape(body)[1]), "num_faces": int(len(body_faces))}
+    return {**meta, **extra_meta}
+
+
 def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray,
                  inferred: np.ndarray, poses: np.ndarray, name: str = "dataset",
                  rest: np.ndarray | None = None, split: dict[str, Sequence[int]] | None = None,
-                 **extra_meta) -> Path:
+                 body_faces: np.ndarray | None = None, body: np.ndarray | None = None, **extra_meta) -> Path:
     """Write a dataset directory atomically (the whole directory appears at once).
 
     Args:
         faces: (m,3) int. uv: (n,2). gt, inferred: (K,n,3). poses: (K,P).
         rest: optional (n,3). split: optional train/val/test lists (default 80/10/10).
+        body_faces: optional (mb,3) int, and body: optional (K,nb,3): the wearer's body
+            (both or neither), written as body.npz and body.npy.
         extra_meta: extra JSON-serialisable keys for dataset.json (e.g. "stats").
     """
     import json
@@ -249,9 +387,13 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
     validate_mesh(faces, uv, path)
     if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3):
         raise InputError(path, f"gt {gt.shape} and inferred {inferred.shape} must both be (K,{len(uv)},3)")
+    check_body_arrays(body_faces, body, len(gt), path)
+    if body is not None:
+        body = np.asarray(body, dtype=np.float32)
+        if not np.all(np.isfinite(body)):
+            raise InputError(path, "body positions have NaN or infinite values")
     split = split or default_split(len(gt))
-    meta = {"format": FORMAT, "version": VERSION, "name": name, "units": "m", "num_poses": int(gt.shape[0]),
-            "num_vertices": int(gt.shape[1]), "pose_dim": int(poses.shape[1]), **extra_meta}
+    meta = metadata(name, gt.shape[0], gt.shape[1], poses.shape[1], body_faces, body, **extra_meta)
     with atomic_path(path) as tmp:
         tmp.mkdir()
         mesh = {"faces": np.asarray(faces, dtype=np.int32), "uv": np.asarray(uv, dtype=np.float32)}
@@ -261,6 +403,9 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
         np.save(tmp / "gt.npy", gt, allow_pickle=False)
         np.save(tmp / "inferred.npy", inferred, allow_pickle=False)
         np.save(tmp / "poses.npy", poses, allow_pickle=False)
+        if body is not None:
+            np.savez_compressed(tmp / "body.npz", faces=np.asarray(body_faces, dtype=np.int32))
+            np.save(tmp / "body.npy", body, allow_pickle=False)
         (tmp / "split.json").write_text(json.dumps({k: [int(i) for i in split[k]] for k in ("train", "val", "test")}) + "\n")
         (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
     return path

@@ -13,39 +13,140 @@ from mvtex.data.dataset import save_dataset
 from mvtex.util.errors import InputError
 from mvtex.util.files import load_npy
 
+MESH_SUFFIXES = (".obj", ".ply")
+
 
 def _sorted_glob(pattern: str, what: str) -> list[str]:
-    files = sorted(globlib.glob(pattern))
+    files = sorted(f for f in globlib.glob(pattern) if not os.path.isdir(f))
     if not files:
         raise InputError(pattern, f"no {what} files match")
+    stray = [f for f in files if Path(f).suffix.lower() not in MESH_SUFFIXES]
+    if stray:
+        raise InputError(stray[0], f"matches the {what} glob {pattern!r} but is not an OBJ or PLY file; "
+                         "narrow the glob")
     return files
 
 
+def _check_obj_text(file: str) -> None:
+    """What trimesh would read silently differently, in one line: bytes that are not text,
+    faces that are not triangles, face indices out of range."""
+    try:
+        text = Path(file).read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(file, "is not a text OBJ file (it does not decode as UTF-8)") from None
+    lines = text.splitlines()
+    total = sum(1 for line in lines if line.startswith("v "))
+    vertices = 0  # defined so far: negative indices count back from here
+    for number, line in enumerate(lines, start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if fields[0] == "v":
+            vertices += 1
+        elif fields[0] == "f":
+            if len(fields) != 4:
+                raise InputError(file, f"line {number}: a face of {len(fields) - 1} vertices; mvtex reads "
+                                 "triangle meshes (triangulate it first)")
+            for ref in fields[1:]:
+                try:
+                    index = int(ref.split("/")[0])
+                except ValueError:
+                    raise InputError(file, f"line {number}: bad face vertex {ref!r}") from None
+                if not (1 <= index <= total or -vertices <= index <= -1):
+                    raise InputError(file, f"line {number}: face vertex {index} out of range (the file has "
+                                     f"{total} vertices)")
+
+
+def _ply_face_count(file: str) -> int | None:
+    """The face count a PLY header declares (None when not readable as a PLY header)."""
+    with open(file, "rb") as f:
+        head = f.read(4096)
+    if not head.startswith(b"ply"):
+        return None
+    for line in head.split(b"end_header")[0].splitlines():
+        fields = line.split()
+        if fields[:2] == [b"element", b"face"] and len(fields) == 3 and fields[2].isdigit():
+            return int(fields[2])
+    return None
+
+
 def _read_mesh(file: str):
+    import logging
+    import warnings
+
     import trimesh
 
+    if Path(file).suffix.lower() == ".obj":
+        _check_obj_text(file)
+    log = logging.getLogger("trimesh")
+    level = log.level
+    log.setLevel(logging.CRITICAL)  # its warnings would be lines besides mvtex's one-line error
     try:
-        mesh = trimesh.load(file, process=False, maintain_order=True, force="mesh")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load(file, process=False, maintain_order=True, force="mesh")
     except Exception as err:  # trimesh raises many kinds for unreadable files
         raise InputError(file, f"cannot read mesh ({type(err).__name__}: {err})") from None
+    finally:
+        log.setLevel(level)
     if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
         raise InputError(file, "no triangle faces")
+    declared = _ply_face_count(file) if Path(file).suffix.lower() == ".ply" else None
+    if declared is not None and declared != len(mesh.faces):
+        raise InputError(file, f"declares {declared} faces that make {len(mesh.faces)} triangles: mvtex reads "
+                         "triangle meshes (triangulate it first)")
     return mesh
+
+
+def _check_same_mesh(mesh, file: str, n: int, faces: np.ndarray, first: str) -> np.ndarray:
+    """The vertices (n,3) float32 of a mesh of a sequence whose first mesh (`first`) has n vertices
+    and these faces; InputError naming `file` otherwise."""
+    vertices = np.asarray(mesh.vertices)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise InputError(file, f"vertex positions of shape {vertices.shape}, expected (n,3)")
+    if len(vertices) != n:
+        raise InputError(file, f"{len(vertices)} vertices, expected {n} (from {first})")
+    if not np.array_equal(np.asarray(mesh.faces), faces):
+        raise InputError(file, f"connectivity or vertex order differs from {first}")
+    vertices = vertices.astype(np.float32)
+    if not np.all(np.isfinite(vertices)):  # after the cast: float32 overflows count too
+        raise InputError(file, "NaN or infinite vertex positions")
+    return vertices
+
+
+def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A body sequence: (faces (mb,3) int32, positions (K,nb,3) float32); no uv needed."""
+    count = len(files)
+    first = _read_mesh(files[0])
+    faces = np.asarray(first.faces, dtype=np.int32)
+    nb = len(first.vertices)
+    positions = np.empty((count, nb, 3), dtype=np.float32)
+    from tqdm import tqdm
+
+    for k, file in enumerate(tqdm(files, desc="import body", unit="pose", disable=not progress)):
+        mesh = first if k == 0 else _read_mesh(file)
+        positions[k] = _check_same_mesh(mesh, file, nb, faces, files[0])
+    return faces, positions
 
 
 def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
                      poses_file: str | os.PathLike | None = None, name: str | None = None,
-                     progress: bool = True) -> Path:
+                     progress: bool = True, body_glob: str | None = None) -> Path:
     """Turn two OBJ/PLY sequences with identical connectivity into a dataset.
 
     Files are paired in sorted order. The first gt mesh defines faces and uv (and `rest`);
     every other mesh must have the same vertex count and the same faces, or InputError.
     Without `poses_file` (.npy (K,P) or .txt/.csv rows), the pose vector is the frame index.
+    With `body_glob`, a third sequence (one connectivity, no uv needed, as many meshes as
+    gt, paired in sorted order) becomes the dataset's body (body.npz + body.npy).
     """
     gt_files = _sorted_glob(gt_glob, "gt")
     inf_files = _sorted_glob(inferred_glob, "inferred")
     if len(gt_files) != len(inf_files):
         raise InputError(inferred_glob, f"{len(inf_files)} inferred meshes for {len(gt_files)} gt meshes")
+    body_files = _sorted_glob(body_glob, "body") if body_glob is not None else None
+    if body_files is not None and len(body_files) != len(gt_files):
+        raise InputError(body_glob, f"{len(body_files)} body meshes for {len(gt_files)} gt meshes")
     first = _read_mesh(gt_files[0])
     faces = np.asarray(first.faces, dtype=np.int32)
     n = len(first.vertices)
@@ -62,21 +163,14 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     for k, (g, i) in enumerate(tqdm(list(zip(gt_files, inf_files)), desc="import", unit="pose", disable=not progress)):
         for file, target in ((g, gt), (i, inferred)):
             mesh = first if file == gt_files[0] else _read_mesh(file)
-            if np.asarray(mesh.vertices).ndim != 2 or np.asarray(mesh.vertices).shape[1] != 3:
-                raise InputError(file, f"vertex positions of shape {np.asarray(mesh.vertices).shape}, expected (n,3)")
-            if len(mesh.vertices) != n:
-                raise InputError(file, f"{len(mesh.vertices)} vertices, expected {n} (from {gt_files[0]})")
-            if not np.array_equal(np.asarray(mesh.faces), faces):
-                raise InputError(file, f"connectivity or vertex order differs from {gt_files[0]}")
-            target[k] = mesh.vertices
-            if not np.all(np.isfinite(target[k])):
-                raise InputError(file, "NaN or infinite vertex positions")
+            target[k] = _check_same_mesh(mesh, file, n, faces, gt_files[0])
     if poses_file is not None:
         poses = _read_poses(Path(poses_file), len(gt_files))
     else:
         poses = np.arange(len(gt_files), dtype=np.float32)[:, None]
+    body_faces, body = _read_body(body_files, progress) if body_files is not None else (None, None)
     return save_dataset(out, faces=faces, uv=uv, gt=gt, inferred=inferred, poses=poses,
-                        name=name or Path(out).name, rest=gt[0])
+                        name=name or Path(out).name, rest=gt[0], body_faces=body_faces, body=body)
 
 
 def _read_poses(path: Path, k: int) -> np.ndarray:

@@ -164,16 +164,10 @@ def _camera_from_node(node, path: Path, index: int) -> Camera:
         raise InputError(path, f"camera {index}: R is not a rotation matrix")
     if not name:
         raise InputError(path, f"camera {index}: empty name")
-    try:
-        return Camera(
-            name=name,
-            width=integer("width"),
-            height=integer("height"),
-            K=matrix("K", 9).reshape(3, 3),
-            dist=matrix("dist", 5) if not node.getNode("dist").empty() else np.zeros(5),
-            R=R,
-            t=matrix("t", 3),
-        )
+    fields = dict(width=integer("width"), height=integer("height"), K=matrix("K", 9).reshape(3, 3),
+                  dist=matrix("dist", 5) if not node.getNode("dist").empty() else np.zeros(5), R=R, t=matrix("t", 3))
+    try:  # the fields' own errors above name the file once; Camera's checks are plain ValueErrors
+        return Camera(name=name, **fields)
     except ValueError as err:
         raise InputError(path, str(err)) from None
 

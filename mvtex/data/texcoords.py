@@ -121,11 +121,91 @@ class TexcoordSet:
         """T_N = T_G + d, (n',2) float32."""
         return self.uv + self.displacement(camera, pose)
 
+    def check_dataset(self, dataset) -> None:
+        """Refuse (InputError) a dataset other than the one this set was made from: its mesh
+        (vertex count, and the fingerprint of faces and uv where recorded) and its content
+        (`mvtex.data.dataset.content_fingerprint`, where recorded)."""
+        from mvtex.data.dataset import content_fingerprint
+        from mvtex.util.fingerprint import fingerprint
+
+        header = self.path / "texcoords.json"
+        if self.num_base_vertices != dataset.num_vertices:
+            raise InputError(self.path / "mesh.npz", f"made for a mesh of {self.num_base_vertices} vertices, the dataset "
+                             f"{dataset.path} has {dataset.num_vertices}")
+        recorded = self.meta.get("dataset")
+        if not isinstance(recorded, dict):
+            return
+        if "mesh" in recorded and recorded["mesh"] not in (fingerprint(dataset.faces, dataset.uv),
+                                                           _mesh_fingerprint_0_1(dataset.faces, dataset.uv)):
+            raise InputError(header, f"was made for another mesh than that of {dataset.path} (faces or uv differ)")
+        if "content" in recorded and recorded["content"] != content_fingerprint(dataset):
+            raise InputError(header, f"was made from another dataset than {dataset.path} (its gt, inferred or pose "
+                             "arrays differ): make the set again from this dataset")
+
+    def check_rig(self, rig, source: str | os.PathLike | None = None, cameras: Sequence[str] | None = None) -> None:
+        """Refuse (InputError) a rig that lacks the set's cameras (or `cameras` of them), or
+        whose cameras of those names differ from the ones the set was made with (where it
+        records them: size, K, R, t to 1e-6)."""
+        names = list(self.cameras if cameras is None else cameras)
+        where = f" {source}" if source else ""
+        missing = [c for c in names if c not in rig.names]
+        if missing:
+            raise InputError(self.path, f"cameras {', '.join(missing)} of this texcoord set are not in the rig{where} "
+                             f"(it has {', '.join(rig.names)}): a texcoord set of another rig?")
+        recorded = self.meta.get("rig")
+        if not isinstance(recorded, dict):
+            return
+        for name in names:
+            rec = recorded.get(name)
+            if not isinstance(rec, dict):
+                continue
+            cam = rig[name]
+            try:
+                same = (int(rec["width"]) == cam.width and int(rec["height"]) == cam.height
+                        and np.allclose(rec["K"], cam.K, atol=1e-6) and np.allclose(rec["R"], cam.R, atol=1e-6)
+                        and np.allclose(rec["t"], cam.t, atol=1e-6))
+            except (KeyError, TypeError, ValueError):
+                same = False
+            if not same:
+                raise InputError(self.path / "texcoords.json", f"camera {name!r} of this set was made with other "
+                                 f"parameters than the rig's{where} camera of that name")
+
     def positions(self, positions: np.ndarray) -> np.ndarray:
         """Extend base-mesh positions (n,3) (or (K,n,3)) to this set's subdivided mesh."""
         if ("extension",) not in self._cache:  # camera names are strings: no clash
             self._cache[("extension",)] = extension_matrix(self.parent)
         return apply_extension(self._cache[("extension",)], positions)
+
+
+def _mesh_fingerprint_0_1(faces: np.ndarray, uv: np.ndarray) -> str:
+    """The "mesh" fingerprint texcoord sets of mvtex 0.1 recorded (SHA-1 of shapes, dtypes and
+    bytes), so that `check_dataset` reads them."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for a in (np.ascontiguousarray(faces), np.ascontiguousarray(uv)):
+        h.update(str(a.shape).encode())
+        h.update(str(a.dtype).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def rig_record(rig) -> dict:
+    """What a texcoord set records of the cameras it was made for: name -> width, height,
+    K, R, t (`TexcoordSet.check_rig` compares a rig with it)."""
+    return {cam.name: {"width": cam.width, "height": cam.height, "K": cam.K.tolist(), "R": cam.R.tolist(),
+                       "t": cam.t.tolist()} for cam in rig}
+
+
+def dataset_record(dataset) -> dict:
+    """What a texcoord set records of the dataset it was made from (`TexcoordSet.check_dataset`
+    compares a dataset with it)."""
+    from mvtex.data.dataset import content_fingerprint
+    from mvtex.util.fingerprint import fingerprint
+
+    return {"path": str(Path(dataset.path).resolve()), "name": dataset.name, "num_poses": dataset.num_poses,
+            "num_vertices": dataset.num_vertices, "mesh": fingerprint(dataset.faces, dataset.uv),
+            "content": content_fingerprint(dataset)}
 
 
 def _check_displacements(d: np.ndarray, source: Path) -> None:

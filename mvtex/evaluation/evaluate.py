@@ -36,8 +36,8 @@ from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
-from mvtex.evaluation.material import MATERIAL_HEATMAP_MAX_MM, MaterialMap, _material_error, _material_points
-from mvtex.evaluation.uv import CHART_BOUNDARY_COLOR, HEATMAP_MAX, chart_image, masked_uv_error, texcoord_image
+from mvtex.evaluation.material import MATERIAL_HEATMAP_MAX_MM, MaterialMap
+from mvtex.evaluation.uv import CHART_BOUNDARY_COLOR, HEATMAP_MAX
 
 
 @dataclass(frozen=True)
@@ -82,6 +82,9 @@ class Evaluation:
         sqrt_mse_same_chart: the same over the pixels where both meshes show one UV chart.
         material_rmse_m: the material error in meters, RMSE per image; None for a dataset
             without a rest shape.
+        body_share: of the pixels where either render shows cloth, the share where the
+            other shows the body (left out of both errors), per image; None for a dataset
+            without a body.
         per_camera: camera name -> the same for its images (no `per_camera` of its own).
     """
 
@@ -89,6 +92,7 @@ class Evaluation:
     sqrt_mse: Comparison
     sqrt_mse_same_chart: Comparison
     material_rmse_m: Comparison | None
+    body_share: Stats | None = None
     per_camera: dict[str, "Evaluation"] = field(default_factory=dict)
 
     @property
@@ -109,24 +113,26 @@ class Evaluation:
                "sqrt_mse": self.sqrt_mse.to_json(), "ratio": self.ratio,
                "sqrt_mse_same_chart": self.sqrt_mse_same_chart.to_json(), "ratio_same_chart": self.ratio_same_chart,
                "material_rmse_m": None if self.material_rmse_m is None else self.material_rmse_m.to_json(),
-               "ratio_material": self.ratio_material}
+               "ratio_material": self.ratio_material,
+               "body_share": None if self.body_share is None else asdict(self.body_share)}
         if self.per_camera:
             out["per_camera"] = {name: e.to_json() for name, e in self.per_camera.items()}
         return out
 
 
-def _summary(base: list[float], tc: list[float], base_same: list[float], tc_same: list[float],
-             base_material: list[float] | None = None, tc_material: list[float] | None = None,
+def _summary(images: list[tuple], has_rest: bool, has_body: bool,
              per_camera: dict[str, Evaluation] | None = None) -> Evaluation:
-    """Per-image errors (NaN where an image does not count) -> an `Evaluation` over the
-    images where both the baseline and the texcoords have an error."""
-    ok = [i for i in range(len(base)) if np.isfinite(base[i]) and np.isfinite(tc[i])]
+    """Per-image values (s_b, s_t, same_b, same_t, m_b, m_t, body_share; NaN where an image
+    does not count) -> an `Evaluation` over the images where both the baseline and the
+    texcoords have an error."""
+    ok = [v for v in images if np.isfinite(v[0]) and np.isfinite(v[1])]
 
-    def compare(b, t):
-        return None if b is None else Comparison(Stats.of([b[i] for i in ok]), Stats.of([t[i] for i in ok]))
+    def compare(i):
+        return Comparison(Stats.of([v[i] for v in ok]), Stats.of([v[i + 1] for v in ok]))
 
-    return Evaluation(num_images=len(ok), sqrt_mse=compare(base, tc), sqrt_mse_same_chart=compare(base_same, tc_same),
-                      material_rmse_m=compare(base_material, tc_material), per_camera=per_camera or {})
+    return Evaluation(num_images=len(ok), sqrt_mse=compare(0), sqrt_mse_same_chart=compare(2),
+                      material_rmse_m=compare(4) if has_rest else None,
+                      body_share=Stats.of([v[6] for v in ok]) if has_body else None, per_camera=per_camera or {})
 
 
 @dataclass(frozen=True)
@@ -144,26 +150,145 @@ class _EvalSpec:
 
 
 @dataclass
+class ImageErrors:
+    """The errors of one image (`ImageEvaluator`): per-image statistics (NaN where no pixel
+    counts) and, for the heatmaps, per-pixel values at `pixels` (flat indices into the box
+    of `raster`) where both renders show cloth.
+
+    Attributes:
+        sqrt_mse, sqrt_mse_same_chart: (baseline, texcoords) uv SqrtMSE, over all pixels
+            and over the pixels where both show one chart.
+        material_rmse_m: (baseline, texcoords) material RMSE in meters (NaN without rest).
+        body_share: of the pixels where either render shows cloth, the share where the other
+            shows the body (NaN without a body).
+        pixels, e_b, e_t, other_chart, mat_b, mat_t: per-pixel values; body_pixels: where
+            either render shows the body. raster: the `PairRaster` they were read from.
+    """
+
+    sqrt_mse: tuple[float, float]
+    sqrt_mse_same_chart: tuple[float, float]
+    material_rmse_m: tuple[float, float]
+    body_share: float
+    pixels: np.ndarray
+    e_b: np.ndarray
+    e_t: np.ndarray
+    other_chart: np.ndarray
+    mat_b: np.ndarray | None
+    mat_t: np.ndarray | None
+    body_pixels: np.ndarray
+    raster: Any
+
+    def values(self) -> tuple[float, ...]:
+        """(s_b, s_t, same_b, same_t, m_b, m_t, body_share)."""
+        return (*self.sqrt_mse, *self.sqrt_mse_same_chart, *self.material_rmse_m, self.body_share)
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
+
+
+class ImageEvaluator:
+    """Both errors of single images (DESIGN §5) of a dataset: the gt cloth with T_G against
+    the inferred mesh with T_G (the baseline) and against the inferred mesh of a texcoord
+    set's topology with given texcoords, the body (if any) in every render.
+
+    Args:
+        ctx: the GL context.
+        dataset: a `Dataset`.
+        faces, uv, parent: the texcoord set's mesh (`mesh.npz`: faces, T_G, parent).
+
+    When `faces` are the dataset's `mesh.subdivide`d (every mesh mvtex writes), one pair
+    raster gives all three renders: the base inferred mesh with T_G is the same surface as
+    the subdivided one, read through the same pixels. Otherwise gt and the set's mesh are
+    rasterized separately.
+    """
+
+    def __init__(self, ctx: GLContext, dataset, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray):
+        from mvtex.data.mesh import charts_through_parent, extension_matrix, subdivide, uv_charts
+
+        self.ctx, self.dataset = ctx, dataset
+        self.faces = np.ascontiguousarray(dataset.faces, np.int64)
+        self.sub_faces = np.ascontiguousarray(faces, np.int64)
+        self.sub_uv = np.ascontiguousarray(uv, np.float32)
+        self._extend = extension_matrix(np.asarray(parent))
+        self.levels = int(round(np.log(max(len(faces), 1) / max(len(self.faces), 1)) / np.log(4)))
+        self.pair = bool(np.array_equal(subdivide(self.faces, dataset.num_vertices, self.levels).faces, self.sub_faces))
+        charts = uv_charts(self.faces, dataset.num_vertices)
+        self.face_chart = charts[self.faces[:, 0]]
+        self.sub_face_chart = charts_through_parent(charts, self.sub_faces, len(uv))[self.sub_faces[:, 0]]
+        has_rest = dataset.rest is not None
+        self.material_map = MaterialMap(dataset.faces, dataset.uv, dataset.rest, ctx=ctx) if has_rest else None
+        self.rest = np.ascontiguousarray(dataset.rest, np.float64) if has_rest else np.zeros((0, 3))
+        self.rest_sub = self.positions(self.rest) if has_rest else np.zeros((0, 3))
+
+    def positions(self, base: np.ndarray) -> np.ndarray:
+        """Base positions (n,3) on the set's mesh, (n',3) float64."""
+        from mvtex.data.mesh import apply_extension
+
+        return np.asarray(apply_extension(self._extend, np.asarray(base, np.float64)), np.float64)
+
+    def _renders(self, gt: np.ndarray, inferred: np.ndarray, cam, body):
+        from mvtex.render.raster import PairRaster, rasterize, rasterize_pair_attributes
+
+        if self.pair:
+            pixels = np.concatenate([cam.project(gt)[0], cam.project(inferred)[0]])
+            return rasterize_pair_attributes(self.ctx, gt, inferred, self.faces, cam, levels=self.levels,
+                                             pixels=pixels, occluder=body)
+        r_g = rasterize(self.ctx, gt, self.faces, cam, occluder=body)
+        r_t = rasterize(self.ctx, self.positions(inferred), self.sub_faces, cam, occluder=body)
+        m, ms = len(self.faces), len(self.sub_faces)
+        base_tri = r_g.tri_id if body is None else np.where(r_g.body, m, r_g.tri_id)
+        sub_tri = r_t.tri_id if body is None else np.where(r_t.body, ms, r_t.tri_id)
+        return PairRaster(box=(0, cam.height, 0, cam.width), base_tri=base_tri, sub_tri=sub_tri,
+                          base_bary=r_g.bary, sub_bary=r_t.bary)
+
+    def __call__(self, pose: int, cam, texcoords: np.ndarray, *, gt: np.ndarray | None = None,
+                 inferred: np.ndarray | None = None) -> ImageErrors:
+        """The errors of pose `pose` from camera `cam` with `texcoords` (n',2) on the set's
+        mesh, over the pixels where both renders show cloth. gt, inferred: the pose's base
+        positions when already read (else read through the files)."""
+        from mvtex.evaluation.kernels import pixel_errors
+
+        ds = self.dataset
+        # Through the files (`read_row`): rows read through the dataset's maps stay resident.
+        gt = read_row(ds.gt, pose).astype(np.float64) if gt is None else np.asarray(gt, np.float64)
+        inferred = read_row(ds.inferred, pose).astype(np.float64) if inferred is None else np.asarray(inferred,
+                                                                                                      np.float64)
+        body = None if ds.body is None else (ds.body.pose(pose), ds.body.faces)
+        raster = self._renders(gt, inferred, cam, body)
+        m, ms = len(self.faces), len(self.sub_faces)
+        base_tri, sub_tri = raster.base_tri.ravel(), raster.sub_tri.ravel()
+        pixels, e_b, e_t, uv_t, other, points_g, mat_b, hidden, covered = pixel_errors(
+            base_tri, raster.base_bary.reshape(-1, 3), sub_tri, raster.sub_bary.reshape(-1, 3), m, ms, self.faces,
+            ds.uv, self.rest, self.sub_faces, self.sub_uv, self.rest_sub, np.ascontiguousarray(texcoords, np.float32),
+            self.face_chart, self.sub_face_chart)
+        body_share = float("nan") if body is None or not covered else hidden / covered
+        body_pixels = np.flatnonzero((base_tri >= m) | (sub_tri >= ms)) if body is not None else np.zeros(0, np.int64)
+        mat_t = None
+        materials = (float("nan"), float("nan"))
+        if self.material_map is not None:
+            mat_t = np.linalg.norm(self.material_map(uv_t) - points_g, axis=1)
+            materials = (_rms(mat_b), _rms(mat_t))
+        else:
+            mat_b = None
+        return ImageErrors(sqrt_mse=(_rms(e_b), _rms(e_t)), sqrt_mse_same_chart=(_rms(e_b[~other]), _rms(e_t[~other])),
+                           material_rmse_m=materials, body_share=body_share, pixels=pixels, e_b=e_b, e_t=e_t,
+                           other_chart=other, mat_b=mat_b, mat_t=mat_t, body_pixels=body_pixels, raster=raster)
+
+
+@dataclass
 class _EvalState(WorkerState):
     """A thread's opened inputs (and GL context) for one `_EvalSpec`."""
 
-    dataset: Any
     texcoord_set: Any
-    charts: np.ndarray
-    charts_tc: np.ndarray
-    material_map: MaterialMap | None
+    evaluator: ImageEvaluator
 
 
 _EVAL_STATE = ThreadState()  # each thread's _EvalState, one set at a time
 
 
 def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool) -> _EvalState:
-    from mvtex.data.mesh import charts_through_parent, uv_charts
-
-    charts = uv_charts(ds.faces, ds.num_vertices)
-    material_map = MaterialMap(ds.faces, ds.uv, ds.rest, ctx=ctx) if ds.rest is not None else None
-    return _EvalState(ctx, owns_ctx, ds, tc, charts, charts_through_parent(charts, tc.faces, len(tc.uv)),
-                      material_map)
+    return _EvalState(ctx, owns_ctx, tc, ImageEvaluator(ctx, ds, tc.faces, tc.uv, tc.parent))
 
 
 def _eval_state(spec: _EvalSpec) -> _EvalState:
@@ -171,62 +296,66 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
     from mvtex.render.context import GLContext
-    from mvtex.util.parallel import single_thread_gl
+    from mvtex.util.parallel import configure_threads
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     tc = open_texcoords(spec.texcoords, ds.num_vertices)
     return _open_eval_state(ds, tc, GLContext(), True)
 
 
+def _heatmap_picture(image: ImageErrors, cam, source: str) -> np.ndarray:
+    """Baseline and texcoords heatmaps side by side (magenta: different charts, grey: the
+    body), and the material error below them when the dataset has a rest shape."""
+    from mvtex.render.pictures import colorbar, heatmap, side_by_side
+    from mvtex.render.shading import BODY_RGB
+
+    raster = image.raster
+    r0, r1, c0, c1 = raster.box
+    shape = (cam.height, cam.width)
+
+    def full(values, vmax, scale=1.0):
+        box = np.full((r1 - r0) * (c1 - c0), np.nan, np.float32)
+        box[image.pixels] = values * scale
+        err = raster.full(box.reshape(r1 - r0, c1 - c0), shape, np.nan)
+        picture = heatmap(err, vmax)
+        for where, color in ((image.body_pixels, BODY_RGB), (image.pixels[image.other_chart], CHART_BOUNDARY_COLOR)):
+            if where is None:
+                continue
+            mark = np.zeros((r1 - r0) * (c1 - c0), bool)
+            mark[where] = True
+            picture[raster.full(mark.reshape(r1 - r0, c1 - c0), shape, False)] = color
+        return picture
+
+    (s_b, s_t), (same_b, same_t), (m_b, m_t) = image.sqrt_mse, image.sqrt_mse_same_chart, image.material_rmse_m
+    picture = side_by_side([full(image.e_b, HEATMAP_MAX), full(image.e_t, HEATMAP_MAX),
+                            colorbar(cam.height, HEATMAP_MAX, unit="uv")],
+                           [f"inferred {s_b * 1e3:.2f}e-3, same chart {same_b * 1e3:.2f}e-3",
+                            f"{source} {s_t * 1e3:.2f}e-3, same chart {same_t * 1e3:.2f}e-3", ""])
+    if image.mat_b is not None:
+        row = side_by_side([full(image.mat_b, MATERIAL_HEATMAP_MAX_MM, 1e3), full(image.mat_t, MATERIAL_HEATMAP_MAX_MM, 1e3),
+                            colorbar(cam.height, MATERIAL_HEATMAP_MAX_MM, unit="mm")],
+                           [f"inferred material {m_b * 1e3:.2f} mm", f"{source} material {m_t * 1e3:.2f} mm",
+                            ""])
+        picture = np.concatenate([picture, np.full((4, picture.shape[1], 3), 255, np.uint8), row])
+    return picture
+
+
 def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:
     """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b,
-    same_t, material_b, material_t) each (NaN material without a rest shape)."""
-    from mvtex.render.pictures import colorbar, heatmap, side_by_side
+    same_t, material_b, material_t, body_share) each (NaN material without a rest shape,
+    NaN body share without a body)."""
     from mvtex.util.files import save_png
 
     state = _EVAL_STATE.get(spec.key, lambda: _eval_state(spec))
-    ds, tc, ctx, material_map = state.dataset, state.texcoord_set, state.ctx, state.material_map
-    charts, charts_tc = state.charts, state.charts_tc
+    tc = state.texcoord_set
     out = []
     for index, k, name in jobs:
         cam = spec.rig[name]
-        # Through the files (`read_row`): rows read through the dataset's maps stay resident.
-        gt = read_row(ds.gt, k).astype(np.float64)
-        inferred = read_row(ds.inferred, k).astype(np.float64)
-        uv_g, raster_g = texcoord_image(ctx, gt, ds.faces, ds.uv, cam)
-        uv_b, raster_b = texcoord_image(ctx, inferred, ds.faces, ds.uv, cam)
-        uv_t, raster_t = texcoord_image(ctx, tc.positions(inferred), tc.faces, tc.texcoords(cam.name, k), cam)
-        chart_g, chart_b = chart_image(raster_g, ds.faces, charts), chart_image(raster_b, ds.faces, charts)
-        chart_t = chart_image(raster_t, tc.faces, charts_tc)
-        err_b, s_b = masked_uv_error(uv_b, chart_b >= 0, uv_g, chart_g >= 0)
-        err_t, s_t = masked_uv_error(uv_t, chart_t >= 0, uv_g, chart_g >= 0)
-        same_b = masked_uv_error(uv_b, chart_b == chart_g, uv_g, chart_g >= 0)[1]
-        same_t = masked_uv_error(uv_t, chart_t == chart_g, uv_g, chart_g >= 0)[1]
-        mat_err_b = mat_err_t = None
-        m_b = m_t = float("nan")
-        if material_map is not None:
-            m_g = _material_points(raster_g, ds.faces, ds.rest)
-            mat_err_b, m_b = _material_error(_material_points(raster_b, ds.faces, ds.rest), raster_b.mask, m_g,
-                                             raster_g.mask)
-            mat_err_t, m_t = _material_error(material_map(uv_t[raster_t.mask]), raster_t.mask, m_g, raster_g.mask)
-        out.append((index, s_b, s_t, same_b, same_t, m_b, m_t))
+        image = state.evaluator(k, cam, tc.texcoords(cam.name, k))
+        out.append((index, *image.values()))
         if spec.heatmaps is not None:
-            panels = []
-            for err, chart, total, same in ((err_b, chart_b, s_b, same_b), (err_t, chart_t, s_t, same_t)):
-                image = heatmap(err, HEATMAP_MAX)
-                image[(chart >= 0) & (chart_g >= 0) & (chart != chart_g)] = CHART_BOUNDARY_COLOR
-                panels.append((image, f"{total * 1e3:.2f}e-3, same chart {same * 1e3:.2f}e-3"))
-            picture = side_by_side([panels[0][0], panels[1][0], colorbar(cam.height, HEATMAP_MAX, unit="uv")],
-                                   [f"inferred {panels[0][1]}", f"{tc.source} {panels[1][1]}", ""])
-            if material_map is not None:
-                row = side_by_side([heatmap(mat_err_b * 1e3, MATERIAL_HEATMAP_MAX_MM),
-                                    heatmap(mat_err_t * 1e3, MATERIAL_HEATMAP_MAX_MM),
-                                    colorbar(cam.height, MATERIAL_HEATMAP_MAX_MM, unit="mm")],
-                                   [f"inferred material {m_b * 1e3:.2f} mm", f"{tc.source} material {m_t * 1e3:.2f} mm",
-                                    ""])
-                picture = np.concatenate([picture, np.full((4, picture.shape[1], 3), 255, np.uint8), row])
-            save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", picture)
+            save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", _heatmap_picture(image, cam, tc.source))
     return out
 
 
@@ -273,15 +402,13 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     check_backend(workers, scheduler)
     ds = as_dataset(dataset)
     tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
-    if tc.num_base_vertices != ds.num_vertices:
-        from mvtex.util.errors import InputError
-
-        raise InputError(tc.path / "mesh.npz", f"made for {tc.num_base_vertices} vertices, the dataset has {ds.num_vertices}")
+    tc.check_dataset(ds)
     rig, rig_source = as_rig(rig)
     if cameras is not None:
         rig = rig.select(list(cameras), source=rig_source)
     elif not set(rig.names) <= set(tc.cameras):
         rig = rig.select(tc.cameras, source=rig_source)
+    tc.check_rig(rig, rig_source, cameras=rig.names)
     poses = tc.poses if poses is None else [int(p) for p in poses]
     if poses:
         check_sees(rig, read_row(ds.inferred, poses[0]), rig_source,
@@ -312,12 +439,9 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     finally:
         if local:
             _EVAL_STATE.set(None, None)
-    has_rest = ds.rest is not None
-    per_cam: dict[str, tuple[list, ...]] = {c.name: ([], [], [], [], [], []) for c in rig}
+    has_rest, has_body = ds.rest is not None, ds.body is not None
+    per_cam: dict[str, list[tuple]] = {c.name: [] for c in rig}
     for (_, _, name), image in zip(jobs, values):
-        for column, value in zip(per_cam[name], image):
-            column.append(value)
-    per_camera = {name: _summary(*lists[:4], *(lists[4:] if has_rest else (None, None)))
-                  for name, lists in per_cam.items()}
-    return _summary(*([v for c in per_cam.values() for v in c[i]] if i < 4 or has_rest else None for i in range(6)),
-                    per_camera=per_camera)
+        per_cam[name].append(image)
+    per_camera = {name: _summary(images, has_rest, has_body) for name, images in per_cam.items()}
+    return _summary([v for images in per_cam.values() for v in images], has_rest, has_body, per_camera=per_camera)

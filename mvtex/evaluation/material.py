@@ -22,7 +22,7 @@ class MaterialMap:
 
     The uv layout (faces, uv) is rasterized once in UV space into a triangle-id buffer;
     a query point's candidates are the id of its texel, else the ids of the 3x3 texels
-    around it; exact float64 barycentrics decide, and the material point is the same
+    around it; exact float64 barycentrics decide (`mvtex.evaluation.kernels.locate`), and the material point is the same
     barycentric combination of the rest positions. Points the candidates do not contain
     are retried with the triangles sharing a vertex with them (slivers thinner than a
     texel); points outside every triangle (off the charts) map to the nearest point of the
@@ -55,36 +55,10 @@ class MaterialMap:
         m, n = len(self.faces), len(self.uv)
         incidence = sp.csr_matrix((np.ones(3 * m), (np.repeat(np.arange(m), 3), self.faces.ravel())), shape=(m, n))
         self.face_ring = (incidence @ incidence.T).tocsr()
+        self.face_ring.sort_indices()
         e = np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
         edges, count = np.unique(e, axis=0, return_counts=True)
         self.boundary = edges[count == 1]
-
-    def _barycentric(self, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
-        """(k,3) barycentrics of points (k,2) in uv triangles tri (k,)."""
-        a, b, c = (self.uv[self.faces[tri, i]] for i in range(3))
-        v0, v1, v2 = b - a, c - a, points - a
-        det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
-            w2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
-        bary = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
-        bary[~np.isfinite(bary).all(axis=1)] = -np.inf  # degenerate triangle: never contains
-        return bary
-
-    def _best(self, points: np.ndarray, point_index: np.ndarray, tri: np.ndarray, k: int):
-        """Per point, the candidate triangle it is most inside of: (tri (k,), bary (k,3), inside (k,))."""
-        bary = self._barycentric(points[point_index], tri)
-        score = bary.min(axis=1)
-        order = np.lexsort((-score, point_index))
-        first = np.ones(len(order), bool)
-        first[1:] = point_index[order][1:] != point_index[order][:-1]
-        best = order[first]
-        out_tri = np.full(k, -1, np.int64)
-        out_bary = np.zeros((k, 3))
-        inside = np.zeros(k, bool)
-        p = point_index[best]
-        out_tri[p], out_bary[p], inside[p] = tri[best], bary[best], score[best] >= -1e-9
-        return out_tri, out_bary, inside
 
     def _nearest_on_boundary(self, points: np.ndarray) -> np.ndarray:
         """Rest positions of the nearest points on the layout's boundary edges, (k,3)."""
@@ -103,35 +77,11 @@ class MaterialMap:
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """Rest positions (k,3) float64 of the material points named by uv points (k,2)."""
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        k, R = len(points), self.resolution
-        col = np.clip(np.floor(points[:, 0] * R).astype(np.int64), 0, R - 1)
-        row = np.clip(np.floor(points[:, 1] * R).astype(np.int64), 0, R - 1)
-        # Most points lie in the triangle of their own texel: try that one first.
-        tri = self.ids[row, col].astype(np.int64)
-        bary = np.zeros((k, 3))
-        has = np.flatnonzero(tri >= 0)
-        bary[has] = self._barycentric(points[has], tri[has])
-        inside = np.zeros(k, bool)
-        inside[has] = bary[has].min(axis=1) >= -1e-9
-        retry = np.flatnonzero(~inside)
-        if retry.size:  # near an edge of the layout's raster: the 3x3 texels around
-            offsets = np.arange(-1, 2)
-            rows = np.clip(row[retry, None, None] + offsets[None, :, None], 0, R - 1)
-            cols = np.clip(col[retry, None, None] + offsets[None, None, :], 0, R - 1)
-            cand = self.ids[rows, cols].reshape(len(retry), -1)
-            pi, slot = np.nonzero(cand >= 0)
-            t2, b2, in2 = self._best(points[retry], pi, cand[pi, slot].astype(np.int64), len(retry))
-            tri[retry], bary[retry], inside[retry] = t2, b2, in2
-        retry = np.flatnonzero(~inside & (tri >= 0))
-        if retry.size:  # slivers thinner than a texel: the triangles around the candidate
-            ring = self.face_ring[tri[retry]].tocoo()
-            t2, b2, in2 = self._best(points[retry], ring.row.astype(np.int64), ring.col.astype(np.int64), len(retry))
-            better = in2 | (b2.min(axis=1) > bary[retry].min(axis=1))
-            tri[retry[better]], bary[retry[better]], inside[retry[better]] = t2[better], b2[better], in2[better]
-        out = np.empty((k, 3))
-        ok = np.flatnonzero(inside)
-        out[ok] = np.einsum("kj,kjc->kc", bary[ok], self.rest[self.faces[tri[ok]]])
+        from mvtex.evaluation.kernels import locate
+
+        points = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        out, inside = locate(points, self.ids, self.faces, self.uv, self.rest, self.face_ring.indptr,
+                             self.face_ring.indices)
         off = np.flatnonzero(~inside)
         if off.size:
             out[off] = self._nearest_on_boundary(points[off])

@@ -89,6 +89,12 @@ def read_rig(path: str | os.PathLike) -> Rig:
         else:
             raise InputError(path, f"camera {image.camera_id}: model {model} not supported (use PINHOLE on undistorted images)")
         pose = image.cam_from_world()
+        quat = np.asarray(pose.rotation.quat, dtype=np.float64)
+        if not (np.all(np.isfinite(quat)) and np.linalg.norm(quat) > 1e-6
+                and np.all(np.isfinite(np.asarray(pose.translation, dtype=np.float64)))):
+            # pycolmap reads a zero quaternion as the identity: that is no rotation to import.
+            raise InputError(path, f"image {image.name!r}: its pose (quaternion {quat.tolist()}, translation "
+                             f"{np.asarray(pose.translation).tolist()}) is not a rigid transform")
         K = np.array([[fx, 0, cx - COLMAP_PIXEL_OFFSET], [0, fy, cy - COLMAP_PIXEL_OFFSET], [0, 0, 1]])
         try:  # names, sizes and intrinsics are checked by Camera like a rig YAML's
             cameras.append(Camera(name=Path(image.name).stem, width=cc.width, height=cc.height, K=K,

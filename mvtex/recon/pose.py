@@ -53,10 +53,9 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} is outside [0, {dataset.num_poses})")
     texcoords.row(pose)  # InputError if the set lacks this pose
-    if texcoords.num_base_vertices != dataset.num_vertices:
-        raise InputError(texcoords.path / "mesh.npz", f"made for a mesh of {texcoords.num_base_vertices} vertices, "
-                         f"the dataset has {dataset.num_vertices}")
+    texcoords.check_dataset(dataset)
     names = [c for c in texcoords.cameras if c in rig.names]
+    texcoords.check_rig(rig, cameras=names)
     if len(names) < 2:
         raise InputError(texcoords.path, f"triangulation needs ≥ 2 cameras present in both the texcoord set "
                          f"({', '.join(texcoords.cameras)}) and the rig ({', '.join(rig.names)})")

@@ -89,11 +89,12 @@ class GLContext:
                                                    fragment_shader=_shader_source(fragment))
         return self._programs[key]
 
-    def _target(self, kind: str, width: int, height: int):
+    def _target(self, kind: str, width: int, height: int, slot: int = 0):
         """A framebuffer of `kind` "ids" (R32I ids + RGBA32F attributes + depth), "pair"
         (R32I ids twice as wide + depth) or "color" (RGBA8 + depth), kept for reuse:
-        releasing the bound framebuffer leaves GL with no valid draw target."""
-        key = (kind, width, height)
+        releasing the bound framebuffer leaves GL with no valid draw target. `slot` tells
+        apart framebuffers of one kind and size that are used together."""
+        key = (kind, width, height, slot)
         if key not in self._targets:
             ctx = self.mgl
             if kind == "ids":

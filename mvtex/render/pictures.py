@@ -132,7 +132,7 @@ def texture_colors(uv: np.ndarray, size: int = 1024) -> np.ndarray:
 
 def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.ndarray, camera,
                          background: tuple[int, int, int] = (40, 40, 46), *,
-                         ctx: GLContext | None = None) -> np.ndarray:
+                         ctx: GLContext | None = None, body: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Render per-vertex colours, interpolated and shaded by |cos| of the camera-space normal.
 
     Args:
@@ -141,6 +141,7 @@ def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.nd
         camera: a `mvtex.data.camera.Camera` (zero distortion).
         background: RGB where no triangle is seen.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
+        body: (positions, faces) of the wearer's body, drawn in `shading.BODY_RGB`.
 
     Returns:
         (H,W,3) uint8 RGB image.
@@ -148,7 +149,12 @@ def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.nd
     from mvtex.data.mesh import vertex_normals, weld_groups
     from mvtex.render.context import context_or_new
     from mvtex.render.raster import interpolate, rasterize
+    from mvtex.render.shading import BODY_RGB, _with_body
 
+    if body is not None:
+        colors = np.concatenate([np.asarray(colors, np.float64), np.tile(np.asarray(BODY_RGB, np.float64),
+                                                                         (len(body[0]), 1))])
+        positions, faces, _ = _with_body(positions, faces, body)
     with context_or_new(ctx) as ctx:
         raster = rasterize(ctx, positions, faces, camera)
     normals = vertex_normals(positions, faces, weld_groups(positions)) @ camera.R.T

@@ -3,6 +3,7 @@
 Output layout (DESIGN §4):
     OUT/<camera>/gt.png, OUT/<camera>/inferred.png     textured renders
     OUT/<camera>/gt_raster.npz, inferred_raster.npz     with raster=True: tri_id, bary, depth, uv
+                                                        (and body, for a dataset with a body)
     OUT/overview.png                                    all cameras, gt above inferred
     OUT/render.json                                     the options that made it
 """
@@ -58,7 +59,9 @@ def check_sees_mesh(raster, camera: Camera, rig_path, pose: int, what: str) -> N
 def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *,
                 texcoord_set: TexcoordSet | None = None, raster: bool = False, rig_path: str | None = None,
                 progress: bool = True, ctx: GLContext | None = None) -> dict:
-    """Render one pose from every camera of a rig into `out` (see module docstring).
+    """Render one pose from every camera of a rig into `out` (see module docstring); the
+    dataset's body, if it has one, is drawn with the cloth (neutral matte) and is in the
+    rasters' depth test.
 
     Args:
         ctx: the GL context (one is created, and released, for this call if None).
@@ -74,6 +77,9 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
     for cam in rig:
         cam.require_pinhole(rig_path)
+    if texcoord_set is not None:
+        texcoord_set.check_dataset(dataset)
+        texcoord_set.check_rig(rig, rig_path, cameras=rig.names)
     check_sees(rig, read_row(dataset.inferred, pose), rig_path,
                what=f"the inferred mesh of {dataset.path} at pose {pose}")
     if ctx is None:
@@ -85,21 +91,25 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files, tiles = [], []
+    body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
     for cam in tqdm(list(rig), desc=f"render pose {pose}", unit="camera", disable=not progress):
         views = pose_views(dataset, pose, cam.name, texcoord_set)
         row = []
         for what, view in views.items():
-            r = gl.rasterize(ctx, view.positions, view.faces, cam)
+            r = gl.rasterize(ctx, view.positions, view.faces, cam, occluder=body)
             check_sees_mesh(r, cam, rig_path, pose, what)
-            image = render_textured(ctx, view.positions, view.faces, view.texcoords, cam)
+            image = render_textured(ctx, view.positions, view.faces, view.texcoords, cam, body=body)
             save_png(out / cam.name / f"{what}.png", image)
             files.append(f"{cam.name}/{what}.png")
             row.append(image)
             if raster:
                 uv = gl.interpolate(view.texcoords, r, view.faces)
+                arrays = dict(tri_id=r.tri_id, bary=r.bary, depth=r.depth, uv=uv)
+                if body is not None:
+                    arrays["body"] = r.body
                 with atomic_path(out / cam.name / f"{what}_raster.npz") as tmp:
                     with open(tmp, "wb") as f:
-                        np.savez_compressed(f, tri_id=r.tri_id, bary=r.bary, depth=r.depth, uv=uv)
+                        np.savez_compressed(f, **arrays)
                 files.append(f"{cam.name}/{what}_raster.npz")
         tiles.append(row)
     from mvtex.render.pictures import grid_image

@@ -55,11 +55,15 @@ class Raster:
             triangle (weights of faces[tri_id, 0..2]); 0 on background. None if not requested.
         depth: (H,W) float32 camera-space z in meters; 0 on background (and in UV space).
             None if not requested.
+        body: (H,W) bool where an occluder (the body) is the nearest surface, when one was
+            drawn (`rasterize(..., occluder=...)`); those pixels are background for the mesh
+            (tri_id -1, bary and depth 0). None without an occluder.
     """
 
     tri_id: np.ndarray
     bary: np.ndarray | None
     depth: np.ndarray | None
+    body: np.ndarray | None = None
 
     @property
     def mask(self) -> np.ndarray:
@@ -119,7 +123,7 @@ def depth_range(points_cam: np.ndarray) -> tuple[float, float]:
 
 
 def rasterize(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, camera: Camera, *,
-              attributes: bool = True) -> Raster:
+              attributes: bool = True, occluder: tuple[np.ndarray, np.ndarray] | None = None) -> Raster:
     """Rasterize a mesh from a camera at its resolution.
 
     Args:
@@ -128,15 +132,31 @@ def rasterize(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, camera: 
         faces: (m,3) int vertex indices.
         camera: pinhole camera with zero distortion (else InputError).
         attributes: also read back barycentrics and depth (False: tri_id only, faster).
+        occluder: (positions (nb,3), faces (mb,3)) of an opaque surface that is not the mesh
+            (the wearer's body): in the depth test with the mesh; where it is nearest the
+            mesh is not seen (`Raster.body`).
 
     Returns:
         Raster with (H,W) fields; pixel centres are sampled (OpenCV convention).
     """
     camera.require_pinhole()
+    faces = np.asarray(faces)
+    m = len(faces)
+    if occluder is not None:
+        body_positions, body_faces = occluder
+        positions = np.concatenate([np.asarray(positions, np.float64), np.asarray(body_positions, np.float64)])
+        faces = np.concatenate([faces, np.asarray(body_faces) + (len(positions) - len(body_positions))])
     cam = camera.to_camera(positions)
     near, far = depth_range(cam)
     clip = clip_from_camera(camera, near, far)
-    return _draw_ids(ctx, cam, np.asarray(faces), camera.width, camera.height, clip, True, attributes)
+    raster = _draw_ids(ctx, cam, faces, camera.width, camera.height, clip, True, attributes)
+    if occluder is None:
+        return raster
+    body = raster.tri_id >= m
+    tri_id = np.where(body, -1, raster.tri_id).astype(np.int32)
+    bary = None if raster.bary is None else np.where(body[..., None], 0, raster.bary).astype(np.float32)
+    depth = None if raster.depth is None else np.where(body, 0, raster.depth).astype(np.float32)
+    return Raster(tri_id=tri_id, bary=bary, depth=depth, body=body)
 
 
 def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, height: int, *,
@@ -153,9 +173,12 @@ def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, 
 
 
 class _PairBuffers:
-    """Program and buffers of `rasterize_pair` for one face list (made with the context current)."""
+    """Program and buffers of `rasterize_pair` for one face list (made with the context current).
 
-    def __init__(self, ctx: GLContext, faces: np.ndarray, num_vertices: int, levels: int):
+    `faces` are the mesh's m faces followed by the occluder's (offset past the mesh's n
+    vertices), `num_vertices` both meshes' vertices."""
+
+    def __init__(self, ctx: GLContext, faces: np.ndarray, num_vertices: int, num_mesh_faces: int, levels: int):
         gl = ctx.mgl
         # The base mesh needs only ids: a program that interpolates nothing draws it faster
         # (same coverage, same ids).
@@ -163,6 +186,7 @@ class _PairBuffers:
         self.prog = ctx._program("raster.vert.glsl", "subface.frag.glsl")
         self.n = int(num_vertices)
         self.m = len(faces)
+        self.num_mesh_faces = int(num_mesh_faces)
         self.levels = int(levels)
         self.faces = np.asarray(faces, dtype=np.int32)
         self.ibo = gl.buffer(self.faces.tobytes())
@@ -179,23 +203,30 @@ class _PairBuffers:
             obj.release()
 
 
-def _pair_buffers(ctx: GLContext, faces: np.ndarray, num_vertices: int, levels: int) -> _PairBuffers:
+def _pair_buffers(ctx: GLContext, faces: np.ndarray, num_vertices: int, num_mesh_faces: int,
+                  levels: int) -> _PairBuffers:
     # The few cached face lists are compared element by element: cheaper than hashing them.
     for key, pair in ctx._pairs.items():
-        if pair.n == num_vertices and pair.levels == levels and pair.faces.shape == np.shape(faces) \
-                and np.array_equal(pair.faces, faces):
+        if pair.n == num_vertices and pair.levels == levels and pair.num_mesh_faces == num_mesh_faces \
+                and pair.faces.shape == np.shape(faces) and np.array_equal(pair.faces, faces):
             ctx._pairs.move_to_end(key)
             return pair
     if len(ctx._pairs) >= 4:
         ctx._pairs.popitem(last=False)[1].release()
-    pair = _PairBuffers(ctx, faces, num_vertices, levels)
+    pair = _PairBuffers(ctx, faces, num_vertices, num_mesh_faces, levels)
     ctx._pairs[id(pair)] = pair
     return pair
 
 
+def body_offsets(num_faces: int, levels: int) -> tuple[int, int]:
+    """Where `rasterize_pair` numbers the occluder's faces: (in the base raster, in the
+    subdivided raster) — face j of the occluder has id offset + j."""
+    return num_faces, 4 ** int(levels) * num_faces
+
+
 def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positions: np.ndarray,
-                   faces: np.ndarray, camera: Camera, *, levels: int = 0,
-                   pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   faces: np.ndarray, camera: Camera, *, levels: int = 0, pixels: np.ndarray | None = None,
+                   occluder: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Triangle ids of two meshes with the same faces (e.g. gt and inferred) from one camera,
     drawn side by side in one framebuffer: one upload, one readback.
 
@@ -215,64 +246,157 @@ def rasterize_pair(ctx: GLContext, base_positions: np.ndarray, subdivided_positi
         levels: subdivision levels of the second mesh's ids.
         pixels: optional (k,2) projections of every vertex of both meshes: they bound the
             region read back (faster); ids outside it are -1.
+        occluder: (positions (nb,3), faces (mb,3)) of an opaque surface drawn with both meshes
+            (the body, the same under both): where it is nearest, the raster shows its face
+            j as id offset + j (`body_offsets`).
 
     Returns:
         base_tri_id (H,W) int32 in [0, m), subdivided_tri_id (H,W) int32 in [0, 4^levels m);
-        -1 = background.
+        -1 = background; occluder faces at and above `body_offsets(m, levels)`.
     """
+    pair = _draw_pair(ctx, base_positions, subdivided_positions, faces, camera, levels, pixels, occluder, False)
+    W, H = camera.width, camera.height
+    r0, r1, c0, c1 = pair.box
+    base_ids = np.full((H, W), -1, np.int32)
+    sub_ids = np.full((H, W), -1, np.int32)
+    base_ids[r0:r1, c0:c1] = pair.base_tri
+    sub_ids[r0:r1, c0:c1] = pair.sub_tri
+    return base_ids, sub_ids
+
+
+@dataclass(frozen=True)
+class PairRaster:
+    """Both halves of a pair raster with barycentrics (`rasterize_pair_attributes`), in the
+    box of the image that holds every id (rows r0:r1, columns c0:c1); -1 elsewhere.
+
+    Attributes:
+        box: (r0, r1, c0, c1).
+        base_tri, sub_tri: (h,w) int32 ids as `rasterize_pair` gives them (occluder faces
+            from `body_offsets(m, levels)` on).
+        base_bary, sub_bary: (h,w,3) float32 perspective-correct barycentrics in the base
+            face, resp. in the subdivided child face (0 on background and occluder), or
+            None (ids only).
+    """
+
+    box: tuple[int, int, int, int]
+    base_tri: np.ndarray
+    sub_tri: np.ndarray
+    base_bary: np.ndarray | None
+    sub_bary: np.ndarray | None
+
+    def full(self, values: np.ndarray, shape: tuple[int, int], fill=0) -> np.ndarray:
+        """An (H,W,...) image of per-box-pixel `values` (h,w,...), `fill` outside the box."""
+        r0, r1, c0, c1 = self.box
+        out = np.full(tuple(shape) + values.shape[2:], fill, values.dtype)
+        out[r0:r1, c0:c1] = values
+        return out
+
+
+def rasterize_pair_attributes(ctx: GLContext, base_positions: np.ndarray, subdivided_positions: np.ndarray,
+                              faces: np.ndarray, camera: Camera, *, levels: int = 0, pixels: np.ndarray | None = None,
+                              occluder: tuple[np.ndarray, np.ndarray] | None = None) -> PairRaster:
+    """`rasterize_pair` that also reads back the barycentrics of both halves (in the base
+    face of the first mesh and in the subdivided child face of the second), only in the
+    box that holds every id: a `PairRaster`."""
+    return _draw_pair(ctx, base_positions, subdivided_positions, faces, camera, levels, pixels, occluder, True)
+
+
+def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, camera: Camera, levels: int,
+               pixels, occluder, attributes: bool) -> PairRaster:
     import moderngl
 
     camera.require_pinhole()
     base_positions = np.asarray(base_positions, np.float64)
-    cam = camera.to_camera(np.concatenate([base_positions, np.asarray(subdivided_positions, np.float64)]))
-    cam = cam.astype(np.float32)
+    n, m = len(base_positions), len(faces)
+    points = [base_positions, np.asarray(subdivided_positions, np.float64)]
+    if occluder is not None:
+        points.append(np.asarray(occluder[0], np.float64))
+        faces = np.concatenate([np.asarray(faces), np.asarray(occluder[1]) + n])
+    cam = camera.to_camera(np.concatenate(points)).astype(np.float32)
     near, far = depth_range(cam)
     W, H = camera.width, camera.height
-    n = len(base_positions)
+    base, sub = cam[:n], cam[n:2 * n]
+    if occluder is not None:  # the occluder is the same in both halves
+        base = np.concatenate([base, cam[2 * n:]])
+        sub = np.concatenate([sub, cam[2 * n:]])
     gl = ctx.mgl
     with gl:
-        pair = _pair_buffers(ctx, faces, n, levels)
+        pair = _pair_buffers(ctx, faces, len(base), m, levels)
         clip = clip_from_camera(camera, near, far).T.astype("f4").tobytes()
         pair.prog_ids["clip_from_cam"].write(clip)
         pair.prog["clip_from_cam"].write(clip)
-        pair.vbo.write(cam[:n].tobytes())
-        pair.vbo_sub.write(cam[n:][pair.faces].tobytes())
         # A triangle covers only pixel centres inside the box of its projected corners, so
         # the box of all projections (one pixel margin) holds every id: only the box is
         # cleared and read back. With a vertex behind the camera the projection says
         # nothing: the whole image.
         c0, r0, c1, r1 = 0, 0, W, H
-        if pixels is not None and len(pixels) and bool(np.all(cam[:, 2] > 0)):
+        if pixels is not None and len(pixels) and bool(np.all(cam[:2 * n, 2] > 0)):
             # Column by column: NumPy reduces a (k,2) array along axis 0 far slower.
             lo = np.floor([pixels[:, 0].min(), pixels[:, 1].min()]).astype(np.int64) - 1
             hi = np.ceil([pixels[:, 0].max(), pixels[:, 1].max()]).astype(np.int64) + 2
             c0, r0 = int(np.clip(lo[0], 0, W)), int(np.clip(lo[1], 0, H))
             c1, r1 = int(np.clip(hi[0], c0, W)), int(np.clip(hi[1], r0, H))
         w, h = c1 - c0, r1 - r0
-        fbo = ctx._target("pair", W, H)
-        fbo.use()
-        if w > 0 and h > 0:
-            for x0 in (c0, W + c0):
-                fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(x0, r0, w, h))
         gl.disable(moderngl.CULL_FACE)
         gl.enable(moderngl.DEPTH_TEST)
-        # The viewport clips in clip space: nothing of one mesh can spill into the other half.
-        gl.viewport = (0, 0, W, H)
-        pair.vao.render(moderngl.TRIANGLES, vertices=3 * pair.m)
-        gl.viewport = (W, 0, W, H)
-        pair.prog["num_faces"].value = pair.m
-        pair.prog["levels"].value = pair.levels
-        pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
-        base_ids = np.full((H, W), -1, np.int32)
-        sub_ids = np.full((H, W), -1, np.int32)
-        if w > 0 and h > 0:
-            # GL window row y is image row v (the projection flips once), so no flip here.
-            for out, x0 in ((base_ids, c0), (sub_ids, W + c0)):
+        if attributes:
+            # Two framebuffers, each mesh at the image's own window coordinates: the
+            # barycentrics are those `rasterize` reads (a viewport shifted by W rounds them
+            # differently in float32).
+            targets = [ctx._target("ids", W, H, slot) for slot in (0, 1)]
+            offsets = (c0, c0)
+            for slot, (positions, levels_) in enumerate(((base, 0), (sub, pair.levels))):
+                targets[slot].use()
+                if w > 0 and h > 0:
+                    targets[slot].clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(c0, r0, w, h))
+                gl.viewport = (0, 0, W, H)
+                targets[slot].scissor = (c0, r0, w, h)
+                pair.vbo_sub.write(positions[pair.faces].tobytes())
+                pair.prog["num_faces"].value = pair.num_mesh_faces
+                pair.prog["levels"].value = levels_
+                pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, levels_)[1]
+                pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+                targets[slot].scissor = None
+        else:
+            fbo = ctx._target("pair", W, H)
+            fbo.use()
+            if w > 0 and h > 0:
+                for x0 in (c0, W + c0):
+                    fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=(x0, r0, w, h))
+            # The viewport clips in clip space: nothing of one mesh can spill into the other
+            # half. The scissor box keeps the rasterizer to the box read back (an occluder
+            # reaches far past the mesh).
+            gl.viewport = (0, 0, W, H)
+            fbo.scissor = (c0, r0, w, h)
+            pair.vbo.write(base.tobytes())
+            pair.vao.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+            pair.vbo_sub.write(sub[pair.faces].tobytes())
+            gl.viewport = (W, 0, W, H)
+            fbo.scissor = (W + c0, r0, w, h)
+            pair.prog["num_faces"].value = pair.num_mesh_faces
+            pair.prog["levels"].value = pair.levels
+            pair.prog["body_offset"].value = body_offsets(pair.num_mesh_faces, pair.levels)[1]
+            pair.vao_sub.render(moderngl.TRIANGLES, vertices=3 * pair.m)
+            fbo.scissor = None
+            targets, offsets = [fbo, fbo], (c0, W + c0)
+        halves = []
+        for fbo, x0 in zip(targets, offsets):
+            if w > 0 and h > 0:
+                # GL window row y is image row v (the projection flips once), so no flip here.
                 data = fbo.read(attachment=0, components=1, dtype="i4", viewport=(x0, r0, w, h))
                 # gl_PrimitiveID restarts at 0 on each draw call; ids are stored +1.
-                out[r0:r1, c0:c1] = np.frombuffer(data, np.int32).reshape(h, w) - 1
+                ids = np.frombuffer(data, np.int32).reshape(h, w) - 1
+                bary = None
+                if attributes:
+                    data = fbo.read(attachment=1, components=4, dtype="f4", viewport=(x0, r0, w, h))
+                    bary = np.frombuffer(data, np.float32).reshape(h, w, 4)[..., :3]
+            else:
+                ids = np.full((h, w), -1, np.int32)
+                bary = np.zeros((h, w, 3), np.float32) if attributes else None
+            halves.append((ids, bary))
         gl.viewport = (0, 0, W, H)
-    return base_ids, sub_ids
+    return PairRaster(box=(r0, r1, c0, c1), base_tri=halves[0][0], sub_tri=halves[1][0],
+                      base_bary=halves[0][1], sub_bary=halves[1][1])
 
 
 def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.ndarray:

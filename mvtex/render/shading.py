@@ -73,10 +73,25 @@ def _fabric_gl(ctx: GLContext, size: int):
     return ctx._fabric[size]
 
 
+BODY_RGB = (168, 163, 156)  # the body's neutral matte material (a mannequin's grey)
+
+
+def _with_body(positions: np.ndarray, faces: np.ndarray, body: tuple[np.ndarray, np.ndarray] | None):
+    """Mesh and body as one mesh (the body's faces after the mesh's), and (n_all,) float32
+    1 on the body's vertices."""
+    positions = np.asarray(positions, np.float64)
+    faces = np.asarray(faces, np.int64)
+    if body is None:
+        return positions, faces, np.zeros(len(positions), np.float32)
+    body_positions, body_faces = np.asarray(body[0], np.float64), np.asarray(body[1], np.int64)
+    matte = np.r_[np.zeros(len(positions), np.float32), np.ones(len(body_positions), np.float32)]
+    return np.concatenate([positions, body_positions]), np.concatenate([faces, body_faces + len(positions)]), matte
+
+
 def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray,
                     camera: Camera, *, normals: np.ndarray | None = None,
                     background: tuple[int, int, int] = (40, 40, 46), supersample: int = 2,
-                    texture_size: int = 1024) -> np.ndarray:
+                    texture_size: int = 1024, body: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Shade a mesh with the fabric texture at any per-vertex texcoords.
 
     Args:
@@ -85,6 +100,8 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
         camera: pinhole camera with zero distortion.
         normals: (n,3) vertex normals (computed with seam copies welded if None).
         supersample: render at this factor and downsample (anti-aliasing).
+        body: (positions (nb,3), faces (mb,3)) of the wearer's body, drawn with the mesh in a
+            neutral matte material (`BODY_RGB`) under the same light.
 
     Returns:
         (H,W,3) uint8 RGB image, OpenCV row order.
@@ -98,6 +115,11 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
     positions = np.asarray(positions, dtype=np.float64)
     if normals is None:
         normals = vertex_normals(positions, faces, weld_groups(positions))
+    if body is not None:
+        body_normals = vertex_normals(np.asarray(body[0], np.float64), body[1], weld_groups(body[0]))
+        normals = np.concatenate([normals, body_normals])
+        texcoords = np.concatenate([np.asarray(texcoords, np.float64), np.zeros((len(body[0]), 2))])
+    positions, faces, matte = _with_body(positions, faces, body)
     cam = camera.to_camera(positions)
     near, far = depth_range(cam)
     s = max(1, int(supersample))
@@ -105,16 +127,17 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
                  K=np.diag([s, s, 1.0]) @ camera.K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]]),
                  R=camera.R, t=camera.t)
     clip = clip_from_camera(big, near, far)
-    data = np.hstack([cam, normals @ camera.R.T, np.asarray(texcoords, dtype=np.float64)]).astype("f4")
+    data = np.hstack([cam, normals @ camera.R.T, np.asarray(texcoords, dtype=np.float64), matte[:, None]]).astype("f4")
     gl = ctx.mgl
     with gl:
         prog = ctx._program("textured.vert.glsl", "textured.frag.glsl")
         prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())
         prog["fabric"].value = 0
+        prog["matte_color"].value = tuple(c / 255 for c in BODY_RGB)
         vbo = gl.buffer(data.tobytes())
         ibo = gl.buffer(np.asarray(faces, dtype=np.int32).tobytes())
-        vao = gl.vertex_array(prog, [(vbo, "3f 3f 2f", "in_cam", "in_normal", "in_texcoord")], index_buffer=ibo,
-                              index_element_size=4)
+        vao = gl.vertex_array(prog, [(vbo, "3f 3f 2f 1f", "in_cam", "in_normal", "in_texcoord", "in_matte")],
+                              index_buffer=ibo, index_element_size=4)
         fbo = ctx._target("color", big.width, big.height)
         fbo.use()
         bg = np.asarray(background, dtype=np.float64) / 255

@@ -20,14 +20,14 @@ import numpy as np
 from mvtex.data.rig import Rig, check_sees
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import slide_pose
-from mvtex.sliding.topology import SlideTopology, build_topology
+from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
 from mvtex.util.files import read_row
 from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
 if TYPE_CHECKING:
     from mvtex.data.dataset import Dataset
     from mvtex.render.context import GLContext
-from mvtex.util.parallel import single_thread_gl
+from mvtex.util.parallel import configure_threads
 
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
 
@@ -36,11 +36,6 @@ _AUTO_WORKERS = 8  # workers=None: one process per core, up to this many
 
 
 _AUTO_MIN_JOBS = 256  # workers=None: fewer jobs left than this run in this process (start-up ≈ 1-2 s a worker)
-
-
-def _rig_record(rig: Rig) -> dict:
-    return {cam.name: {"width": cam.width, "height": cam.height, "K": cam.K.tolist(), "R": cam.R.tolist(),
-                       "t": cam.t.tolist()} for cam in rig}
 
 
 @dataclass(frozen=True)
@@ -60,6 +55,12 @@ class _WorkerState(WorkerState):
 
     dataset: Dataset
     topology: SlideTopology
+    body_topo: BodyTopology | None
+
+
+def _body_topology(ds: Dataset, topo: SlideTopology) -> BodyTopology | None:
+    body = ds.body
+    return None if body is None else body_topology(body.faces, topo)
 
 
 _WORKER = ThreadState()
@@ -70,10 +71,10 @@ def _open_state(spec: _Spec) -> _WorkerState:
     from mvtex.data.dataset import load_dataset, reference_shape
     from mvtex.render.context import GLContext
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), spec.options.subdiv)
-    return _WorkerState(GLContext(), True, ds, topo)
+    return _WorkerState(GLContext(), True, ds, topo, _body_topology(ds, topo))
 
 
 def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
@@ -87,9 +88,10 @@ def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
         k = poses[row]
         # Read through the files (`read_row`): rows read through the dataset's maps would stay
         # resident, and a long run would end up holding the whole dataset.
+        body = None if state.body_topo is None else (ds.body.pose(k), ds.body.faces)
         d_out[i], a_out[i] = slide_pose(read_row(ds.gt, k), read_row(ds.inferred, k),
                                         ds.faces, ds.uv, cam, topo.subdivision, spec.options, topology=topo,
-                                        ctx=state.ctx)
+                                        ctx=state.ctx, body=body, body_topo=state.body_topo)
     return camera, rows, d_out, a_out
 
 
@@ -132,7 +134,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     from mvtex.data.dataset import as_dataset, reference_shape, reference_shape_source
     from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import PartialSet
+    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
     from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
     check_backend(workers, scheduler)
@@ -147,12 +149,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     topo = build_topology(ds.faces, ds.uv, reference, options.subdiv)
     record = {
         "options": options.to_json(),
-        "dataset": {"path": str(Path(ds.path).resolve()), "name": ds.name, "num_poses": ds.num_poses,
-                    "num_vertices": ds.num_vertices, "mesh": fingerprint(ds.faces, ds.uv),
-                    # Content, not only the path: arrays replaced in place must not be mixed.
-                    "content": fingerprint(ds.gt, ds.inferred, ds.poses)},
+        "dataset": dataset_record(ds),  # content, not only the path: arrays replaced in place must not be mixed
         "reference": {"shape": reference_shape_source(ds), "fingerprint": fingerprint(reference)},
-        "rig": _rig_record(rig),
+        "rig": rig_record(rig),
     }
     partial = PartialSet(out, "slide", "ts", faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
                          subdiv=options.subdiv, poses=poses, cameras=rig.names, record=record)
@@ -176,7 +175,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
             from mvtex.render.context import GLContext
 
             ctx = own_ctx = GLContext()
-        _WORKER.set(spec.key, _WorkerState(ctx, False, ds, topo))
+        _WORKER.set(spec.key, _WorkerState(ctx, False, ds, topo, _body_topology(ds, topo)))
     from mvtex.util.parallel import map_unordered
 
     bar = tqdm(total=len(poses) * len(rig), initial=partial.rows_done, desc="slide", unit="job",

@@ -112,6 +112,7 @@ def _group_dirichlet(values: np.ndarray, assigned: np.ndarray, index: np.ndarray
     rows = values[a_idx].astype(np.float64)
     # bincount adds in input order, as a loop over the assigned vertices would.
     acc = np.stack([np.bincount(index[a_idx], rows[:, c], minlength=ng) for c in range(values.shape[1])], axis=1)
+    acc = acc.astype(np.float64, copy=False)  # bincount of no vertex at all is integer
     known = count > 0
     np.divide(acc, count[:, None], out=acc, where=known[:, None])
     return known, acc

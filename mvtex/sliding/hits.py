@@ -27,7 +27,7 @@ from mvtex.data.camera import Camera
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 from mvtex.sliding.options import SlideOptions
-from mvtex.sliding.topology import SlideTopology
+from mvtex.sliding.topology import BodyTopology, SlideTopology
 
 _BARY_EPS = 1e-9
 
@@ -70,10 +70,12 @@ def intersect_pairs(origin: np.ndarray, dirs: np.ndarray, positions: np.ndarray,
 
 
 def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
-                  neighbours: np.ndarray | None = None, modulo: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  neighbours: np.ndarray | None = None, modulo: int | None = None,
+                  body: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distinct triangle ids in the (2r+1)² window around each pixel (and their edge
     neighbours if given), as (ray, tri) pairs sorted by ray. With `modulo`, the raster's
-    ids (>= 0) are taken modulo it first (subdivided face ids -> base face ids)."""
+    ids (>= 0) are taken modulo it first (subdivided face ids -> base face ids). With
+    `body` = (split, base), ids from split on are the body's: split + j becomes base + j."""
     H, W = tri_id.shape
     col = np.rint(pixels[:, 0]).astype(np.int64)
     row = np.rint(pixels[:, 1]).astype(np.int64)
@@ -81,8 +83,11 @@ def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
     rr = np.clip(row[:, None, None] + off[None, :, None], 0, H - 1)
     cc = np.clip(col[:, None, None] + off[None, None, :], 0, W - 1)
     ids = tri_id[rr, cc].reshape(len(pixels), -1)
+    is_body = None if body is None else ids >= body[0]
     if modulo is not None:
         ids = np.where(ids >= 0, ids % modulo, -1)
+    if is_body is not None:
+        ids = np.where(is_body, tri_id[rr, cc].reshape(len(pixels), -1) - body[0] + body[1], ids)
     if neighbours is not None:
         ids = np.sort(ids, axis=1)
         ids[:, 1:][ids[:, 1:] == ids[:, :-1]] = -1
@@ -97,6 +102,22 @@ def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
     keep[:, 1:] &= ids[:, 1:] != ids[:, :-1]
     ray = np.broadcast_to(np.arange(len(pixels))[:, None], ids.shape)[keep]
     return ray, ids[keep]
+
+
+def _with_hosts(ray: np.ndarray, tri: np.ndarray, vertices: np.ndarray, host_keys: np.ndarray,
+                m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(ray, tri) pairs with each ray's host faces added (the base faces vertices[ray] lies
+    on, from the sorted keys v * m + f), distinct and sorted by ray then face (tri may hold
+    body faces from m on)."""
+    lo = np.searchsorted(host_keys, vertices * m)
+    hi = np.searchsorted(host_keys, (vertices + 1) * m)
+    count = hi - lo
+    host_ray = np.repeat(np.arange(len(vertices)), count)
+    host = host_keys[np.repeat(lo, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
+    # Face ids up to m + body faces: keys in a base past every id.
+    base = max(m, int(tri.max()) + 1 if len(tri) else 0)
+    keys = np.unique(np.r_[ray * base + tri, host_ray * base + (host - vertices[host_ray] * m)])
+    return keys // base, keys % base
 
 
 def _first_per_ray(ray: np.ndarray, key: np.ndarray, num_rays: int) -> tuple[np.ndarray, np.ndarray]:
@@ -146,12 +167,15 @@ def seen_from_inside(X: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np
 
 def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: np.ndarray, ray: np.ndarray,
                 tri: np.ndarray, vert_chart: np.ndarray, gt_chart: np.ndarray, vert_uv: np.ndarray | None = None,
-                gt_uv: np.ndarray | None = None):
+                gt_uv: np.ndarray | None = None, num_cloth: int | None = None):
     """Nearest hit per ray among its candidate (ray, tri) pairs. Exact ties (a ray through
     a gt vertex or edge) prefer a triangle of the vertex's own chart, then one facing the
     camera, then (given `vert_uv` (k,2) and `gt_uv` (n,2)) the one whose uv at the hit is
     nearest the vertex's own T_G: where a chart meets itself along a seam, both sides name
     the same material and the vertex keeps its own side's coordinates.
+    With `num_cloth`, faces from it on (of `gt` and `gt_faces`, which then hold the body
+    after the cloth) are the body's: a ray whose first hit is there has none (exact ties go
+    to the cloth).
     Returns tri (k,) (-1 = no hit), bary (k,3), back (k,) bool."""
     k = len(dirs)
     t, b1, b2, facing = intersect_pairs(origin, dirs[ray], gt, gt_faces, tri)
@@ -161,14 +185,20 @@ def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: 
     near = np.flatnonzero(np.isfinite(t) & (t <= t_min[ray] * (1 + 1e-9)))
     ray, tri, b1, b2 = ray[near], tri[near], b1[near], b2[near]
     back = facing[near] > 0
-    other = gt_chart[tri] != vert_chart[ray]
+    body = None if num_cloth is None else tri >= num_cloth
+    cloth_tri = tri if body is None else np.where(body, 0, tri)
+    other = gt_chart[cloth_tri] != vert_chart[ray]
     key = 4.0 * other + 2.0 * back
     if vert_uv is not None and gt_uv is not None:
-        corners = gt_uv[gt_faces[tri]]
+        corners = gt_uv[gt_faces[cloth_tri]]
         w = np.stack([1 - b1 - b2, b1, b2], axis=1)
         hit_uv = np.einsum("kj,kjc->kc", w, corners)
         key = key + np.minimum(np.linalg.norm(hit_uv - vert_uv[ray], axis=1), 1.0)
+    if body is not None:
+        key = np.where(body, 8.0, key)
     best, _ = _first_per_ray(ray, key, k)
+    if body is not None:
+        best[best >= 0] = np.where(body[best[best >= 0]], -1, best[best >= 0])
     found = best >= 0
     sel = best[found]
     out_tri = np.full(k, -1, np.int64)
@@ -205,7 +235,8 @@ def in_front(t_first: np.ndarray, options: SlideOptions) -> np.ndarray:
 
 
 def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray,
-                     topo: SlideTopology, camera: Camera, options: SlideOptions, *, compiled: bool = True) -> Hits:
+                     topo: SlideTopology, camera: Camera, options: SlideOptions, *, compiled: bool = True,
+                     body: tuple[np.ndarray, BodyTopology] | None = None) -> Hits:
     """Visibility and first gt hits by rasterization + exact candidate intersection.
 
     Args:
@@ -215,41 +246,65 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
         compiled: search the candidates with the compiled kernels of `mvtex.sliding.kernels`
             (the default); False runs the NumPy formulation (`_window_pairs`,
             `intersect_pairs`, `choose_hits`), which gives the same answer, slower.
+        body: (positions (nb,3), `body_topology(...)`) of the wearer's body in this pose:
+            drawn into both rasters; a vertex it hides is not visible (rule 2), a ray that
+            meets it before the gt cloth has no hit (rule 3). Its triangles are candidates
+            from the same raster windows and intersected exactly like the cloth's.
     """
-    from mvtex.render.raster import rasterize_pair
+    from mvtex.render.raster import body_offsets, rasterize_pair
 
     n = len(X)
     m = len(faces)
     origin = camera.center
     pixels, z = camera.project(X)
     gt_pixels = camera.project(gt)[0]
+    bounds = np.concatenate([gt_pixels, pixels])
+    occluder = None
+    split_base = split_sub = np.iinfo(np.int64).max
+    if body is not None:
+        body_positions = np.asarray(body[0], np.float64)
+        occluder = (body_positions, body[1].faces)
+        split_base, split_sub = body_offsets(m, len(topo.levels) - 1)
+        # The windows around vertices at the edge of the cloth's box reach past it by the
+        # radius, where only the body can be: read it back there too.
+        lo, hi = bounds.min(axis=0) - options.radius, bounds.max(axis=0) + options.radius
+        bounds = np.concatenate([bounds, [lo, hi]])
     # Ids of the subdivided inferred faces (they give rule 1 directly); the base face of
     # subdivided face k is k % m (children keep their parent modulo m). Both corners sets
     # bound the read-back region (the inferred base vertices are among X's first n).
     gt_ids, sub_ids = rasterize_pair(ctx, gt, inferred, faces, camera, levels=len(topo.levels) - 1,
-                                     pixels=np.concatenate([gt_pixels, pixels]))
+                                     pixels=bounds, occluder=occluder)
     owned = np.zeros(len(topo.faces), bool)
-    owned[sub_ids[sub_ids >= 0]] = True
+    owned[sub_ids[(sub_ids >= 0) & (sub_ids < split_sub)]] = True
     cand = owning_vertices(owned, topo, camera, pixels, z)
-    # Rule 2: nothing of the inferred mesh in front of the vertex along its ray (t = 1 at the
-    # vertex). Candidate occluders: the base inferred triangles drawn around its projection
-    # (the same surface as their subdivided children).
+    neighbours = topo.face_neighbours
+    inferred_all, gt_all, faces_all = inferred, gt, faces
+    if body is not None:
+        neighbours = body[1].neighbours
+        inferred_all = np.concatenate([inferred, body_positions])
+        gt_all = np.concatenate([gt, body_positions])
+        faces_all = np.concatenate([np.asarray(faces, np.int64), body[1].faces + len(gt)])
+    # Rule 2: nothing of the inferred mesh (nor the body) in front of the vertex along its
+    # ray (t = 1 at the vertex). Candidate occluders: the base inferred triangles drawn
+    # around its projection (the same surface as their subdivided children).
     dirs = X[cand] - origin
     if compiled:
         from mvtex.sliding.kernels import first_hits, nearest_occluder
         from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
 
-        faces64 = np.ascontiguousarray(faces, dtype=np.int64)
+        faces64 = np.ascontiguousarray(faces_all, dtype=np.int64)
         origin64 = np.ascontiguousarray(origin, dtype=np.float64)
-        t_first = nearest_occluder(origin64, dirs, pixels[cand], sub_ids, options.radius, topo.face_neighbours, m,
-                                   topo.host_keys, cand, np.ascontiguousarray(inferred, dtype=np.float64), faces64)
+        t_first = nearest_occluder(origin64, dirs, pixels[cand], sub_ids, options.radius, neighbours, m,
+                                   split_sub, topo.host_keys, cand,
+                                   np.ascontiguousarray(inferred_all, dtype=np.float64), faces64)
     else:
-        ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, topo.face_neighbours, modulo=m)
+        ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, neighbours, modulo=m,
+                                 body=None if body is None else (split_sub, m))
         keys = cand[ray] * len(faces) + tri
         pos = np.minimum(np.searchsorted(topo.host_keys, keys), len(topo.host_keys) - 1)
-        other = topo.host_keys[pos] != keys
+        other = (topo.host_keys[pos] != keys) | (tri >= m)
         ray, tri = ray[other], tri[other]
-        t_occ = intersect_pairs(origin, dirs[ray], inferred, faces, tri)[0]
+        t_occ = intersect_pairs(origin, dirs[ray], inferred_all, faces_all, tri)[0]
         _, t_first = _first_per_ray(ray, t_occ, len(cand))
     front = in_front(t_first, options)
     cand, dirs = cand[front], dirs[front]
@@ -260,13 +315,16 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     back = np.zeros(n, bool)
     if compiled:
         tri_hit[cand], bary[cand], back[cand] = first_hits(
-            origin64, dirs, pixels[cand], gt_ids, options.radius, topo.face_neighbours,
-            np.ascontiguousarray(gt, dtype=np.float64), faces64, topo.chart[cand], topo.gt_chart, topo.uv[cand],
-            np.ascontiguousarray(topo.uv[:len(gt)]))
+            origin64, dirs, pixels[cand], gt_ids, options.radius, neighbours,
+            np.ascontiguousarray(gt_all, dtype=np.float64), faces64, m, topo.chart[cand], topo.gt_chart,
+            topo.uv[cand], np.ascontiguousarray(topo.uv[:len(gt)]), topo.host_keys, cand)
         from_inside = compiled_seen_from_inside(np.ascontiguousarray(X, dtype=np.float64), topo.faces, origin64)
     else:
-        ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, topo.face_neighbours)
-        tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt, faces, ray, tri, topo.chart[cand],
-                                                            topo.gt_chart, topo.uv[cand], topo.uv[:len(gt)])
+        ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, neighbours)
+        ray, tri = _with_hosts(ray, tri, cand, topo.host_keys, m)
+        tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt_all, faces_all, ray, tri,
+                                                            topo.chart[cand], topo.gt_chart, topo.uv[cand],
+                                                            topo.uv[:len(gt)],
+                                                            num_cloth=None if body is None else m)
         from_inside = seen_from_inside(X, topo.faces, origin)
     return Hits(visible=visible, tri=tri_hit, bary=bary, back=back, from_inside=from_inside)

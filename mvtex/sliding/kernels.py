@@ -18,7 +18,8 @@ Three kernels:
 - `nearest_occluder`: the nearest hit t of each vertex's ray on the inferred base mesh,
   leaving out the base faces the vertex itself lies on (rule 2, the depth test).
 - `first_hits`: the first gt hit of each ray with its tie-break (own chart, then facing
-  the camera, then uv nearest the vertex's own T_G).
+  the camera, then uv nearest the vertex's own T_G); the candidates also hold the faces
+  the vertex lies on (gt and inferred share faces).
 - `seen_from_inside`: `sliding.seen_from_inside` (area-weighted vertex normals, summed in
   the same order as `mesh.vertex_normals`, against the view direction) without its
   (m,3) and (n,3) temporaries.
@@ -32,27 +33,19 @@ a second per process.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from mvtex.util.compiled import compiled as _compiled
 
 _BARY_EPS = 1e-9  # the same as sliding._BARY_EPS
 
 
-def _compiled(fn):
-    """numba-compile `fn` (no GIL, NumPy's division semantics), cached on disk where numba
-    finds a writable place for its cache, compiled in every process where it finds none."""
-    try:
-        return njit(cache=True, nogil=True, error_model="numpy")(fn)
-    except RuntimeError:  # numba's "cannot cache function ...: no locator available"
-        return njit(nogil=True, error_model="numpy")(fn)
-
-
 @_compiled
-def _window(tri_id, col, row, radius, neighbours, modulo, buf, mark, stamp):
+def _window(tri_id, col, row, radius, neighbours, modulo, split, body_base, buf, mark, stamp):
     """Distinct ids >= 0 of the (2r+1)² window at (row, col) (clipped to the image) taken
     modulo `modulo` (> 0) and closed under `neighbours`, into buf[:count], in no particular
-    order (every caller's answer is independent of it). mark: (m,) int64 scratch, one
-    entry per face id; an id is taken once per distinct `stamp` (a value mark never held
-    for this ray: the ray's index + 1 for marks starting at 0)."""
+    order (every caller's answer is independent of it). Ids from `split` on are the body's:
+    id split + j becomes body_base + j (no modulo). mark: (m,) int64 scratch, one entry
+    per face id; an id is taken once per distinct `stamp` (a value mark never held for this
+    ray: the ray's index + 1 for marks starting at 0)."""
     h, w = tri_id.shape
     count = 0
     for dr in range(-radius, radius + 1):
@@ -62,7 +55,9 @@ def _window(tri_id, col, row, radius, neighbours, modulo, buf, mark, stamp):
             f = tri_id[r, c]
             if f < 0:
                 continue
-            if modulo > 0:
+            if f >= split:
+                f = body_base + (f - split)
+            elif modulo > 0:
                 f = f % modulo
             if mark[f] != stamp:
                 mark[f] = stamp
@@ -118,7 +113,7 @@ def _intersect(ox, oy, oz, dx, dy, dz, corner_edges, f):
 
 
 @_compiled
-def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, host_keys, vertices,
+def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, split, host_keys, vertices,
                      positions, faces):
     """Per ray k: the smallest t > 0 at which dirs[k] (from `origin`) hits a base face of
     the window around pixels[k] in `tri_id` (subdivided ids, taken modulo `modulo`), other
@@ -128,8 +123,10 @@ def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, h
         origin: (3,) float64. dirs: (k,3) float64, t = 1 at the vertex. pixels: (k,2) float64.
         tri_id: (H,W) int ids (-1 background). radius: window half-size. neighbours: (m,3)
         int64 base face neighbours (-1 none). modulo: m, the number of base faces.
+        split: the raster id of the body's first face (ids from it on are body face
+        m + (id - split) of `faces`); larger than every id without a body.
         host_keys: sorted int64. vertices: (k,) int64. positions: (n,3) float64 base
-        inferred positions. faces: (m,3) int64 base faces.
+        inferred positions (then the body's). faces: (m,3) int64 base faces (then the body's).
 
     Returns:
         (k,) float64 t (inf where nothing is hit).
@@ -143,7 +140,7 @@ def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, h
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(k):
         count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
-                        neighbours, modulo, buf, mark, i + 1)
+                        neighbours, modulo, split, modulo, buf, mark, i + 1)
         # The vertex's host keys are one sorted run of host_keys: mark its host faces.
         lo = np.searchsorted(host_keys, vertices[i] * modulo)
         hi = np.searchsorted(host_keys, (vertices[i] + 1) * modulo)
@@ -162,15 +159,20 @@ def nearest_occluder(origin, dirs, pixels, tri_id, radius, neighbours, modulo, h
 
 
 @_compiled
-def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, faces, vert_chart, face_chart,
-               vert_uv, face_uv):
+def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, faces, num_cloth, vert_chart,
+               face_chart, vert_uv, face_uv, host_keys, vertices):
     """Per ray k: the nearest hit of dirs[k] on the faces of the window around pixels[k]
-    in `tri_id`, ties broken as `sliding.choose_hits` does with uv given.
+    in `tri_id` and on the faces hosting vertices[k] (gt and inferred share the faces:
+    where they are close these hold the hit, even as slivers no pixel centre samples),
+    ties broken as `sliding.choose_hits` does with uv given.
 
     Args:
         origin, dirs, pixels, tri_id, radius, neighbours: as `nearest_occluder` (ids are
-        base face ids, no modulo). positions: (n,3) float64 gt positions. faces: (m,3)
-        int64. vert_chart: (k,) int64 chart of each ray's vertex. face_chart: (m,) int64.
+        base face ids, no modulo). host_keys, vertices: as `nearest_occluder` (keys
+        v * num_cloth + f). positions: (n,3) float64 gt positions (then the body's).
+        faces: (m,3) int64 (then the body's). num_cloth: the cloth's face count; a ray whose
+        first hit is on a later (body) face has none (exact ties go to the cloth).
+        vert_chart: (k,) int64 chart of each ray's vertex. face_chart: (m,) int64.
         vert_uv: (k,2) float64 the vertex's T_G. face_uv: (n,2) float64 gt uv.
 
     Returns:
@@ -180,7 +182,12 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
     tri = np.full(k, -1, np.int64)
     bary = np.zeros((k, 3))
     back = np.zeros(k, np.bool_)
-    size = 4 * (2 * radius + 1) ** 2
+    # The window closed under neighbours, and the most faces any vertex lies on.
+    most, run = 0, 0
+    for h in range(len(host_keys)):
+        run = run + 1 if h > 0 and host_keys[h] // num_cloth == host_keys[h - 1] // num_cloth else 1
+        most = max(most, run)
+    size = 4 * (2 * radius + 1) ** 2 + most
     buf = np.empty(size, np.int64)
     ts = np.empty(size)
     b1s = np.empty(size)
@@ -191,7 +198,15 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(k):
         count = _window(tri_id, np.int64(np.rint(pixels[i, 0])), np.int64(np.rint(pixels[i, 1])), radius,
-                        neighbours, 0, buf, mark, i + 1)
+                        neighbours, 0, num_cloth, num_cloth, buf, mark, i + 1)
+        lo = np.searchsorted(host_keys, vertices[i] * num_cloth)
+        hi = np.searchsorted(host_keys, (vertices[i] + 1) * num_cloth)
+        for h in range(lo, hi):
+            f = host_keys[h] - vertices[i] * num_cloth
+            if mark[f] != i + 1:
+                mark[f] = i + 1
+                buf[count] = f
+                count += 1
         t_min = np.inf
         for j in range(count):
             ts[j], b1s[j], b2s[j], facing[j] = _intersect(ox, oy, oz, dirs[i, 0], dirs[i, 1], dirs[i, 2],
@@ -208,6 +223,11 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
             if not (t < np.inf and t <= limit):
                 continue
             f = buf[j]
+            if f >= num_cloth:  # the body: behind any cloth hit at the same t
+                if best < 0:
+                    best_key = np.inf
+                    best = j
+                continue
             b1, b2 = b1s[j], b2s[j]
             key = 4.0 * (face_chart[f] != vert_chart[i]) + 2.0 * (facing[j] > 0)
             w0 = 1 - b1 - b2
@@ -219,7 +239,7 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
             if key < best_key or (key == best_key and f < buf[best]):
                 best_key = key
                 best = j
-        if best < 0:
+        if best < 0 or buf[best] >= num_cloth:
             continue
         tri[i] = buf[best]
         b1, b2 = b1s[best], b2s[best]

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 from mvtex.sliding.hits import Hits, find_hits_raster
 from mvtex.sliding.options import SlideOptions
-from mvtex.sliding.topology import SlideTopology, build_topology
+from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
 
 
 def displacement_from_hits(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: np.ndarray, topo: SlideTopology,
@@ -65,7 +65,9 @@ def displacement_from_hits(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: 
 
 def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray, uv: np.ndarray,
                camera: Camera, subdivision: Subdivision, options: SlideOptions, *,
-               topology: SlideTopology | None = None, ctx: GLContext | None = None) -> tuple[np.ndarray, np.ndarray]:
+               topology: SlideTopology | None = None, ctx: GLContext | None = None,
+               body: tuple[np.ndarray, np.ndarray] | None = None,
+               body_topo: BodyTopology | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Texture sliding for one pose and one camera (DESIGN §5 steps 1-6).
 
     Args:
@@ -78,6 +80,11 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
         topology: `build_topology(...)` for this mesh (computed here with these gt
             positions as the reference shape if None; pass it when sliding many poses).
         ctx: the GL context (one is created, and released, for this call if None).
+        body: (positions (nb,3), faces (mb,3)) of the wearer's body in this pose (DESIGN §5
+            "The body"): vertices it hides are not visible, rays that meet it before the gt
+            cloth are unassigned. None: no body.
+        body_topo: `body_topology(faces, topology)` for this body (computed here if None;
+            pass it when sliding many poses).
 
     Returns:
         d: (n',2) float32 displacement T_N - T_G on the subdivided mesh, filled everywhere.
@@ -90,11 +97,14 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
         topology = build_topology(faces, uv, gt, levels)
     inferred = np.asarray(inferred_positions, dtype=np.float64)
     X = topology.positions(inferred)
+    occluder = None
+    if body is not None:
+        occluder = (np.asarray(body[0], np.float64), body_topo or body_topology(body[1], topology))
     if ctx is None:
         from mvtex.render.context import GLContext
 
         with GLContext() as own:
-            hits = find_hits_raster(own, gt, inferred, faces, X, topology, camera, options)
+            hits = find_hits_raster(own, gt, inferred, faces, X, topology, camera, options, body=occluder)
     else:
-        hits = find_hits_raster(ctx, gt, inferred, faces, X, topology, camera, options)
+        hits = find_hits_raster(ctx, gt, inferred, faces, X, topology, camera, options, body=occluder)
     return displacement_from_hits(hits, faces, uv, X, topology, options)

@@ -1,26 +1,17 @@
-"""The built-in datasets: a shirt-like garment with pose-driven folds (DESIGN §8), and a
-flared skirt whose hem falls into flutes (`mvtex.synth.skirt`), chosen by `SynthOptions.garment`.
+"""The built-in datasets (DESIGN §8): a T-shirt on a mannequin (`mvtex.synth.shirt`) or a
+flared skirt on hips and legs (`mvtex.synth.skirt`), chosen by `SynthOptions.garment`; the
+wearer is the dataset's body (body.npz + body.npy, DESIGN §4) unless `SynthOptions.body`
+is off.
 
-The garment is a closed torso tube, open at collar and waist, in meters with y up and
-its front facing +z. Its material is described by *material coordinates* (a, h): a is
-the arc length around the rest cross-section (0 at the front centre, growing towards +x
-there) and h the rest height. Because the rest tube is a cylinder, the (a, h) plane
-unrolls onto it without distortion, and the two UV charts (front and back panel) are
-just that plane scaled by one factor.
-
-A ground-truth pose is built in two layers:
-
-* a smooth *base* map (a, h) -> 3-D: the tube bent forward/back and sideways, twisted
-  and with its shoulders lifted, like a rod whose cross-sections follow a rotating frame;
-* *folds* made the way cloth makes them: along the fold normal s the tangent angle
-  follows phi(s) = phi_max * env(s) * sin(2 pi s / wavelength), and integrating
-  (cos phi, sin phi) gives a unit-speed profile, so edge lengths stay close to rest.
-  Its in-plane part slides the material towards the fold, its out-of-plane part is an
-  offset along the base surface's normal.
+A ground-truth pose is a smooth deformation of the rest garment that its body shares
+(bend, side bend, twist, shrug and arm lift for the shirt; hem swing and hip tilt for the
+skirt) and folds made the way cloth makes them (material slides towards a forming fold
+along a unit-speed cross-section), so edge lengths stay close to rest.
 
 The *inferred* meshes come from a predictor fitted on the training poses (PCA of the
 ground-truth shapes, of at most `MAX_BASIS_SHAPES` evenly spaced ones; ridge regression
-from the pose to the PCA coefficients over all of them).
+from the pose to the PCA coefficients over all of them). They may cut into the body, as
+real predictors' meshes do; the ground truth keeps clear of it (the statistics measure both).
 `synthesize` writes nothing; `mvtex.data.dataset.save_dataset` owns the file format, and
 `write_synth` writes the same files while streaming the shapes to disk.
 """
@@ -29,19 +20,19 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from mvtex.data.dataset import default_split
 from mvtex.data.mesh import edge_strain, edges
 from mvtex.synth.predictor import _CHUNK, fit_predictor
-from mvtex.synth.shirt import POSE_DIM, _deform_material, _material_coords, make_garment, sample_poses
+from mvtex.util.errors import OptionError
 
 GARMENTS = ("shirt", "skirt")
 
 
-
-
+MAX_POSES = 100_000  # most poses one dataset holds (checked before anything is allocated)
 
 
 @dataclass(frozen=True)
@@ -49,12 +40,13 @@ class SynthOptions:
     """Options of `synthesize`.
 
     Attributes:
-        num_poses: number of poses K (at least 3, one per split).
+        num_poses: number of poses K (at least 3, one per split; at most MAX_POSES).
         seed: seeds the poses and the 80/10/10 split.
         pca_components: PCA components of the predictor (its capacity).
         ridge: ridge penalty of the pose -> PCA-coefficient regression (bias unpenalized).
-        garment: "shirt" (a torso tube with bend, twist and side folds) or "skirt" (a
-            flared cone whose hem swings and falls into flutes, `mvtex.synth.skirt`).
+        garment: "shirt" (a T-shirt on a mannequin: torso, neck and upper arms) or "skirt"
+            (a flared skirt on hips and legs whose hem swings and falls into flutes).
+        body: write the wearer as the dataset's body; off, the garment alone.
     """
 
     num_poses: int = 300
@@ -62,32 +54,55 @@ class SynthOptions:
     pca_components: int = 6
     ridge: float = 1e-2
     garment: str = "shirt"
+    body: bool = True
+
+    def __post_init__(self) -> None:
+        if self.garment not in GARMENTS:
+            raise OptionError(f"garment must be one of {', '.join(GARMENTS)}, got {self.garment!r}")
+        if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, (int, np.integer)) \
+                or not 3 <= self.num_poses <= MAX_POSES:
+            raise OptionError(f"num_poses must be an integer in 3..{MAX_POSES} (one pose per split at least), "
+                              f"got {self.num_poses!r}")
+        if not (isinstance(self.pca_components, (int, np.integer)) and self.pca_components >= 1):
+            raise OptionError(f"pca_components must be an integer >= 1, got {self.pca_components!r}")
+        if not (np.isfinite(self.ridge) and self.ridge >= 0):
+            raise OptionError(f"ridge must be a finite number >= 0, got {self.ridge!r}")
 
 
-def _garment_shape_function(garment: str):
-    """((faces, uv, rest), shape) of a built-in garment, where shape(pose) -> (positions
-    (n,3) in vertex order, fold info [(depth, wavelength, peak angle), ...])."""
+@dataclass(frozen=True)
+class _Garment:
+    """A built-in garment: its rest mesh, its shape per pose, and its body."""
+
+    faces: np.ndarray
+    uv: np.ndarray
+    rest: np.ndarray
+    pose_dim: int
+    sample_poses: Callable[[int, int], np.ndarray]
+    shape: Callable  # pose -> (positions (n,3) in vertex order, fold info [(depth, wavelength, peak angle)])
+    body_faces: np.ndarray
+    body_rest: np.ndarray
+    pose_body: Callable  # pose -> (nb,3) float32
+
+
+def _garment(garment: str) -> _Garment:
     if garment == "shirt":
-        faces, uv, rest = make_garment()
-        a, h, inverse = _material_coords(rest, uv)
+        from mvtex.synth import shirt
+
+        faces, uv, rest = shirt.make_garment()
+        material = shirt._Material(rest, uv)
 
         def shape(pose):
-            positions, info = _deform_material(a, h, pose)
-            return positions[inverse], info
+            positions, info = shirt._deform_material(material, pose)
+            return positions[material.inverse], info
 
-        return (faces, uv, rest), shape
+        body_faces, body_rest = shirt.make_body()
+        return _Garment(faces, uv, rest, shirt.POSE_DIM, shirt.sample_poses, shape, body_faces, body_rest,
+                        shirt.pose_body)
     from mvtex.synth import skirt
 
-    return skirt.make_garment(), skirt.deform_with_info
-
-
-def _check_options(options: SynthOptions) -> None:
-    if options.garment not in GARMENTS:
-        raise ValueError(f"garment must be one of {', '.join(GARMENTS)}, got {options.garment!r}")
-    if options.num_poses < 3:
-        raise ValueError(f"num_poses must be at least 3 (one pose per split), got {options.num_poses}")
-    if options.pca_components < 1 or options.ridge < 0:
-        raise ValueError(f"need pca_components >= 1 and ridge >= 0, got {options.pca_components} and {options.ridge}")
+    body_faces, body_rest = skirt.make_body()
+    return _Garment(*skirt.make_garment(), skirt.POSE_DIM, skirt.sample_poses, skirt.deform_with_info, body_faces,
+                    body_rest, skirt.pose_body)
 
 
 class _Rows:
@@ -102,50 +117,70 @@ class _Rows:
         return np.asarray(self.base[self.index[key]])
 
 
-def _generate(options: SynthOptions, gt_out: np.ndarray, inferred_out: np.ndarray) -> tuple:
-    """Fill gt_out and inferred_out ((K, n, 3) float32, in memory or `_RowFile`) pose by
-    pose and block by block, and compute the statistics. The shapes are computed per pose
-    (or per row of a block), so they do not depend on the block size; the statistics'
-    means are sums of per-pose sums (equal to a one-pass mean up to rounding).
+def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
+    """Fill gt_out, inferred_out ((K, n, 3) float32) and body_out ((K, nb, 3) float32, or
+    None without a body), in memory or `_RowFile`, pose by pose and block by block, and
+    compute the statistics. The shapes are computed per pose (or per row of a block), so
+    they do not depend on the block size; the statistics' means are sums of per-pose sums
+    (equal to a one-pass mean up to rounding).
 
     Returns:
-        (faces, uv, rest, poses, split, stats) as in `synthesize`.
+        (garment, poses, split, stats) as in `synthesize`.
     """
-    (faces, uv, rest), shape = _garment_shape_function(options.garment)
-    poses = sample_poses(options.num_poses, options.seed)
-    depths, wavelengths, peaks = [], [], []
+    garment = _garment(options.garment)
+    poses = garment.sample_poses(options.num_poses, options.seed)
+    _, first = np.unique(garment.rest, axis=0, return_index=True)  # one vertex per distinct point
+    distance = None
+    if body_out is not None:
+        from mvtex.synth.distance import SurfaceDistance
+
+        distance = SurfaceDistance(garment.rest[first], garment.body_rest, garment.body_faces)
+    depths, wavelengths, peaks, clearance = [], [], [], []
     for k, pose in enumerate(poses):
-        positions, info = shape(pose)
-        gt_out[k] = positions
+        positions, info = garment.shape(pose)
+        stored = positions.astype(np.float32)
+        gt_out[k] = stored
+        if body_out is not None:
+            body = garment.pose_body(pose)
+            body_out[k] = body
+            clearance.append(float(distance(stored[first], body).min()))
         depths.append(max(d for d, _, _ in info))
         wavelengths += [w for d, w, _ in info if d >= 5e-3]
         peaks.append(max(p for _, _, p in info))
     split = default_split(options.num_poses, options.seed)
     train = np.asarray(split["train"], dtype=np.int64)
     predictor = fit_predictor(_Rows(gt_out, train), poses[train], options.pca_components, options.ridge)
-    edge_list = edges(faces)
+    edge_list = edges(garment.faces)
     # Per-pose sums (K,) float64: the means over poses and edges / vertices need no (K, e)
     # array, so memory does not grow with K.
     strain_gt = np.empty(options.num_poses)
     strain_inferred = np.empty(options.num_poses)
     squared = np.empty(options.num_poses)
+    inside = np.zeros(options.num_poses)
+    deepest = np.zeros(options.num_poses)
     for lo in range(0, options.num_poses, _CHUNK):
         block = slice(lo, min(lo + _CHUNK, options.num_poses))
         inferred = predictor.predict(poses[block])
         inferred_out[block] = inferred
         gt = np.asarray(gt_out[block])
-        strain_gt[block] = np.abs(edge_strain(gt, rest, edge_list)).sum(axis=1)
-        strain_inferred[block] = np.abs(edge_strain(inferred, rest, edge_list)).sum(axis=1)
-        squared[block] = np.sum((inferred.astype(np.float64) - gt.astype(np.float64)) ** 2, axis=(1, 2))
+        strain_gt[block] = np.abs(edge_strain(gt, garment.rest, edge_list)).sum(axis=1)
+        strain_inferred[block] = np.abs(edge_strain(inferred, garment.rest, edge_list)).sum(axis=1)
+        # Row by row: a sum over a block's rows could group the additions by the block's shape.
+        squared[block] = [np.sum((i.astype(np.float64) - g.astype(np.float64)) ** 2) for i, g in zip(inferred, gt)]
+        if body_out is not None:
+            bodies = np.asarray(body_out[block])
+            for row, k in enumerate(range(block.start, block.stop)):
+                signed = distance(inferred[row][first], bodies[row])
+                inside[k], deepest[k] = np.mean(signed < 0.0), max(0.0, -float(signed.min()))
 
     def rmse(part: list[int]) -> float:
         # As `mesh.rms_distance` over the poses of one split.
-        return float(np.sqrt(squared[part].sum() / (len(part) * len(rest))))
+        return float(np.sqrt(squared[part].sum() / (len(part) * len(garment.rest))))
 
     stats = {
-        "num_vertices": float(len(rest)),
-        "num_faces": float(len(faces)),
-        "pose_dim": float(POSE_DIM),
+        "num_vertices": float(len(garment.rest)),
+        "num_faces": float(len(garment.faces)),
+        "pose_dim": float(garment.pose_dim),
         "fold_depth_m": float(np.median(depths)),
         "fold_wavelength_m": float(np.median(wavelengths)) if wavelengths else 0.0,
         "max_fold_angle_deg": float(np.degrees(max(peaks))),
@@ -155,33 +190,45 @@ def _generate(options: SynthOptions, gt_out: np.ndarray, inferred_out: np.ndarra
         "rmse_inferred_train_m": rmse(split["train"]),
         "rmse_inferred_test_m": rmse(split["test"]),
     }
-    return faces, uv, rest, poses, split, stats
+    if body_out is not None:
+        stats.update({
+            "body_num_vertices": float(len(garment.body_rest)),
+            "body_num_faces": float(len(garment.body_faces)),
+            "clearance_m": float(min(clearance)),
+            "inferred_inside_body_fraction": float(inside.mean()),
+            "inferred_inside_body_depth_m": float(deepest.max()),
+        })
+    return garment, poses, split, stats
 
 
 def synthesize(options: SynthOptions = SynthOptions()) -> dict:
     """Generate the built-in dataset in memory (nothing is written).
 
     Returns:
-        dict with name (the garment: "shirt" or "skirt"), faces (m, 3) int32, uv (n, 2) float32, rest (n, 3) float32,
-        gt and inferred (K, n, 3) float32, poses (K, POSE_DIM) float32, split
-        {"train", "val", "test": sorted lists of pose indices} (80/10/10, seeded), and
-        stats, a dict of floats: num_vertices, num_faces, pose_dim; fold_depth_m (median
-        over poses of the deepest fold's peak-to-trough normal offset); fold_wavelength_m
-        (median over folds deeper than 5 mm); max_fold_angle_deg and
-        overhanging_pose_fraction (poses whose steepest fold passes 90 degrees);
-        mean_abs_edge_strain_gt / _inferred (mean |length / rest length - 1| over poses
-        and edges); rmse_inferred_train_m / _test_m (per-vertex RMSE vs gt on that split).
+        dict with name (the garment: "shirt" or "skirt"), faces (m, 3) int32, uv (n, 2)
+        float32, rest (n, 3) float32, gt and inferred (K, n, 3) float32, poses (K, P)
+        float32, split {"train", "val", "test": sorted lists of pose indices} (80/10/10,
+        seeded), body_faces (mb, 3) int32 and body (K, nb, 3) float32 (both None with
+        `options.body` off), and stats, a dict of floats: num_vertices, num_faces,
+        pose_dim; fold_depth_m (median over poses of the deepest fold's peak-to-trough
+        normal offset); fold_wavelength_m (median over folds deeper than 5 mm);
+        max_fold_angle_deg and overhanging_pose_fraction (poses whose steepest fold passes
+        90 degrees); mean_abs_edge_strain_gt / _inferred (mean |length / rest length - 1|
+        over poses and edges); rmse_inferred_train_m / _test_m (per-vertex RMSE vs gt on
+        that split); with a body also body_num_vertices, body_num_faces, clearance_m (the
+        least signed distance of a gt vertex to the body mesh over all poses),
+        inferred_inside_body_fraction (mean over poses of the fraction of inferred vertices
+        inside the body) and inferred_inside_body_depth_m (the deepest of them).
 
-    Raises:
-        ValueError: num_poses < 3, pca_components < 1, ridge < 0 or an unknown garment.
     """
-    _check_options(options)
-    n = len(_garment_shape_function(options.garment)[0][2])
-    gt = np.empty((options.num_poses, n, 3), dtype=np.float32)
-    inferred = np.empty_like(gt)
-    faces, uv, rest, poses, split, stats = _generate(options, gt, inferred)
-    return dict(name=options.garment, faces=faces, uv=uv, rest=rest, gt=gt, inferred=inferred, poses=poses,
-                split=split, stats=stats)
+    garment = _garment(options.garment)
+    shape = (options.num_poses, len(garment.rest), 3)
+    gt, inferred = np.empty(shape, dtype=np.float32), np.empty(shape, dtype=np.float32)
+    body = np.empty((options.num_poses, len(garment.body_rest), 3), np.float32) if options.body else None
+    garment, poses, split, stats = _generate(options, gt, inferred, body)
+    return dict(name=options.garment, faces=garment.faces, uv=garment.uv, rest=garment.rest, gt=gt, inferred=inferred,
+                poses=poses, split=split, stats=stats, body_faces=garment.body_faces if options.body else None,
+                body=body)
 
 
 class _RowFile:
@@ -214,11 +261,11 @@ class _RowFile:
 
 def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> dict:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
-    streaming: the shapes go to gt.npy / inferred.npy block by block as they are made, so
-    memory does not hold all poses, and the predictor fit reads the training shapes in
-    blocks too (`fit_predictor`): peak memory does not grow with `num_poses`.
-    The files are byte for byte those `mvtex.data.dataset.save_dataset` writes for
-    `synthesize(options)` (tests/test_synth.py checks it).
+    streaming: the shapes (and the body) go to gt.npy / inferred.npy / body.npy block by
+    block as they are made, so memory does not hold all poses, and the predictor fit reads
+    the training shapes in blocks too (`fit_predictor`): peak memory does not grow with
+    `num_poses`. The files are byte for byte those `mvtex.data.dataset.save_dataset` writes
+    for `synthesize(options)` (tests/synth/test_synth.py checks it).
 
     The statistics are also stored under "stats" in dataset.json, the garment under
     "garment".
@@ -229,23 +276,27 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
     import json
     from pathlib import Path
 
-    from mvtex.data.dataset import FORMAT, VERSION, validate_mesh
+    from mvtex.data.dataset import metadata, validate_mesh
     from mvtex.util.output import atomic_path
 
-    _check_options(options)
     path = Path(path)
-    (faces, uv, rest), _ = _garment_shape_function(options.garment)
-    validate_mesh(faces, uv, path)
-    shape = (options.num_poses, len(rest), 3)
+    garment = _garment(options.garment)
+    validate_mesh(garment.faces, garment.uv, path)
+    shape = (options.num_poses, len(garment.rest), 3)
     with atomic_path(path) as tmp:
         tmp.mkdir()
         gt, inferred = _RowFile(tmp / "gt.npy", shape), _RowFile(tmp / "inferred.npy", shape)
-        faces, uv, rest, poses, split, stats = _generate(options, gt, inferred)
-        meta = {"format": FORMAT, "version": VERSION, "name": options.garment, "units": "m", "num_poses": shape[0],
-                "num_vertices": shape[1], "pose_dim": int(poses.shape[1]), "garment": options.garment, "stats": stats}
-        np.savez_compressed(tmp / "mesh.npz", faces=np.asarray(faces, np.int32), uv=np.asarray(uv, np.float32),
-                            rest=np.asarray(rest, np.float32))
+        body = _RowFile(tmp / "body.npy", (options.num_poses, len(garment.body_rest), 3)) if options.body else None
+        garment, poses, split, stats = _generate(options, gt, inferred, body)
+        body_faces = np.asarray(garment.body_faces, np.int32) if options.body else None
+        meta = metadata(options.garment, shape[0], shape[1], poses.shape[1], body_faces, body,
+                        garment=options.garment, stats=stats)
+        np.savez_compressed(tmp / "mesh.npz", faces=np.asarray(garment.faces, np.int32),
+                            uv=np.asarray(garment.uv, np.float32), rest=np.asarray(garment.rest, np.float32))
         np.save(tmp / "poses.npy", np.asarray(poses, np.float32), allow_pickle=False)
-        (tmp / "split.json").write_text(json.dumps({k: [int(i) for i in split[k]] for k in ("train", "val", "test")}) + "\n")
+        if options.body:
+            np.savez_compressed(tmp / "body.npz", faces=body_faces)
+        parts = {k: [int(i) for i in split[k]] for k in ("train", "val", "test")}
+        (tmp / "split.json").write_text(json.dumps(parts) + "\n")
         (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
     return stats

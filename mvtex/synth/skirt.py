@@ -24,6 +24,11 @@ drapes:
 Flute positions, depths and wavelengths depend nonlinearly on the pose (the swing
 direction gathers the cloth on the opposite side). The inferred meshes come from the
 same fitted predictor as the shirt's (`mvtex.synth.predictor.fit_predictor`).
+
+The skirt is worn: its body (`make_body`, `pose_body`) is the lower half of a mannequin,
+the waist, hips and upper legs as one smooth closed surface, posed by the same pose
+vector: the legs swing with the hem (turning about the hip joints so that they stay where
+the hem's centre goes) and the hips tilt as the skirt's waist does.
 """
 
 from __future__ import annotations
@@ -35,6 +40,8 @@ import numpy as np
 from scipy.special import expit
 
 from mvtex.data.mesh import grid_faces
+from mvtex.synth.folds import smoothstep
+from mvtex.synth.mannequin import elliptic_stack, mesh_implicit, round_cone, smooth_min
 
 WAIST_RADIUS = 0.15  # m
 
@@ -130,11 +137,6 @@ def make_garment() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return faces.copy(), uv.copy(), rest.copy()
 
 
-def _smoothstep(x):
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
 def _mix(x):
     return 0.5 + 0.5 * np.sin(x)
 
@@ -147,6 +149,14 @@ class _Flute:
     start: float  # slant distance where the flute begins (m)
 
 
+def _tilt(pose: np.ndarray) -> np.ndarray:
+    """The hips' tilt: a rotation about x then z (3,3), about the waist's centre."""
+    ax, az = 0.06 * pose[3], 0.05 * pose[4]
+    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
+    return rz @ rx
+
+
 def _base(pose: np.ndarray) -> dict:
     p = pose
     swing = np.array([0.06 * p[1], 0.075 * p[0] + 0.015 * p[0] ** 2])  # hem offset (x, z), m
@@ -154,7 +164,7 @@ def _base(pose: np.ndarray) -> dict:
     # more at the hem than at the waist.
     ride = 0.07 * np.sin(np.pi * p[9] + 0.5 * p[2])
     twist = 0.22 * p[2] + 0.05 * p[0] * p[1]
-    return dict(swing=swing, ride=ride, twist=twist, tilt=(0.06 * p[3], 0.05 * p[4]))
+    return dict(swing=swing, ride=ride, twist=twist)
 
 
 def _flutes(pose: np.ndarray) -> list[_Flute]:
@@ -169,7 +179,7 @@ def _flutes(pose: np.ndarray) -> list[_Flute]:
         theta = 2.0 * np.pi * k / N_FLUTES + 0.22 * np.sin(np.pi * p[a] + k)
         facing = np.array([np.sin(theta), np.cos(theta)]) @ direction
         slack = 0.5 - 0.55 * facing + 0.25 * np.sin(np.pi * p[b] + 0.7 * p[a])
-        amplitude = 2.0 * _smoothstep(slack) * (0.7 + 0.3 * _mix(np.pi * p[a] * p[b] + k))
+        amplitude = 2.0 * smoothstep(slack) * (0.7 + 0.3 * _mix(np.pi * p[a] * p[b] + k))
         out.append(_Flute(theta=theta, wavelength=0.19 + 0.08 * expit(2.5 * p[b] - p[a]),
                           phi_max=(1.0 if k % 2 == 0 else -1.0) * amplitude,
                           start=0.08 + 0.12 * _mix(np.pi * p[(k + 5) % 7 + 5] + 0.5 * k)))
@@ -221,7 +231,7 @@ def deform_with_info(pose: np.ndarray) -> tuple[np.ndarray, list[tuple[float, fl
     for flute in _flutes(pose):
         centre = flute.theta - rotation[:, None]
         sigma = (np.mod(theta[None] - centre + np.pi, 2.0 * np.pi) - np.pi) / flute.wavelength
-        env = _smoothstep((s - flute.start) / (SLANT - flute.start))
+        env = smoothstep((s - flute.start) / (SLANT - flute.start))
         phi += flute.phi_max * env[:, None] * _profile(sigma)
         info.append((_flute_depth(flute), HEM_RADIUS * flute.wavelength, abs(flute.phi_max) * _profile_peak()))
     # Tangent angle: the circle's turning spread over the length the flutes leave, plus phi.
@@ -244,12 +254,15 @@ def deform_with_info(pose: np.ndarray) -> tuple[np.ndarray, list[tuple[float, fl
     y = 0.5 * HEIGHT - np.concatenate([np.cumsum((0.5 * ds * (drop[1:] + drop[:-1]))[::-1])[::-1], [0.0]])
     points = np.stack([x + offset[:, 0:1], np.broadcast_to(y[:, None], x.shape), z + offset[:, 1:2]], -1)
     # Hips tilt: a small rotation about x then z around the waist centre.
-    ax, az = base["tilt"]
     waist = np.array([0.0, 0.5 * HEIGHT, 0.0])
-    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
-    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
-    points = (points.reshape(-1, 3) - waist) @ (rz @ rx).T + waist
+    points = (points.reshape(-1, 3) - waist) @ _tilt(pose).T + waist
     return points[_garment()[3]], info
+
+
+def sample_poses(num_poses: int, seed: int) -> np.ndarray:
+    """Pose vectors, uniform in [-1, 1]: (num_poses, POSE_DIM) float32 (components: `deform`)."""
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-1.0, 1.0, size=(num_poses, POSE_DIM)).astype(np.float32)
 
 
 def deform(pose: np.ndarray) -> np.ndarray:
@@ -261,3 +274,62 @@ def deform(pose: np.ndarray) -> np.ndarray:
     wavelengths and starts and (9) how far the cloth rotates around the body.
     """
     return deform_with_info(pose)[0].astype(np.float32)
+
+
+# -- the body: waist, hips and upper legs --------------------------------------------------------
+
+_HIPS_PROFILE = np.array([  # y, semi-axis x, semi-axis z (m): from below the hips to above the waist
+    [-0.06, 0.150, 0.115], [0.04, 0.168, 0.128], [0.12, 0.160, 0.125], [0.20, 0.142, 0.118],
+    [0.27, 0.136, 0.118], [0.34, 0.140, 0.112], [0.41, 0.145, 0.105]])
+
+
+HIP_HEIGHT = 0.02  # the legs turn about (0, HIP_HEIGHT, 0)
+
+
+_KNEE_HEIGHT = -0.37
+
+
+def body_implicit(points: np.ndarray) -> np.ndarray:
+    """(n,) implicit function of the skirt's body at rest (negative inside)."""
+    d = elliptic_stack(points, _HIPS_PROFILE, 0.07)
+    for side in (1.0, -1.0):
+        d = smooth_min(d, round_cone(points, (side * 0.085, HIP_HEIGHT, 0.0), (side * 0.09, _KNEE_HEIGHT, 0.01),
+                                     0.083, 0.056), 0.05)
+    return d
+
+
+@lru_cache(maxsize=1)
+def _body() -> tuple[np.ndarray, np.ndarray]:
+    return mesh_implicit(body_implicit, (-0.3, -0.5, -0.2), (0.3, 0.47, 0.2), 0.024)
+
+
+def make_body() -> tuple[np.ndarray, np.ndarray]:
+    """The skirt's body at rest: faces (mb,3) int32 (outward) and vertices (nb,3) float32."""
+    vertices, faces = _body()
+    return faces.copy(), vertices.astype(np.float32)
+
+
+def _leg_swing(pose: np.ndarray) -> np.ndarray:
+    """The legs' turn (3,3) about (0, HIP_HEIGHT, 0): the point of the legs at the hem's
+    height goes where the skirt's hem centre goes."""
+    swing = _base(pose)["swing"]
+    drop = HIP_HEIGHT + 0.5 * HEIGHT
+    ax, az = -np.arctan2(swing[1], drop), np.arctan2(swing[0], drop)
+    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
+    return rz @ rx
+
+
+def pose_body(pose: np.ndarray) -> np.ndarray:
+    """The skirt's body in one pose, (nb,3) float32 in `make_body`'s vertex order."""
+    return _posed_body(pose).astype(np.float32)
+
+
+def _posed_body(pose: np.ndarray) -> np.ndarray:
+    pose = np.asarray(pose, dtype=np.float64)
+    rest = _body()[0]
+    hip = np.array([0.0, HIP_HEIGHT, 0.0])
+    legs = smoothstep((HIP_HEIGHT + 0.02 - rest[:, 1]) / 0.14)[:, None]
+    points = rest + legs * ((rest - hip) @ _leg_swing(pose).T + hip - rest)
+    waist = np.array([0.0, 0.5 * HEIGHT, 0.0])
+    return (points - waist) @ _tilt(pose).T + waist

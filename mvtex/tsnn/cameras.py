@@ -10,19 +10,18 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from mvtex.tsnn.modeldir import _kept_model
-from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, train
+from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, dataset_fingerprint, train
 from mvtex.util.errors import InputError, OptionError
 
 
 def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
     """In a worker: one camera's model from paths (torch on one thread: the workers already
     fill the cores)."""
-    import torch
-
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
+    from mvtex.util.parallel import configure_threads
 
-    torch.set_num_threads(1)
+    configure_threads(1)
     ds = load_dataset(dataset, validate=False)
     return train(ds, open_texcoords(texcoords, ds.num_vertices), out, camera=camera, options=options, progress=False)
 
@@ -55,6 +54,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
                          f"(it has {', '.join(texcoords.cameras)})")
     if len(set(cameras)) != len(cameras):
         raise OptionError(f"cameras lists a camera twice: {', '.join(cameras)}")
+    texcoords.check_dataset(dataset)
     for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
         texcoords.displacement(c, texcoords.poses[0])
     resolved = _resolve(options, cameras[0])
@@ -65,9 +65,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         if not (out / c / "config.json").is_file():
             continue
         if dataset_hash is None:
-            from mvtex.util.fingerprint import fingerprint
-
-            dataset_hash = fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv)
+            dataset_hash = dataset_fingerprint(dataset)
         kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
         if kept is not None:
             models[c] = kept

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from mvtex.data.mesh import apply_parent, subdivide
-from mvtex.util.output import atomic_path
+from mvtex.util.output import atomic_path, readable
 
 MODEL_FORMAT = "mvtex-tsnn"
 
@@ -114,6 +114,7 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
         # One metadata entry: safetensors writes its metadata map in hash order, which varies
         # from process to process, and a model's bytes should not (the cameras are in config.json).
         save_file(state, str(tmp / "model.safetensors"), metadata={"format": MODEL_FORMAT})
+        readable(tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
         if meta["architecture"]["arch"] == "gp":
             _relevance_plot(tmp / "relevance.png", model.relevance(),

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.data.camera import check_camera_name
-from mvtex.data.texcoords import write_header
+from mvtex.data.texcoords import dataset_record, rig_record, write_header
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
@@ -292,8 +292,11 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     with atomic_path(out) as tmp, tqdm(total=len(poses) * len(jobs), desc="predict", unit="image",
                                        disable=not progress) as bar:
         tmp.mkdir()
+        record = {"dataset": dataset_record(dataset), "models": {name: str(m.path) for name, m, _ in jobs}}
+        if rig is not None:
+            record["rig"] = rig_record(rig.select(names))
         write_header(tmp, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
-                     cameras=names, models={name: str(m.path) for name, m, _ in jobs})
+                     cameras=names, **record)
         for name in names:
             (tmp / name).mkdir()
             create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), len(uv), 2))

@@ -280,18 +280,25 @@ def _resolve(options: TrainOptions, camera: str | None) -> TrainOptions:
     return options
 
 
+def dataset_fingerprint(dataset) -> str:
+    """What a model depends on of the dataset: its inferred shapes, poses, mesh and body."""
+    from mvtex.util.fingerprint import fingerprint
+
+    return fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv, *dataset.body_arrays())
+
+
 def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: dict, options: TrainOptions,
                 dataset_hash: str | None = None) -> str:
     """Content fingerprint of everything a model is trained from: the dataset's inferred
-    shapes, poses and mesh, the texcoord set's mesh, poses and the cameras' arrays, the
-    split, the cameras' views and the resolved options. config.json records it as
-    "inputs"; `train_cameras` keeps a camera's model that records the key it would train
-    with (the same inputs train the same model: bit for bit for `gp`)."""
+    shapes, poses and mesh (and its body, when it has one), the texcoord set's mesh, poses
+    and the cameras' arrays, the split, the cameras' views and the resolved options.
+    config.json records it as "inputs"; `train_cameras` keeps a camera's model that records
+    the key it would train with (the same inputs train the same model: bit for bit for `gp`)."""
     from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
     record = {
         "version": MODEL_VERSION,
-        "dataset": dataset_hash or fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
+        "dataset": dataset_hash or dataset_fingerprint(dataset),
         "texcoords": {"mesh": fingerprint(texcoords.faces, texcoords.uv, texcoords.parent), "poses": texcoords.poses,
                       "cameras": {c: texcoords.fingerprint(c) for c in cameras}},
         "views": views, "split": split, "options": asdict(options),
@@ -353,6 +360,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             raise InputError(texcoords.path, f"cameras {', '.join(missing)} of the texcoord set are not in the rig "
                              f"(it has {', '.join(rig.names)})")
     views = {c: rig[c].cam_from_world.tolist() for c in cameras} if rig is not None and camera is None else {}
+    texcoords.check_dataset(dataset)
     faces, uv, parent = _check_texcoord_mesh(dataset, texcoords)
     split = _split(dataset, texcoords)
     if train_poses is not None:

@@ -67,6 +67,14 @@ def remove_leftovers(directory: str | os.PathLike, name: str) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
+def readable(path: str | os.PathLike) -> None:
+    """Give a file the permissions of any file this process creates (0666 less the umask),
+    where a library wrote it private (safetensors writes 0600)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, 0o666 & ~umask)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; move it onto `path` on success.
@@ -84,6 +92,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     target = tmp / path.name
     try:
         yield target
+        if target.is_file() and not target.is_symlink():
+            readable(target)
         replace_path(target, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -21,6 +21,8 @@ import sys
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
+MAX_WORKERS = 256  # local worker processes one run starts
+
 
 def check_backend(workers: int | None = None, scheduler: str | None = None, *, timeout: float = 5.0) -> None:
     """Refuse (OptionError) a worker count below 1, and a Dask scheduler address that is not
@@ -30,8 +32,9 @@ def check_backend(workers: int | None = None, scheduler: str | None = None, *, t
 
     from mvtex.util.errors import OptionError
 
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise OptionError(f"workers must be an integer of at least 1, got {workers!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or not 1 <= workers <= MAX_WORKERS):
+        raise OptionError(f"workers must be an integer in 1..{MAX_WORKERS}, got {workers!r}")
     if scheduler is None:
         return
     match = re.fullmatch(r"(?:(?:tcp|tls)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9._-]+):(\d{1,5})/?", str(scheduler).strip())
@@ -153,6 +156,7 @@ def _die_with_parent(parent_pid: int, parent_death_signal: bool) -> None:
     import threading
     import time
 
+    configure_threads(1)  # the workers fill the cores: one thread each, set before any library loads
     if parent_death_signal and sys.platform.startswith("linux"):
         import ctypes
 
@@ -208,9 +212,38 @@ def _take(it: Iterable, k: int) -> list:
     return out
 
 
-def single_thread_gl() -> None:
-    """In a worker (a local worker process or a Dask worker), before its GL context is
-    created: let llvmpipe rasterize in the calling thread (fewer CPU cycles per draw). The
-    workers' processes and threads already fill the cores, so llvmpipe's own rasterizer
-    threads would only compete with them. An LP_NUM_THREADS set by the user is kept."""
-    os.environ.setdefault("LP_NUM_THREADS", "0")
+def available_cores() -> int:
+    """The CPU cores this process may run on (its affinity, else the machine's)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def configure_threads(threads: int | None = None) -> None:
+    """Set the thread behaviour of the numeric libraries, deliberately and in one place: the
+    command line calls it once at start (no count: each library uses the cores), every
+    worker process with `threads=1` (the workers themselves fill the cores). A variable set
+    by the user is kept.
+
+    - OpenMP (torch, OpenBLAS) threads that wait sleep instead of spinning
+      (OMP_WAIT_POLICY=PASSIVE): on a machine busy with other work, idle threads would
+      otherwise take cores from it and from each other.
+    - With `threads`: OMP_NUM_THREADS, OPENBLAS_NUM_THREADS, MKL_NUM_THREADS and torch's
+      intra-op threads; with 1, llvmpipe rasterizes in the calling thread (LP_NUM_THREADS=0).
+
+    Library variables are read when a library loads, so call it before the first heavy
+    import; torch's count is also set if torch is loaded already.
+    """
+    import sys
+
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    if threads is None:
+        return
+    n = max(1, int(threads))
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, str(n))
+    if n == 1:
+        os.environ.setdefault("LP_NUM_THREADS", "0")
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(int(os.environ["OMP_NUM_THREADS"]))

@@ -15,4 +15,4 @@ def resource_path(folder: str, name: str) -> Path:
     try:
         return Path(str(resources.files(f"mvtex.{folder}").joinpath(name)))
     except ModuleNotFoundError:
-        return Path(__file__).resolve().parent.parent / folder / name
+        return Path(__file__).resolve().parents[2] / folder / name

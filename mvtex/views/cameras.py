@@ -159,6 +159,7 @@ def interpolate_camera(rig: Rig, weights: Mapping[str, float], name: str) -> Cam
     cams = [c for c, _ in used]
     centre = np.einsum("p,pi->i", w, np.stack([c.center for c in cams]))
     K = np.einsum("p,pij->ij", w, np.stack([c.K for c in cams]))
+    K[1, 0], K[2] = 0.0, (0.0, 0.0, 1.0)  # exactly, where the weighted sum gives 0.9999999999999999
     dist = np.einsum("p,pi->i", w, np.stack([c.dist for c in cams]))
     rotations = Rotation.from_matrix(np.stack([c.R for c in cams]))
     if len(cams) == 2:

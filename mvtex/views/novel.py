@@ -45,9 +45,9 @@ def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
     """A worker's synthesizer for a run."""
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
-    from mvtex.util.parallel import single_thread_gl
+    from mvtex.util.parallel import configure_threads
 
-    single_thread_gl()
+    configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
     return ViewSynthesizer(ds, spec.rig, open_texcoords(spec.texcoords, ds.num_vertices), spec.options,
                            spec.rig_source)
@@ -72,6 +72,34 @@ def _view_block(spec: _ViewSpec, start: int, poses: list[int]):
     return (start, *_views_of_poses(synth, spec.cameras, spec.weights, poses))
 
 
+@dataclass(frozen=True)
+class NovelViews:
+    """What `novel_views` made.
+
+    Attributes:
+        out: the texcoord set of the views (its cameras in out/rig.yaml).
+        method: "blend" or "reconstruct".
+        views: view name -> its weights over the array's cameras.
+        poses: dataset pose indices, the set's rows.
+        cameras: view name -> its camera centre (world, m).
+        measured: with `--plot`, the views measured against gt (`mvtex.views.measure.path_plot`).
+    """
+
+    out: Path
+    method: str
+    views: dict[str, dict[str, float]]
+    poses: list[int]
+    cameras: dict[str, list[float]]
+    measured: dict | None = None
+
+    def to_json(self) -> dict:
+        out = {"out": str(self.out), "method": self.method, "views": self.views, "poses": self.poses,
+               "cameras": self.cameras}
+        if self.measured is not None:
+            out["measured"] = self.measured
+        return out
+
+
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
                 rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
@@ -93,14 +121,13 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             `_WRITE_BLOCK` poses; the result does not depend on where they ran.
 
     Returns:
-        {"out", "method", "views": {name: weights}, "poses": [...], "cameras": {name: centre}}.
+        A `NovelViews`; `.to_json()` is the JSON of `mvtex views --json`.
     """
     from tqdm import tqdm
 
     from mvtex.data.rig import save_rig
-    from mvtex.data.texcoords import PartialSet
+    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
     from mvtex.util.files import dumps_strict
-    from mvtex.util.fingerprint import fingerprint
 
     check_backend(workers, scheduler)
     if len(weights) != len(names) or not names:
@@ -131,9 +158,9 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
               "view_options": asdict(options), "from": {"texcoords": str(Path(texcoords.path).resolve()),
                                                         "source": texcoords.source, "cameras": texcoords.cameras},
               # Content, not only paths: a rerun continues only from the same inputs.
-              "inputs": {"dataset": fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv),
-                         "texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
-                         "rig": {c.name: [c.width, c.height, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in rig}}}
+              "dataset": dataset_record(dataset), "rig": rig_record(Rig(tuple(cameras))),
+              "inputs": {"texcoords": {c: texcoords.fingerprint(c) for c in synth.array},
+                         "array": rig_record(rig.select(synth.array))}}
     record = json.loads(dumps_strict(record))  # as texcoords.json holds it (lists, not tuples)
     with synth:
         partial = PartialSet(out, "views", "views-", faces=texcoords.faces, uv=texcoords.uv, parent=texcoords.parent,
@@ -169,5 +196,5 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
         bar.close()
     save_rig(Rig(tuple(cameras)), partial.path / "rig.yaml")
     partial.finish()
-    return {"out": str(out), "method": options.method, "views": record["views"], "poses": poses,
-            "cameras": {c.name: c.center.tolist() for c in cameras}}
+    return NovelViews(out=out, method=options.method, views=record["views"], poses=poses,
+                      cameras={c.name: c.center.tolist() for c in cameras})

@@ -64,6 +64,47 @@ class PreviewOptions:
             raise OptionError(f"ipd must be in [0, 10) m, got {self.ipd!r}")
 
 
+@dataclass(frozen=True)
+class EyeScores:
+    """One eye's scores against the gt render: (inferred with T_G, texcoords) each.
+
+    Attributes:
+        ssim, psnr: (inferred, texcoords) SSIM and PSNR (dB; 99 for identical images).
+        weights: the array cameras' weights of the eye's texcoords.
+        box: (row0, row1, col0, col1) of the pixels scored (the garment's bounding box).
+    """
+
+    ssim: tuple[float, float]
+    psnr: tuple[float, float]
+    weights: dict[str, float]
+    box: tuple[int, int, int, int]
+
+    def to_json(self) -> dict:
+        return {"ssim": {"inferred": self.ssim[0], "texcoords": self.ssim[1]},
+                "psnr": {"inferred": self.psnr[0], "texcoords": self.psnr[1]},
+                "weights": self.weights, "box": list(self.box)}
+
+
+@dataclass(frozen=True)
+class Preview:
+    """What `stereo_preview` measured and wrote (preview.json is `to_json()`)."""
+
+    pose: int
+    eyes: dict[str, EyeScores]
+    viewpoint: dict
+    method: str
+    source: str
+    texcoords: str
+    options: PreviewOptions
+    files: list[str]
+
+    def to_json(self) -> dict:
+        return {"pose": self.pose, "eyes": {k: v.to_json() for k, v in self.eyes.items()}, "viewpoint": self.viewpoint,
+                "ipd": self.options.ipd, "method": self.method, "source": self.source, "texcoords": self.texcoords,
+                "scores_over": "garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)",
+                "options": asdict(self.options), "files": self.files}
+
+
 def eye_cameras(viewpoint: Camera, ipd: float) -> tuple[Camera, Camera]:
     """The left and right eyes: the viewpoint moved by ∓ipd/2 along its x axis (image right)."""
     from dataclasses import replace
@@ -76,17 +117,23 @@ def eye_cameras(viewpoint: Camera, ipd: float) -> tuple[Camera, Camera]:
     return eyes[0], eyes[1]
 
 
-def _render(ctx, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera) -> np.ndarray:
-    """The one place this module draws: (H,W,3) uint8 textured render in GL context `ctx`."""
+def _render(ctx, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, camera: Camera,
+            body=None) -> np.ndarray:
+    """The one place this module draws: (H,W,3) uint8 textured render in GL context `ctx`
+    (with the body, if given, in its matte material)."""
     from mvtex.render.shading import render_textured
 
-    return render_textured(ctx, positions, faces, texcoords, camera, background=BACKGROUND)
+    return render_textured(ctx, positions, faces, texcoords, camera, background=BACKGROUND, body=body)
 
 
-def garment_box(images, margin: int = 4) -> tuple[slice, slice]:
-    """Row and column slices of the bounding box of the non-background pixels of any image."""
+def garment_box(images, margin: int = 4, masks=()) -> tuple[slice, slice]:
+    """Row and column slices of the bounding box of the non-background pixels of any image,
+    or, given `masks` ((H,W) bool: where the cloth is, for pictures that show a body too),
+    of their pixels."""
     fg = np.zeros(images[0].shape[:2], bool)
-    for im in images:
+    for mask in masks:
+        fg |= mask
+    for im in images if not len(masks) else ():
         fg |= np.any(im != np.asarray(BACKGROUND, np.uint8), axis=2)
     if not fg.any():
         return slice(None), slice(None)
@@ -127,6 +174,7 @@ class _Eyes:
         self.gt = np.asarray(dataset.gt[pose], np.float64)
         self.inferred = np.asarray(dataset.inferred[pose], np.float64)
         self.inferred_sub = texcoords.positions(self.inferred)
+        self.body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
 
     def release(self) -> None:
         self.synth.release()
@@ -140,10 +188,17 @@ class _Eyes:
 
     def render(self, eye: Camera, with_references: bool = True) -> dict:
         T, weights = self.texcoords(eye)
-        out = {"weights": weights, "texcoords": _render(self.synth.gl, self.inferred_sub, self.tc.faces, T, eye)}
+        gl, body = self.synth.gl, self.body
+        out = {"weights": weights, "texcoords": _render(gl, self.inferred_sub, self.tc.faces, T, eye, body)}
         if with_references:
-            out["gt"] = _render(self.synth.gl, self.gt, self.dataset.faces, self.dataset.uv, eye)
-            out["inferred"] = _render(self.synth.gl, self.inferred, self.dataset.faces, self.dataset.uv, eye)
+            out["gt"] = _render(gl, self.gt, self.dataset.faces, self.dataset.uv, eye, body)
+            out["inferred"] = _render(gl, self.inferred, self.dataset.faces, self.dataset.uv, eye, body)
+        out["cloth"] = ()
+        if body is not None and with_references:  # where the cloth shows: the scores' box
+            from mvtex.render.raster import rasterize
+
+            out["cloth"] = tuple(rasterize(gl, x, self.dataset.faces, eye, attributes=False, occluder=body).mask
+                                 for x in (self.gt, self.inferred))
         return out
 
 
@@ -176,19 +231,19 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         weights: the viewpoint (array camera -> weight); default equal over the array.
 
     Returns:
-        The preview.json object.
+        A `Preview`; `.to_json()` is preview.json (and `mvtex preview --json`).
     """
     from mvtex.render.pictures import grid_image, side_by_side
     from mvtex.util.files import save_png, write_json
     from mvtex.util.output import atomic_path, check_output
     from mvtex.views.cameras import check_weights, interpolate_camera
-    from mvtex.views.synthesizer import check_texcoords_rig
 
     pose = int(pose)
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} is outside [0, {dataset.num_poses})")
     texcoords.row(pose)
-    check_texcoords_rig(texcoords, rig, rig_source)
+    texcoords.check_rig(rig, rig_source)
+    texcoords.check_dataset(dataset)
     out = check_output(out, "preview", overwrite=overwrite)
     array = [c for c in rig.names if c in texcoords.cameras]
     if weights is None:
@@ -201,22 +256,27 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         raise InputError(texcoords.path, "method reconstruct needs texcoords of at least 2 rig cameras")
     viewpoint = interpolate_camera(rig, weights, "viewpoint")
     left, right = eye_cameras(viewpoint, options.ipd)
+    cloth = np.asarray(dataset.inferred[pose], np.float64)
+    for eye in (left, right):
+        if not eye.sees(cloth):  # scores of two empty pictures would say "identical"
+            raise OptionError(f"ipd: the {eye.name} eye, {options.ipd:g} m from the other, sees none of the cloth of "
+                              f"pose {pose}; give a smaller ipd or another viewpoint")
     eyes = _Eyes(dataset, rig, texcoords, pose, options.method, array, progress)
     try:
         renders = {"left": eyes.render(left), "right": eyes.render(right)}
-        report: dict = {"pose": pose, "eyes": {}}
+        scores = {}
         for name, r in renders.items():
-            box = garment_box([r["gt"], r["inferred"], r["texcoords"]], options.margin)
+            box = garment_box([r["gt"], r["inferred"], r["texcoords"]], options.margin, r["cloth"])
             s_inf, p_inf = image_scores(r["gt"], r["inferred"], box)
             s_tc, p_tc = image_scores(r["gt"], r["texcoords"], box)
-            report["eyes"][name] = {"ssim": {"inferred": s_inf, "texcoords": s_tc},
-                                    "psnr": {"inferred": p_inf, "texcoords": p_tc},
-                                    "weights": r["weights"],
-                                    "box": [int(box[0].start or 0), int(box[0].stop or r["gt"].shape[0]), int(box[1].start or 0), int(box[1].stop or r["gt"].shape[1])]}
-        report.update(viewpoint={"weights": weights, "centre": viewpoint.center.tolist()}, ipd=options.ipd,
-                      method=options.method, source=texcoords.source, texcoords=str(texcoords.path),
-                      scores_over="garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)",
-                      options=asdict(options), files=["stereo.png", "anaglyph.png", "comparison.png", "preview.json"])
+            H, W = r["gt"].shape[:2]
+            scores[name] = EyeScores(ssim=(s_inf, s_tc), psnr=(p_inf, p_tc), weights=r["weights"],
+                                     box=(int(box[0].start or 0), int(box[0].stop or H), int(box[1].start or 0),
+                                          int(box[1].stop or W)))
+        files = ["stereo.png", "anaglyph.png", "comparison.png", "preview.json"] + (["path.gif"] if options.path else [])
+        report = Preview(pose=pose, eyes=scores, viewpoint={"weights": weights, "centre": viewpoint.center.tolist()},
+                         method=options.method, source=texcoords.source, texcoords=str(texcoords.path),
+                         options=options, files=files)
         with atomic_path(out) as tmp:
             tmp.mkdir()
             L, R = renders["left"], renders["right"]
@@ -226,9 +286,8 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
             labels = ["gt", "inferred T_G", f"{texcoords.source} {options.method}"]
             save_png(tmp / "comparison.png", grid_image(rows, col_labels=["left", "right"], row_labels=labels))
             if options.path:
-                report["files"].append("path.gif")
                 _write_path_gif(tmp / "path.gif", eyes, rig, array, options, progress)
-            write_json(tmp / "preview.json", report)
+            write_json(tmp / "preview.json", report.to_json())
     finally:
         eyes.release()
     return report

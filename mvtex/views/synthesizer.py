@@ -93,7 +93,8 @@ class PoseContext:
         displacement, assigned: array camera -> (n',2) float32 / (n',) bool.
         inferred: (n,3) float64 inferred positions X_N of the pose.
         reconstruction: `mvtex.recon.triangulate.Reconstruction` or None (method "blend").
-        cache: per array camera, its rasters of the inferred and reconstructed meshes.
+        body: (positions, faces) of the dataset's body in the pose, or None.
+        cache: per array camera, its rasters of the inferred and reconstructed meshes (and the body).
     """
 
     pose: int
@@ -101,6 +102,7 @@ class PoseContext:
     assigned: dict[str, np.ndarray]
     inferred: np.ndarray
     reconstruction: object | None = None
+    body: tuple[np.ndarray, np.ndarray] | None = None
     cache: dict | None = None
 
 
@@ -117,10 +119,8 @@ class ViewSynthesizer:
 
     def __init__(self, dataset, rig: Rig, texcoords, options: ViewOptions = ViewOptions(),
                  rig_source: str | os.PathLike | None = None, ctx=None):
-        check_texcoords_rig(texcoords, rig, rig_source)
-        if texcoords.num_base_vertices != dataset.num_vertices:
-            raise InputError(texcoords.path / "mesh.npz", f"made for a mesh of {texcoords.num_base_vertices} "
-                             f"vertices, the dataset has {dataset.num_vertices}")
+        texcoords.check_rig(rig, rig_source)
+        texcoords.check_dataset(dataset)
         from mvtex.render.context import GLContext
 
         self.dataset = dataset
@@ -178,7 +178,9 @@ class ViewSynthesizer:
         state = PoseContext(pose=int(pose),
                           displacement={c: tc.displacement(c, pose) for c in self.array},
                           assigned={c: tc.assigned(c, pose) for c in self.array},
-                          inferred=read_row(self.dataset.inferred, pose).astype(np.float64))
+                          inferred=read_row(self.dataset.inferred, pose).astype(np.float64),
+                          body=None if self.dataset.body is None else (self.dataset.body.pose(pose),
+                                                                       self.dataset.body.faces))
         if self.options.method == "reconstruct":
             from mvtex.recon.triangulate import reconstruct
 
@@ -210,8 +212,18 @@ class ViewSynthesizer:
         topo, slide_options = self._sliding()
         rec = state.reconstruction
         d_rec, a_rec = slide_pose(rec.points, state.inferred, self.dataset.faces, self.dataset.uv, camera,
-                                  topo.subdivision, slide_options, topology=topo, ctx=self.gl)
+                                  topo.subdivision, slide_options, topology=topo, ctx=self.gl, body=state.body,
+                                  body_topo=self._body_topology())
         return self._reproject(state, camera, weights, d_rec, a_rec, d_blend, a_blend)
+
+    def _body_topology(self):
+        if self.dataset.body is None:
+            return None
+        if getattr(self, "_body_topo", None) is None:
+            from mvtex.sliding.topology import body_topology
+
+            self._body_topo = body_topology(self.dataset.body.faces, self._sliding()[0])
+        return self._body_topo
 
     def _hit_points(self, d_rec: np.ndarray, a_rec: np.ndarray, points: np.ndarray):
         """Where the slide against the reconstruction hit it, found from the slid uv (the
@@ -261,8 +273,9 @@ class ViewSynthesizer:
             cam = self.rig[name]
             if name not in state.cache:
                 state.cache[name] = (rasterize(self.gl, X_sub, sub_faces, cam),
-                                    rasterize(self.gl, rec.points, self.dataset.faces, cam))
-            r_inf, r_rec = state.cache[name]
+                                     rasterize(self.gl, rec.points, self.dataset.faces, cam),
+                                     None if state.body is None else rasterize(self.gl, *state.body, cam))
+            r_inf, r_rec, r_body = state.cache[name]
             pix, z = cam.project(P)
             H, W = r_inf.tri_id.shape
             inside = (z > 0) & (pix[:, 0] > -0.5) & (pix[:, 0] < W - 0.5) & (pix[:, 1] > -0.5) & (pix[:, 1] < H - 0.5)
@@ -277,6 +290,9 @@ class ViewSynthesizer:
                     front = np.maximum(front, np.where(r_rec.tri_id[rr, cc] >= 0, r_rec.depth[rr, cc], 0.0))
                     cand.append(r_inf.tri_id[rr, cc])
             seen = inside & (z <= front * (1 + _VISIBILITY_TOLERANCE))
+            if r_body is not None:  # and the body nearer than P at its pixel hides it
+                body_depth = r_body.depth[row, col]
+                seen &= ~((r_body.tri_id[row, col] >= 0) & (body_depth * (1 + _VISIBILITY_TOLERANCE) < z))
             cand = np.stack(cand, axis=1)
             ray = np.repeat(np.arange(len(P)), cand.shape[1])
             tri = cand.ravel()
@@ -311,27 +327,3 @@ class ViewSynthesizer:
             sub = charts_through_parent(base, self.texcoords.faces, len(self.texcoords.uv))
             self._chart_cache = (sub, base[np.asarray(self.dataset.faces)[:, 0]])
         return self._chart_cache
-
-
-def check_texcoords_rig(texcoords, rig: Rig, rig_source: str | os.PathLike | None = None) -> None:
-    """InputError unless the texcoord set's cameras are in the rig (and, where the set
-    records the cameras it was made with, are the same cameras)."""
-    missing = [c for c in texcoords.cameras if c not in rig.names]
-    if missing:
-        raise InputError(texcoords.path, f"cameras {', '.join(missing)} of this texcoord set are not in the rig "
-                         f"{rig_source or ''} (it has {', '.join(rig.names)}): a texcoord set from another rig?")
-    recorded = texcoords.meta.get("rig")
-    if isinstance(recorded, dict):
-        for name, rec in recorded.items():
-            if name not in rig.names or not isinstance(rec, dict):
-                continue
-            cam = rig[name]
-            try:
-                same = (int(rec["width"]) == cam.width and int(rec["height"]) == cam.height and
-                        np.allclose(rec["K"], cam.K, atol=1e-6) and np.allclose(rec["R"], cam.R, atol=1e-6) and
-                        np.allclose(rec["t"], cam.t, atol=1e-6))
-            except (KeyError, TypeError, ValueError):
-                continue
-            if not same:
-                raise InputError(texcoords.path, f"camera {name!r} of this texcoord set was made with other "
-                                 f"parameters than the rig's {rig_source or ''} camera of that name")

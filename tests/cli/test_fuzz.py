@@ -236,3 +236,85 @@ def test_option_values(tiny_dataset, rig_file, slid_sheet0, option, value):
         lines = [line for line in err.getvalue().strip().splitlines() if line.startswith("mvtex ")]
         assert len(lines) == 1 and "Traceback" not in err.getvalue(), err.getvalue()
         assert snapshot(root) == inputs
+
+
+# -- the newer commands' inputs -------------------------------------------------------------
+
+board_spec = st.one_of(
+    st.builds(lambda c, r, s, m, d: f"charuco:{c}x{r}:{s}:{m}:{d}", st.integers(-2, 40), st.integers(-2, 40),
+              number_text, number_text, st.sampled_from(["DICT_4X4_50", "DICT_5X5_100", "DICT_X", "dict_4x4_50", ""])),
+    hostile_text, st.text(max_size=40))
+
+
+@FUZZ
+@given(spec=board_spec, dpi=st.one_of(st.none(), number_text), pps=st.one_of(st.none(), number_text))
+def test_board_specs_and_sizes(spec, dpi, pps):
+    with sandbox() as root:
+        out = root / "board.png"
+        argv = ["board", spec, "--out", out, "--json"]
+        argv += ["--dpi", dpi] if dpi is not None else []
+        argv += [f"--pixels-per-square={pps}"] if pps is not None and dpi is None else []
+        check(argv, root, out, {})
+
+
+weights_text = st.one_of(
+    st.dictionaries(st.sampled_from(["a", "b", "c", "", "a=b", " a"]), number_text, max_size=3).map(
+        lambda d: ",".join(f"{k}={v}" for k, v in d.items())),
+    hostile_text, st.text(max_size=30))
+
+
+@pytest.mark.gl
+@FUZZ
+@given(how=st.one_of(st.tuples(st.just("--weights"), weights_text),
+                     st.tuples(st.just("--between"), st.sampled_from(["a,b", "a,a", "b,a", "a", "a,b,c", ""]),
+                               number_text),
+                     st.tuples(st.just("--grid"), st.sampled_from(["a,b,a,b", "a,b", "a,b,c,d", ""]), number_text)))
+def test_view_weights_and_steps(tiny_dataset, rig_file, slid_sheet0, how):
+    with sandbox(tiny_dataset, rig_file, slid_sheet0) as root:
+        out = root / "v"
+        flags = [how[0], how[1]] if how[0] == "--weights" else [how[0], how[1], f"--steps={how[2]}"]
+        check(["views", root / "sheet", "--rig", root / "rig.yaml", "--texcoords", root / "tc", "--out", out,
+               "--method", "blend", "--poses", "0", *flags, "--quiet"], root, out, snapshot(root))
+
+
+@FUZZ
+@given(names=st.lists(st.one_of(hostile_text, st.sampled_from(["cam0", "CAM0", "cam 1", "kamera_ü", "c" * 70])),
+                      min_size=1, max_size=3), image=st.sampled_from([b"", b"not an image", None]))
+def test_calibration_image_folders(names, image):
+    import cv2
+
+    with sandbox() as root:
+        images = root / "images"
+        for name in names:
+            try:
+                (images / name).mkdir(parents=True, exist_ok=True)
+            except (OSError, ValueError):
+                continue  # a name no file system takes
+            if image is None:
+                cv2.imwrite(str(images / name / "f0.png"), np.full((60, 80), 128, np.uint8))
+            else:
+                (images / name / "f0.png").write_bytes(image)
+        out = root / "out"
+        check(["calibrate", images, "--board", "charuco:5x4:0.04:0.03:DICT_4X4_50", "--out", out / "rig.yaml",
+               "--quiet"], root, out, snapshot(root))
+
+
+@FUZZ
+@given(which=st.sampled_from(["cameras.txt", "images.txt", "frames.txt", "rigs.txt"]), how=damage,
+       line=st.integers(0, 8), field=st.integers(0, 12), value=st.one_of(number_text, hostile_text))
+def test_damaged_colmap_text_models(which, how, line, field, value):
+    with sandbox() as root:
+        assert main(["rig", "square4", "--to-colmap", str(root / "model"), "--text"]) == 0
+        path = root / "model" / which
+        lines = path.read_text().splitlines()
+        data = [i for i, text in enumerate(lines) if text and not text.startswith("#")]
+        if data:
+            i = data[line % len(data)]
+            fields = lines[i].split()
+            fields[field % len(fields)] = value
+            lines[i] = " ".join(fields)
+            path.write_text("\n".join(lines) + "\n")
+        damage_file(path, how)
+        out = root / "out"
+        check(["rig", "--from-colmap", root / "model", "--out", out / "rig.yaml", "--json"], root, out,
+              snapshot(root))
