@@ -4,7 +4,7 @@
 
 Your meshes need one connectivity and vertex order across the sequence (the same faces in
 every file) and per-vertex texture coordinates (OBJ `vt`, PLY `s t`). UV seams must be
-split vertices. Files are paired in sorted order. Pose vectors are optional (`--poses`).
+split vertices. Files are paired in sorted order. Pose vectors are optional (`mvtex import --pose-vectors FILE`).
 With no arguments, the script writes a demo sequence from the built-in garment first.
 """
 

@@ -1,5 +1,5 @@
-"""The examples a user reads first must run (small sizes); every example and benchmark
-script imports names that exist."""
+"""The examples a user reads first must run (small sizes); the benchmark scripts behind the
+tables of docs/results run at small sizes too."""
 
 from __future__ import annotations
 
@@ -8,13 +8,14 @@ from pathlib import Path
 
 import pytest
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
-BENCHMARKS = EXAMPLES.parent / "benchmarks"
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+BENCHMARKS = ROOT / "benchmarks"
 pytestmark = pytest.mark.gl
 
 
-def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
+def load(name: str, folder: Path = EXAMPLES):
+    spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -45,6 +46,20 @@ def test_own_data_import(tmp_path, gl):
     assert (tc / "texcoords.json").exists()
 
 
+def test_ar_preview(tmp_path, gl):
+    import imageio.v3 as iio
+    import numpy as np
+
+    preview = load("ar_preview").main(tmp_path, 12)
+    for eye in ("left", "right"):
+        ssim = preview["eyes"][eye]["ssim"]
+        assert 0 < ssim["inferred"] < ssim["texcoords"] <= 1  # sliding shows the gt cloth's texture
+    stereo = iio.imread(tmp_path / "preview" / "stereo.png")
+    assert stereo.shape[:2] == (512, 2 * 512)  # left | right, each a 512x512 stereo camera
+    left, right = stereo[:, :512].astype(int), stereo[:, 512:].astype(int)
+    assert np.abs(left - right).mean() > 0.5  # the eyes are 6.4 cm apart: different pictures
+
+
 def test_make_rigs_matches_shipped_rigs(tmp_path):
     import numpy as np
 
@@ -62,7 +77,7 @@ def test_fill_laplacian_compares_both_operators(tmp_path, gl, tiny_dataset, fron
     from mvtex.data.rig import save_rig
 
     save_rig(front_rig, tmp_path / "rig.yaml")
-    result = load("fill_laplacian").main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0,3")
+    result = load("fill_laplacian", BENCHMARKS).main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0,3")
     assert set(result) == {"cotan", "intrinsic"}
     for r in result.values():
         assert r["images"] == 4 and r["held_out_vertices"] > 0
@@ -70,7 +85,7 @@ def test_fill_laplacian_compares_both_operators(tmp_path, gl, tiny_dataset, fron
 
 
 def test_defaults_study_small(tmp_path, gl):
-    module = load("defaults_study")
+    module = load("defaults_study", BENCHMARKS)
     rows = module.study(tmp_path, 10, ["shirt", "skirt"], ["stereo"], only=["defaults", "break ratio 4"])
     assert [(r["garment"], r["candidate"]) for r in rows] == [("shirt", "defaults"), ("shirt", "break ratio 4"),
                                                              ("skirt", "defaults"), ("skirt", "break ratio 4")]
@@ -86,12 +101,12 @@ def test_defaults_study_small(tmp_path, gl):
 
 @pytest.mark.slow
 def test_paper_scale_runs_small(tmp_path):
-    table = load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
+    table = load("paper_scale", BENCHMARKS).main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
     rows = [line for line in table.splitlines() if line.startswith("| slide")]
     assert len(rows) == 2 and all(float(row.split("|")[4]) > 0 for row in rows)
     assert (tmp_path / "work" / "stereo_w1" / "texcoords.json").exists()
     with pytest.raises(SystemExit, match="exists"):
-        load("paper_scale").main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
+        load("paper_scale", BENCHMARKS).main(tmp_path / "work", poses=10, trapezoid_poses=1, workers=(1,))
 
 
 @pytest.mark.parametrize("path", sorted([*EXAMPLES.glob("*.py"), *BENCHMARKS.glob("*.py")]),
@@ -117,7 +132,7 @@ def test_profile_job_times_every_step(tmp_path, gl, tiny_dataset, front_rig):
     from mvtex.data.rig import save_rig
 
     save_rig(front_rig, tmp_path / "rig.yaml")
-    report, ms = load("profile_job").main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0:2", 1)
+    report, ms = load("profile_job", BENCHMARKS).main(str(tiny_dataset), str(tmp_path / "rig.yaml"), "0:2", 1)
     for step in ("raster", "occluder", "first_hits", "inside", "fill", "solve"):
         assert ms[step] > 0, step
     assert ms["solve"] < ms["fill"] and all(value >= 0 for value in ms["rows"])

@@ -11,7 +11,7 @@ Two methods:
   The operator is potpourri3d's cotangent Laplacian (`laplacian_matrix`), so a linear
   field on a flat patch is reproduced exactly for any triangulation. The intrinsic
   Delaunay Laplacian (robust_laplacian) was measured against it on the built-in garment
-  (examples/fill_laplacian.py): identical on its rest shape, slightly less accurate on a
+  (benchmarks/fill_laplacian.py): identical on its rest shape, slightly less accurate on a
   folded reference shape, so it serves only as the fallback for degenerate triangles.
 - ``fmm``: the paper's recipe. Geodesic distance from the assigned set by the heat method
   (potpourri3d's `MeshHeatMethodDistanceSolver`, not fast marching proper), extension of
@@ -42,7 +42,7 @@ METHODS = ("harmonic", "fmm")
 LAPLACIANS = ("cotan", "intrinsic")
 
 
-HARMONIC_LAPLACIAN = "cotan"  # the harmonic fill's Laplacian (measured: see examples/fill_laplacian.py)
+HARMONIC_LAPLACIAN = "cotan"  # the harmonic fill's Laplacian (measured: see benchmarks/fill_laplacian.py)
 
 
 def laplacian_matrix(positions: np.ndarray, faces: np.ndarray, kind: str = "cotan") -> sp.csr_matrix:

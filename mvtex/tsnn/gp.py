@@ -1,7 +1,7 @@
 """Pose -> per-vertex displacements by Gaussian processes on a PCA basis (`--arch gp`).
 
 A few hundred simulated poses are too few for a convolutional decoder to learn d from the
-pose (README, TSNN learning curve), but d of one camera is a smooth function of the pose
+pose (docs/results/accuracy.md, the TSNN learning curve), but d of one camera is a smooth function of the pose
 dominated by a few modes: how far material rides around and along the body, which folds are
 on. So:
 

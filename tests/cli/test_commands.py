@@ -127,7 +127,7 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
         ts = summary["texture_sliding"][rig]
         assert ts["same_chart_texcoords_e3"] < ts["same_chart_inferred_e3"] / 2
         # Material error: better everywhere, though rims of openings seen from these
-        # cameras (different surfaces, README) keep it from the same-chart ratios.
+        # cameras (different surfaces, docs/evaluation.md) keep it from the same-chart ratios.
         assert ts["material_texcoords_mm"] < ts["material_inferred_mm"]
     rec = summary["reconstruction"]
     assert rec["rmse_triangulated_m"]["reconstructed"] < rec["rmse_triangulated_m"]["inferred"] / 2

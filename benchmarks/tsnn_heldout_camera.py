@@ -1,9 +1,9 @@
 """A camera the network never trained on: one camera-conditioned U-Net trained on all
 cameras of `trapezoid12` but one, scored on the one left out.
 
-    python examples/tsnn_heldout_camera.py WORK [--held-out cam05] [--train-poses 240] [--epochs 10]
+    python benchmarks/tsnn_heldout_camera.py WORK [--held-out cam05] [--train-poses 240] [--epochs 10]
 
-Uses WORK/shirt1200 (`mvtex synth --poses 1200`) and texture-slides it with 1 subdivision
+Uses WORK/shirt1200 (`mvtex synth --out WORK/shirt1200 --num-poses 1200`) and texture-slides it with 1 subdivision
 from `trapezoid12` on the first --train-poses training poses, 60 validation poses and the
 120 test poses (WORK/ts_trap1, reused when present). Prints the held-out camera's test
 scores: inferred baseline vs the network (same-chart and all-pixel SqrtMSE, their ratios).

@@ -1,7 +1,7 @@
-"""Novel views and stereo previews on the built-in garment: the numbers and pictures of the
-README's "Novel views and stereo previews" section.
+"""Novel views and stereo previews on the built-in garment: the numbers and pictures of
+docs/views.md (the tables are in docs/results/accuracy.md).
 
-    python examples/views_path.py WORKDIR [--poses 60] [--docs docs]
+    python benchmarks/views_path.py WORKDIR [--poses 60] [--docs docs]
 
 1. synthesize the garment, texture-slide the test poses from the `stereo` and `square4` rigs;
 2. the two-camera plot: SqrtMSE against t along left -> right (7 views) for the baseline,

@@ -2,11 +2,11 @@
 subdivision on the test split), the error of predicted displacements on vertices assigned
 by ray vs by fill (Table 4 form), and reconstruction from TSNN texcoords (stereo pair).
 
-    python examples/table_tsnn.py WORKDIR [TOTAL_POSES]
+    python benchmarks/table_tsnn.py WORKDIR [TOTAL_POSES]
 
 Default: a 1,200-pose dataset (960 training poses; with fewer the network barely learns,
-see examples/tsnn_poses.py). Trains three networks (left and right without subdivision,
-left with one level) with the paper architecture (`arch="paper"`; the default U-Net is
+see benchmarks/tsnn_poses.py). Trains three networks (left and right without subdivision,
+left with one level) with the paper architecture (`arch="paper"`; every model is
 compared in benchmarks/tsnn_learning_curve.py): about 15-20 minutes on a 2-core CPU.
 """
 

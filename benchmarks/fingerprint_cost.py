@@ -5,7 +5,7 @@
 it. This script times that hash on a synthetic memory-mapped dataset of K poses of a
 3,102-vertex garment (the built-in one's size) next to a plain read of the same bytes.
 
-    python examples/fingerprint_cost.py --poses 2000
+    python benchmarks/fingerprint_cost.py --poses 2000
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ cameras together, and a markdown table per rig is printed: the paper's metric (S
 ratio inferred / TS, all pixels and same-chart pixels) and the material error in
 millimetres (and its ratio inferred / TS for one subdivision).
 
-    nice -n 10 python examples/defaults_study.py [--poses 60] [--out DIR] [--json FILE]
+    nice -n 10 python benchmarks/defaults_study.py [--poses 60] [--out DIR] [--json FILE]
 
 About 10 minutes on two CPU cores.
 """

@@ -1,11 +1,12 @@
-"""Novel views from TSNN texcoords: networks for the two stereo cameras, then `blend` and
-`reconstruct` between them, against direct texture sliding at each view (with gt).
+"""Novel views from predicted texcoords: per-camera models for the two stereo cameras, then
+`blend` and `reconstruct` between them, against direct texture sliding at each view (with
+gt). Prints the same-chart SqrtMSE at the cameras and at the midpoint, as a Markdown table.
 
-    python examples/views_tsnn.py WORKDIR [TOTAL_POSES] [PATH_POSES] [EPOCHS]
+    python benchmarks/views_tsnn.py WORKDIR [TOTAL_POSES] [PATH_POSES] [EPOCHS]
 
-Default: a 1,200-pose dataset (960 training poses: with fewer the network barely learns,
-see examples/tsnn_poses.py), networks at the CPU defaults (no subdivision), the path
-measured on the first 12 test poses. About 20-30 minutes on a 2-core CPU.
+Default: a 1,200-pose dataset (960 training poses), the per-camera default model (`gp`;
+EPOCHS applies only to the networks) on TS without subdivision, the path measured on the
+first 12 test poses.
 """
 
 import json

@@ -2,7 +2,7 @@
 garment (camera `left` of the stereo rig, no subdivision), with the paper architecture;
 benchmarks/tsnn_learning_curve.py compares every method at these sizes.
 
-    python examples/tsnn_poses.py WORKDIR [TOTAL_POSES] [TRAIN_SIZES]
+    python benchmarks/tsnn_poses.py WORKDIR [TOTAL_POSES] [TRAIN_SIZES]
 
 Defaults: a 1,200-pose dataset (80/10/10 split: 960 training, 120 validation, 120 test
 poses) and networks trained on its first 120, 240, 480 and 960 training poses, all scored

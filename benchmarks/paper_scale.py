@@ -3,7 +3,7 @@ vertices; 1 subdivision -> 12,090 sliding vertices; 512x512 cameras) and slide i
 `stereo` rig (every pose) and the `trapezoid12` rig (a few poses) with 1 and 2 worker
 processes and on a Dask LocalCluster, through the command line a user runs.
 
-    python examples/paper_scale.py WORK [--poses N] [--trapezoid-poses P] [--workers 1,2,dask:2]
+    python benchmarks/paper_scale.py WORK [--poses N] [--trapezoid-poses P] [--workers 1,2,dask:2]
 
 Defaults: N = 10,000 poses, P = 4, workers 1, 2 and dask:2. A `dask:W` entry starts a
 `dask.distributed.LocalCluster` of W single-threaded worker processes in this script and
@@ -88,7 +88,7 @@ def main(work: Path, poses: int = 10_000, trapezoid_poses: int = 4,
     workers = tuple(str(w) for w in workers)
     mvtex = [sys.executable, "-m", "mvtex"]
     data = work / "data"
-    runs = [("synth", None, None, [*mvtex, "synth", str(data), "--poses", str(poses)], 0, 0)]
+    runs = [("synth", None, None, [*mvtex, "synth", "--out", str(data), "--num-poses", str(poses)], 0, 0)]
     for rig, count, cams in (("stereo", poses, 2), ("trapezoid12", min(trapezoid_poses, poses), 12)):
         for w in workers:
             out = work / f"{rig}_w{w.replace(':', '')}"
@@ -124,7 +124,7 @@ def main(work: Path, poses: int = 10_000, trapezoid_poses: int = 4,
         print(rows[-1], f"(load average {loads[-1]:.1f})", file=sys.stderr, flush=True)
     header = ("| run | workers | wall time | jobs/s | peak RSS of the process tree (GiB) | of which anonymous (GiB) "
               "| 10,000 poses × 12 cameras at this rate |\n|---|---|---|---|---|---|---|")
-    command = shlex.join(["python", "examples/paper_scale.py", str(work), "--poses", str(poses),
+    command = shlex.join(["python", "benchmarks/paper_scale.py", str(work), "--poses", str(poses),
                           "--trapezoid-poses", str(trapezoid_poses), "--workers", ",".join(workers)])
     return (f"Machine: {machine()}; 1-minute load average after each run: {', '.join(f'{x:.1f}' for x in loads)}"
             f"\n\nCommand: `{command}`\n\n{header}\n" + "\n".join(rows))

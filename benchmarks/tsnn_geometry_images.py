@@ -1,7 +1,7 @@
 """Picture of what the U-Net TSNN reads: the geometry images of one pose's inferred mesh,
 the view of camera `left`, and the displacement target of texture sliding.
 
-    python examples/tsnn_geometry_images.py DATASET TEXCOORDS OUT.png [--pose K] [--resolution 64]
+    python benchmarks/tsnn_geometry_images.py DATASET TEXCOORDS OUT.png [--pose K] [--resolution 64]
 
 TEXCOORDS must hold camera `left` of the stereo rig and pose K (default: the first test
 pose). Images are shown with v up (atlas row 0 at the bottom).

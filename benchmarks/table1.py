@@ -1,7 +1,7 @@
 """The paper's Table 1 on the built-in garment: baseline vs texture sliding with 0, 1, 2
 subdivision levels, per rig, as a Markdown table.
 
-    python examples/table1.py WORKDIR [POSES_SPEC] [RIG ...]
+    python benchmarks/table1.py WORKDIR [POSES_SPEC] [RIG ...]
 
 Defaults: every other pose of a 300-pose dataset ('::2'), rigs stereo and square4.
 Slower on a 2-core CPU: several minutes (sliding is resumable; rerun to continue).

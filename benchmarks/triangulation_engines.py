@@ -1,6 +1,6 @@
 """Both triangulation engines on the same tracks of one pose: speed and agreement.
 
-    python examples/triangulation_engines.py DATASET RIG TEXCOORDS POSE [REPEATS]
+    python benchmarks/triangulation_engines.py DATASET RIG TEXCOORDS POSE [REPEATS]
 
 Collects the pose's observations once (`collect_hypotheses`, `screen_hypotheses`, `vote`),
 then runs step 4 (`triangulate_observations`: triangulation with outlier removal) with

@@ -2,7 +2,7 @@
 (`mvtex.sliding.hits.find_hits_raster` + `displacement_from_hits`) on the jobs of a dataset, in
 one process, after a warm-up.
 
-    python examples/profile_job.py DATASET [--rig stereo] [--poses 0:40] [--repeats 2]
+    python benchmarks/profile_job.py DATASET [--rig stereo] [--poses 0:40] [--repeats 2]
 
 Prints a Markdown table (milliseconds per job and share of the job), the machine and the
 command. The steps are timed by wrapping the functions named in the table for the run;
@@ -102,19 +102,19 @@ def main(dataset: str, rig_spec: str, spec: str, repeats: int) -> tuple[str, dic
     n = repeats * len(jobs)
     ms = {step: 1e3 * seconds / n for step, seconds in totals.items()}
     rows = [
-        ("the pair raster on llvmpipe (`raster.rasterize_pair`)", ms["raster"]),
-        (f"harmonic fill (`extrapolate.fill`), of which CHOLMOD (`extrapolate.solve_spd`) {ms['solve']:.1f} ms",
+        ("the pair raster on llvmpipe (`render.raster.rasterize_pair`)", ms["raster"]),
+        (f"harmonic fill (`sliding.fill.fill`), of which CHOLMOD (`sliding.fill.solve_spd`) {ms['solve']:.1f} ms",
          ms["fill"]),
-        ("candidate windows and exact ray/triangle tests (`hitsearch.nearest_occluder`, `first_hits`)",
+        ("candidate windows and exact ray/triangle tests (`sliding.kernels.nearest_occluder`, `first_hits`)",
          ms["occluder"] + ms["first_hits"]),
         ("projections, owned faces, candidate set (rest of `find_hits_raster`)",
          ms["hits"] - ms["raster"] - ms["occluder"] - ms["first_hits"] - ms["inside"]),
-        ("vertex normals for the inside test (`hitsearch.seen_from_inside`)", ms["inside"]),
+        ("vertex normals for the inside test (`sliding.kernels.seen_from_inside`)", ms["inside"]),
         ("T_N, rejection rules, bookkeeping, subdivided positions", ms["displacement"] - ms["fill"] + ms["positions"]),
     ]
     ms["rows"] = [value for _, value in rows]
     table = "\n".join(f"| {label} | {value:.1f} | {100 * value / ms['job']:.0f} % |" for label, value in rows)
-    command = shlex.join(["python", "examples/profile_job.py", dataset, "--rig", rig_spec, "--poses", spec,
+    command = shlex.join(["python", "benchmarks/profile_job.py", dataset, "--rig", rig_spec, "--poses", spec,
                           "--repeats", str(repeats)])
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return (f"Machine: {platform.platform()}, {os.cpu_count()} logical cores, GL {renderer}, load average "

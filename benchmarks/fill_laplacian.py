@@ -2,7 +2,7 @@
 built-in garment: the cotangent Laplacian (`potpourri3d.cotan_laplacian`) and the intrinsic
 Delaunay Laplacian (`robust_laplacian`), as `mvtex.sliding.fill.laplacian_matrix` builds them.
 
-    python examples/fill_laplacian.py DATASET [RIG] [POSES_SPEC]
+    python benchmarks/fill_laplacian.py DATASET [RIG] [POSES_SPEC]
 
 Defaults: rig stereo, the test poses. Two measures per operator, on the same slide jobs:
 

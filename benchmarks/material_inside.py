@@ -1,6 +1,6 @@
 """Where texture sliding's material error comes from: pixels where gt shows its inside.
 
-    python examples/material_inside.py DATA TEXCOORDS [--rig stereo] [--picture worst.png]
+    python benchmarks/material_inside.py DATA TEXCOORDS [--rig stereo] [--picture worst.png]
 
 Splits the material error of `mvtex eval` (DESIGN §7) by what the ground-truth mesh shows
 at each pixel: its outside (a front-facing gt triangle) or its inside (a back-facing one:
