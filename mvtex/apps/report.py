@@ -262,4 +262,9 @@ def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int) -> Path:
     meshes = [("gt", gt, dataset.faces, grey),
               ("reconstruction", rec, dataset.faces, error_colors(np.linalg.norm(rec - gt, axis=1), 0.01)),
               ("inferred", inferred, dataset.faces, error_colors(np.linalg.norm(inferred - gt, axis=1), 0.01))]
-    return export_glb(out / "reconstruction.glb", meshes)
+    body = None
+    if dataset.body is not None:
+        from mvtex.render.shading import BODY_RGB
+
+        body = (dataset.body.pose(pose), dataset.body.faces, BODY_RGB)
+    return export_glb(out / "reconstruction.glb", meshes, body=body)

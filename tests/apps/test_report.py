@@ -52,6 +52,24 @@ def test_glb_holds_the_meshes_side_by_side(tmp_path, sheet):
     assert np.allclose(meshes["a"].vertices[:, 1:], rest[:, 1:] - rest[:, 1:].mean(axis=0), atol=1e-6)
 
 
+def test_glb_draws_the_body_inside_every_mesh(tmp_path, sheet):
+    """The body moves with each mesh: its offset to the cloth is the world's in both."""
+    import trimesh
+
+    faces, uv, rest = sheet
+    box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    body = (np.asarray(box.vertices) + [0.0, 0.0, -0.2], np.asarray(box.faces), (168, 163, 156))
+    colors = np.full((len(rest), 3), 200, np.uint8)
+    export_glb(tmp_path / "m.glb", [("a", rest, faces, colors), ("b", rest + 5.0, faces, colors)], body=body)
+    scene = trimesh.load(tmp_path / "m.glb", force="scene")
+    meshes = dict(scene.geometry.items())
+    assert set(meshes) == {"a", "b", "a_body", "b_body"}
+    for name, cloth in (("a", rest), ("b", rest + 5.0)):
+        offset = meshes[f"{name}_body"].vertices[0] - meshes[name].vertices[0]
+        assert np.allclose(offset, body[0][0] - cloth[0], atol=1e-6)
+        assert np.all(meshes[f"{name}_body"].visual.vertex_colors[:, :3] == (168, 163, 156))
+
+
 def test_missing_images_finds_absent_files(tmp_path):
     (tmp_path / "there.png").write_bytes(b"x")
     text = '<img src="there.png"><img alt="" src="gone.png"><img src="data:image/png;base64,AA==">'
