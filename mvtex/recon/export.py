@@ -41,7 +41,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
                           uv: np.ndarray, gt: np.ndarray | None, rest: np.ndarray | None,
                           inferred_mesh: tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]] | None,
                           report: dict, options: ReconOptions = ReconOptions(), progress: bool = False,
-                          ctx: GLContext | None = None) -> Path:
+                          ctx: GLContext | None = None, body: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """Write a reconstruction directory atomically (layout in the module docstring).
 
     Args:
@@ -57,6 +57,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
         options: error_scale_m and strain_scale colour the pictures.
         progress: progress bar over the images on stderr.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
+        body: optional (positions (nb,3), faces (mb,3)) of the wearer, drawn in the pictures.
 
     Returns:
         The directory written.
@@ -95,13 +96,14 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
             X_sub, faces_sub, T = inferred_mesh
             (tmp / "images").mkdir()
             for name in tqdm(names, desc="images", unit="camera", disable=not progress, leave=False):
-                save_png(tmp / "images" / f"{name}.png", render_textured(ctx, X_sub, faces_sub, T[name], rig[name]))
+                picture = render_textured(ctx, X_sub, faces_sub, T[name], rig[name], body=body)
+                save_png(tmp / "images" / f"{name}.png", picture)
         if gt is not None:
             views = np.array([np.isfinite(rec.observations[c][:, 0]).sum() for c in names])
             camera = rig[names[int(np.argmax(views))]]
             save_png(tmp / "comparison.png",
                      comparison_picture(camera, faces, uv, gt, rec.inferred, rec.points, rest,
                                         error_scale_m=options.error_scale_m, strain_scale=options.strain_scale,
-                                        triangulated=rec.triangulated, ctx=ctx))
+                                        triangulated=rec.triangulated, ctx=ctx, body=body))
         write_json(tmp / "report.json", report)
     return out

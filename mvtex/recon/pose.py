@@ -78,5 +78,5 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
 
         export_reconstruction(out, rec, sub_rig, faces=dataset.faces, uv=dataset.uv, gt=gt, rest=rest,
                               inferred_mesh=(X_N, texcoords.faces, T), report=report, options=options,
-                              progress=progress, ctx=ctx)
+                              progress=progress, ctx=ctx, body=body)
     return report

@@ -167,7 +167,7 @@ def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.nd
 def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray, inferred: np.ndarray,
                        reconstructed: np.ndarray, rest: np.ndarray | None, *, error_scale_m: float = 0.01,
                        strain_scale: float = 0.1, triangulated: np.ndarray | None = None,
-                       ctx: GLContext | None = None) -> np.ndarray:
+                       ctx: GLContext | None = None, body: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """gt / inferred / reconstruction side by side from one camera.
 
     Rows: textured with T_G; signed strain against `rest` (if given); the error ‖x - gt‖
@@ -181,6 +181,7 @@ def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray
         strain_scale: strain runs from blue (-this) to red (+this).
         triangulated: optional (n,) bool.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
+        body: optional (positions (nb,3), faces (mb,3)) of the wearer, drawn in every panel.
 
     Returns:
         (H',W',3) uint8 RGB picture.
@@ -192,13 +193,13 @@ def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray
     if ctx is None:
         with GLContext() as own:
             return comparison_picture(camera, faces, uv, gt, inferred, reconstructed, rest, error_scale_m=error_scale_m,
-                                      strain_scale=strain_scale, triangulated=triangulated, ctx=own)
+                                      strain_scale=strain_scale, triangulated=triangulated, ctx=own, body=body)
     meshes = {"gt": gt, "inferred": inferred, "reconstruction": reconstructed}
 
     def shaded(colors_of):
-        return [render_vertex_colors(x, faces, colors_of(x), camera, ctx=ctx) for x in meshes.values()]
+        return [render_vertex_colors(x, faces, colors_of(x), camera, ctx=ctx, body=body) for x in meshes.values()]
 
-    rows = [[render_textured(ctx, x, faces, uv, camera) for x in meshes.values()]]
+    rows = [[render_textured(ctx, x, faces, uv, camera, body=body) for x in meshes.values()]]
     labels = ["texture"]
     if rest is not None:
         rows.append(shaded(lambda x: strain_colors(vertex_strain_energy(x, rest, faces), strain_scale)))
@@ -206,7 +207,7 @@ def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray
     err_row = shaded(lambda x: error_colors(np.linalg.norm(x - gt, axis=1), error_scale_m))
     if triangulated is not None:
         grey = np.where(triangulated[:, None], np.array([[60, 200, 90]]), np.array([[120, 120, 120]])).astype(np.uint8)
-        err_row[0] = render_vertex_colors(gt, faces, grey, camera, ctx=ctx)
+        err_row[0] = render_vertex_colors(gt, faces, grey, camera, ctx=ctx, body=body)
     rows.append(err_row)
     labels.append(f"error 0-{error_scale_m * 1e3:g}mm" + ("" if triangulated is None else " (gt: green = triangulated)"))
     return grid_image(rows, col_labels=list(meshes), row_labels=labels)
