@@ -73,7 +73,8 @@ def _dataset(work: Path, garment: str, num_poses: int, given: dict[str, Path]):
 
 def summarise(dataset, rig, texcoords, poses: list[int], options: ReconOptions, ctx) -> dict:
     """Triangulate the poses and aggregate their reports (the table's columns)."""
-    reports = [triangulate_pose(dataset, rig, texcoords, k, None, options, progress=False, ctx=ctx) for k in poses]
+    reports = [triangulate_pose(dataset, rig, texcoords, k, None, options, progress=False, ctx=ctx).to_json()
+               for k in poses]
     ratio = np.array([r["rmse_triangulated_m"]["inferred"] / r["rmse_triangulated_m"]["reconstructed"]
                       for r in reports])
     mean = lambda f: float(np.mean([f(r) for r in reports]))  # noqa: E731

@@ -99,7 +99,8 @@ def main(work: Path, total: int = 1200) -> dict:
         if subdiv == 0:
             recon = {}
             for smooth in (False, True):
-                reps = [triangulate_pose(ds, stereo, pc, k, None, ReconOptions(smooth=smooth), progress=False) for k in test]
+                reps = [triangulate_pose(ds, stereo, pc, k, None, ReconOptions(smooth=smooth), progress=False).to_json()
+                        for k in test]
                 recon["smooth" if smooth else "plain"] = {
                     key: float(np.mean([rep[key]["reconstructed"] for rep in reps])) for key in ("rmse_m", "rmse_triangulated_m")}
                 recon["inferred"] = {key: float(np.mean([rep[key]["inferred"] for rep in reps]))

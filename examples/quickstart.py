@@ -34,8 +34,8 @@ def main(out: Path, num_poses: int) -> dict:
                         progress=False)
     report = mvtex.triangulate_pose(dataset, square, mvtex.open_texcoords(out / "ts_square4"), pose,
                                     out / "reconstruction", progress=False)        # mvtex triangulate
-    print(f"pose {pose}: RMSE on triangulated vertices {report['rmse_triangulated_m']['inferred'] * 1e3:.2f} mm "
-          f"(inferred) -> {report['rmse_triangulated_m']['reconstructed'] * 1e3:.2f} mm (reconstructed)")
+    print(f"pose {pose}: RMSE on triangulated vertices {report.rmse_triangulated_m.inferred * 1e3:.2f} mm "
+          f"(inferred) -> {report.rmse_triangulated_m.reconstructed * 1e3:.2f} mm (reconstructed)")
     print(f"open {out / 'reconstruction' / 'reconstruction.ply'} or the COLMAP model in "
           f"{out / 'reconstruction' / 'colmap'}")
     return {"eval": error, "reconstruction": report}

@@ -48,7 +48,8 @@ _API = {
     "evaluate": "mvtex.evaluation.evaluate", "Evaluation": "mvtex.evaluation.evaluate",
     "MaterialMap": "mvtex.evaluation.material",
     # reconstruction
-    "ReconOptions": "mvtex.recon.triangulate", "Reconstruction": "mvtex.recon.triangulate",
+    "ReconOptions": "mvtex.recon.options", "Reconstruction": "mvtex.recon.triangulate",
+    "ReconReport": "mvtex.recon.report",
     "reconstruct": "mvtex.recon.triangulate", "triangulate_pose": "mvtex.recon.pose",
     "project_points": "mvtex.recon.geometry", "triangulate_points": "mvtex.recon.geometry",
     # novel views and previews

@@ -17,7 +17,7 @@ PUBLIC = {
     "GLContext", "Raster", "rasterize", "rasterize_uv", "interpolate", "render_textured", "render_pose",
     "SlideOptions", "slide_pose", "slide_dataset", "fill",
     "evaluate", "Evaluation", "MaterialMap",
-    "ReconOptions", "Reconstruction", "reconstruct", "triangulate_pose", "project_points", "triangulate_points",
+    "ReconOptions", "Reconstruction", "ReconReport", "reconstruct", "triangulate_pose", "project_points", "triangulate_points",
     "ViewOptions", "interpolate_camera", "novel_views", "PreviewOptions", "stereo_preview",
     "BoardSpec", "parse_board_spec", "write_board_png", "CalibrateOptions", "calibrate", "calibrate_folder",
     "TrainOptions", "train", "train_cameras", "predict", "load_model",

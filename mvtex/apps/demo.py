@@ -103,7 +103,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     t = _step(f"triangulating pose {test_pose} from the square4 rig", progress)
     tc = open_texcoords(out / "ts_square4", dataset.num_vertices)
     summary["reconstruction"] = triangulate_pose(dataset, square, tc, test_pose, out / "reconstruction",
-                                                 ReconOptions(), progress=progress)
+                                                 ReconOptions(), progress=progress).to_json()
     timings["triangulate"] = time.perf_counter() - t
 
     if options.tsnn:

@@ -58,6 +58,6 @@ def cmd_triangulate(args):
     rig = rig.select(tc.cameras, rig_path)
     with output(args, "triangulate"):
         result = triangulate_pose(dataset, rig, tc, args.pose, args.out, options, progress=not args.quiet)
-    emit(args, result, f"pose {result['pose']}: {result['num_triangulated']}/{result['num_vertices']} vertices "
-         f"triangulated; RMSE inferred {result['rmse_m']['inferred']*1e3:.2f} mm -> reconstructed "
-         f"{result['rmse_m']['reconstructed']*1e3:.2f} mm; wrote {args.out}")
+    emit(args, result, f"pose {result.pose}: {result.num_triangulated}/{result.num_vertices} vertices "
+         f"triangulated; RMSE inferred {result.rmse_m.inferred*1e3:.2f} mm -> reconstructed "
+         f"{result.rmse_m.reconstructed*1e3:.2f} mm; wrote {args.out}")

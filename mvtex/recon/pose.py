@@ -5,6 +5,7 @@ and its output directory.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -14,13 +15,13 @@ from mvtex.util.errors import InputError
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
-from mvtex.recon.report import reconstruction_report
+from mvtex.recon.report import ReconReport, reconstruction_report
 from mvtex.recon.triangulate import ReconOptions, reconstruct
 
 
 def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike | None,
                      options: ReconOptions = ReconOptions(), progress: bool = True, *,
-                     ctx: GLContext | None = None) -> dict:
+                     ctx: GLContext | None = None) -> ReconReport:
     """`mvtex triangulate`: reconstruct one pose of a dataset from a texcoord set.
 
     Args:
@@ -35,11 +36,7 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
     Returns:
-        The report (DESIGN §7): pose, num_vertices, num_triangulated, rmse_m{inferred,
-        reconstructed}, rmse_triangulated_m{...}, mean_reprojection_error_px, plus
-        cameras, rejected (vertex counts by reason), rejected_observations (hypotheses
-        not used, by reason), stats, strain_energy{gt, inferred,
-        reconstructed} (None without a rest shape), smooth{...}, options.
+        The `mvtex.recon.report.ReconReport` (its `to_json()` is report.json, DESIGN §7).
 
     Raises:
         InputError: a pose outside the dataset or the texcoord set, a texcoord set made
@@ -70,13 +67,13 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
                       gt_faces=dataset.faces, assigned=assigned, rest=rest, body=body, progress=progress, ctx=ctx)
     gt = np.asarray(dataset.gt[pose], np.float64)
-    report = reconstruction_report(rec, gt, dataset.faces, rest, pose, options)
-    report.update(cameras=names, texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)
+    report = replace(reconstruction_report(rec, gt, dataset.faces, rest, pose, options), cameras=tuple(names),
+                     texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)
     if out is not None:
         # The command's one edge up the layers: its output directory is the export module's.
         from mvtex.recon.export import export_reconstruction
 
         export_reconstruction(out, rec, sub_rig, faces=dataset.faces, uv=dataset.uv, gt=gt, rest=rest,
-                              inferred_mesh=(X_N, texcoords.faces, T), report=report, options=options,
+                              inferred_mesh=(X_N, texcoords.faces, T), report=report.to_json(), options=options,
                               progress=progress, ctx=ctx, body=body)
     return report

@@ -3,8 +3,8 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -25,31 +25,91 @@ def strain_energies(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) 
             "mean_abs_strain": float(np.mean(np.abs(s)))}
 
 
+@dataclass(frozen=True)
+class ErrorPair:
+    """An error of the inferred mesh and of the reconstruction, in metres."""
+
+    inferred: float
+    reconstructed: float
+
+    @property
+    def ratio(self) -> float:
+        """inferred / reconstructed (how many times smaller the reconstruction's error is)."""
+        return self.inferred / self.reconstructed if self.reconstructed > 0 else float("inf")
+
+    def to_json(self) -> dict:
+        return {"inferred": self.inferred, "reconstructed": self.reconstructed}
+
+
+@dataclass(frozen=True)
+class ReconReport:
+    """The reconstruction of one pose against gt (`mvtex triangulate`'s report.json, DESIGN §7).
+
+    Attributes:
+        pose, num_vertices, num_triangulated: the pose and its vertex counts.
+        rmse_m: RMSE over all vertices; rmse_triangulated_m: over the triangulated ones.
+        mean_reprojection_error_px: over the triangulated vertices (None if none).
+        rejected: vertices not triangulated, by reason.
+        rejected_observations: located observations not used, by reason
+            (`mvtex.recon.consensus.OBSERVATION_REASONS`).
+        stats: counts of the steps (hypotheses, used observations, the vote's threshold, ...).
+        strain_energy: {"gt", "inferred", "reconstructed"} energies against the rest shape
+            (None without one).
+        smooth: {"enabled"} and, when smoothed, the figures before smoothing.
+        options: the `ReconOptions` used, as a dict.
+        cameras, texcoords, source, subdiv: the cameras and texcoord set (set by
+            `triangulate_pose`).
+    """
+
+    pose: int
+    num_vertices: int
+    num_triangulated: int
+    rmse_m: ErrorPair
+    rmse_triangulated_m: ErrorPair
+    mean_reprojection_error_px: float | None
+    rejected: Mapping[str, int]
+    rejected_observations: Mapping[str, int]
+    stats: Mapping[str, Any]
+    strain_energy: Mapping[str, Any] | None
+    smooth: Mapping[str, Any]
+    options: Mapping[str, Any]
+    cameras: tuple[str, ...] | None = None
+    texcoords: str | None = None
+    source: str | None = None
+    subdiv: int | None = None
+
+    def to_json(self) -> dict:
+        """The JSON object of report.json and `mvtex triangulate --json`."""
+        out = {"pose": self.pose, "num_vertices": self.num_vertices, "num_triangulated": self.num_triangulated,
+               "rmse_m": self.rmse_m.to_json(), "rmse_triangulated_m": self.rmse_triangulated_m.to_json(),
+               "mean_reprojection_error_px": self.mean_reprojection_error_px, "rejected": dict(self.rejected),
+               "rejected_observations": dict(self.rejected_observations), "stats": dict(self.stats),
+               "strain_energy": None if self.strain_energy is None else dict(self.strain_energy),
+               "smooth": dict(self.smooth), "options": dict(self.options)}
+        if self.cameras is not None:
+            out.update(cameras=list(self.cameras), texcoords=self.texcoords, source=self.source, subdiv=self.subdiv)
+        return out
+
+
 def reconstruction_report(rec: Reconstruction, gt: np.ndarray, faces: np.ndarray, rest: np.ndarray | None,
-                          pose: int, options: ReconOptions = ReconOptions()) -> dict:
-    """The JSON report (DESIGN §7) of a reconstruction against the gt positions (n,3)."""
+                          pose: int, options: ReconOptions = ReconOptions()) -> ReconReport:
+    """The report (DESIGN §7) of a reconstruction against the gt positions (n,3)."""
     tri = rec.triangulated
     err = rec.reprojection_error[tri]
-    report: dict[str, Any] = {
-        "pose": int(pose),
-        "num_vertices": int(len(gt)),
-        "num_triangulated": int(tri.sum()),
-        "rmse_m": {"inferred": rmse(rec.inferred, gt), "reconstructed": rmse(rec.points, gt)},
-        "rmse_triangulated_m": {"inferred": rmse(rec.inferred, gt, tri), "reconstructed": rmse(rec.points, gt, tri)},
-        "mean_reprojection_error_px": float(np.mean(err)) if err.size else None,
-        "rejected": dict(rec.rejected),
-        "rejected_observations": dict(rec.rejected_observations),
-        "stats": dict(rec.stats),
-        "strain_energy": None,
-        "smooth": {"enabled": bool(options.smooth)},
-    }
+    strain = None
     if rest is not None:
-        report["strain_energy"] = {k: strain_energies(x, rest, faces) for k, x in
-                                   (("gt", gt), ("inferred", rec.inferred), ("reconstructed", rec.points))}
+        strain = {k: strain_energies(x, rest, faces) for k, x in
+                  (("gt", gt), ("inferred", rec.inferred), ("reconstructed", rec.points))}
+    smooth: dict[str, Any] = {"enabled": bool(options.smooth)}
     if rec.unsmoothed is not None:
-        report["smooth"].update(
+        smooth.update(
             iterations=int(options.smooth_iterations),
             before={"rmse_m": rmse(rec.unsmoothed, gt), "rmse_triangulated_m": rmse(rec.unsmoothed, gt, tri),
                     "strain_energy": None if rest is None else strain_energies(rec.unsmoothed, rest, faces)})
-    report["options"] = asdict(options)
-    return report
+    return ReconReport(
+        pose=int(pose), num_vertices=int(len(gt)), num_triangulated=int(tri.sum()),
+        rmse_m=ErrorPair(rmse(rec.inferred, gt), rmse(rec.points, gt)),
+        rmse_triangulated_m=ErrorPair(rmse(rec.inferred, gt, tri), rmse(rec.points, gt, tri)),
+        mean_reprojection_error_px=float(np.mean(err)) if err.size else None,
+        rejected=dict(rec.rejected), rejected_observations=dict(rec.rejected_observations), stats=dict(rec.stats),
+        strain_energy=strain, smooth=smooth, options=asdict(options))

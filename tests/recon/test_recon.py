@@ -4,6 +4,7 @@ exported PLY / COLMAP model read back by trimesh, pycolmap and the colmap binary
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 
@@ -290,7 +291,10 @@ def identity_run(gl, tmp_path_factory, tiny_dataset):
                    assigned={c: np.ones((2, n), bool) for c in rig.names})
     tc = open_texcoords(root / "tc", n)
     report = triangulate_pose(ds, rig, tc, 4, root / "out", progress=False)
-    return ds, rig, tc, report, root / "out"
+    # The report's JSON is report.json, key for key.
+    assert json.loads((root / "out" / "report.json").read_text()) == json.loads(json.dumps(report.to_json()))
+    assert report.rmse_triangulated_m.ratio == report.rmse_triangulated_m.inferred / report.rmse_triangulated_m.reconstructed
+    return ds, rig, tc, report.to_json(), root / "out"
 
 
 def test_slide_with_inferred_equal_gt_reproduces_gt(identity_run):
@@ -305,7 +309,7 @@ def test_slide_with_inferred_equal_gt_reproduces_gt(identity_run):
     for subdiv in (0, 1):
         path = out.parent / f"slid{subdiv}"
         slide_dataset(ds, rig, path, poses=[2], options=SlideOptions(subdiv=subdiv), progress=False)
-        result = triangulate_pose(ds, rig, open_texcoords(path, ds.num_vertices), 2, None, progress=False)
+        result = triangulate_pose(ds, rig, open_texcoords(path, ds.num_vertices), 2, None, progress=False).to_json()
         assert result["num_triangulated"] > 0.7 * ds.num_vertices
         assert result["rmse_triangulated_m"]["reconstructed"] <= 1e-6
         assert result["mean_reprojection_error_px"] < 1e-3
