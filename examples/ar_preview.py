@@ -14,7 +14,7 @@ from pathlib import Path
 import mvtex
 
 
-def main(out: Path, num_poses: int = 20) -> dict:
+def main(out: Path, num_poses: int = 20) -> "mvtex.views.preview.Preview":
     mvtex.write_synth(out / "shirt", mvtex.SynthOptions(num_poses=num_poses))       # mvtex synth
     dataset = mvtex.load_dataset(out / "shirt")
     rig = mvtex.load_rig("stereo")
@@ -23,9 +23,9 @@ def main(out: Path, num_poses: int = 20) -> dict:
                         progress=False)                                              # mvtex slide
     preview = mvtex.stereo_preview(dataset, rig, mvtex.open_texcoords(out / "ts"), pose, out / "preview",
                                    options=mvtex.PreviewOptions(ipd=0.064), progress=False)  # mvtex preview
-    for eye, scores in preview["eyes"].items():
-        print(f"{eye} eye: SSIM with the predictor's texcoords {scores['ssim']['inferred']:.3f}, "
-              f"with texture sliding {scores['ssim']['texcoords']:.3f}")
+    for eye, scores in preview.eyes.items():
+        inferred, sliding = scores.ssim
+        print(f"{eye} eye: SSIM with the predictor's texcoords {inferred:.3f}, with texture sliding {sliding:.3f}")
     print(f"open {out / 'preview' / 'stereo.png'} or {out / 'preview' / 'anaglyph.png'}")
     return preview
 

@@ -26,7 +26,7 @@ def test_quickstart(tmp_path, gl):
     result = load("quickstart").main(tmp_path, 12)
     assert result["eval"].ratio > 1.0 and result["eval"].ratio_material > 1.0
     r = result["reconstruction"]
-    assert r["rmse_triangulated_m"]["reconstructed"] < r["rmse_triangulated_m"]["inferred"] / 3
+    assert r.rmse_triangulated_m.reconstructed < r.rmse_triangulated_m.inferred / 3
     assert (tmp_path / "reconstruction" / "colmap" / "points3D.bin").exists()
 
 
@@ -52,8 +52,8 @@ def test_ar_preview(tmp_path, gl):
 
     preview = load("ar_preview").main(tmp_path, 12)
     for eye in ("left", "right"):
-        ssim = preview["eyes"][eye]["ssim"]
-        assert 0 < ssim["inferred"] < ssim["texcoords"] <= 1  # sliding shows the gt cloth's texture
+        inferred, sliding = preview.eyes[eye].ssim
+        assert 0 < inferred < sliding <= 1  # sliding shows the gt cloth's texture
     stereo = iio.imread(tmp_path / "preview" / "stereo.png")
     assert stereo.shape[:2] == (512, 2 * 512)  # left | right, each a 512x512 stereo camera
     left, right = stereo[:, :512].astype(int), stereo[:, 512:].astype(int)
