@@ -160,7 +160,7 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
         cache.write_text(json.dumps(results, indent=2) + "\n")
 
     def score(pred_dir: Path) -> dict:
-        return evaluate(ds, left, open_texcoords(pred_dir, ds.num_vertices), poses=test, progress=False)
+        return evaluate(ds, left, open_texcoords(pred_dir, ds.num_vertices), poses=test, progress=False).to_json()
 
     for m in sizes:
         poses = train_all[:m]
