@@ -35,3 +35,23 @@ def test_table_recon_small(tmp_path):
     assert row["rejected_observations"]["stretched_triangle"] == 0  # the test is off
     assert summary["table"].count("| shirt | stereo | TS |") == 2
     assert (tmp_path / "out.json").exists()
+
+
+def test_material_where_splits_eval_s_error(sheet_set, tmp_path):
+    """Its all-pixel figures are `mvtex eval`'s; without the other-chart pixels (none on
+    the one-chart sheet) they are the same numbers."""
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.rig import load_rig
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.evaluation.evaluate import evaluate
+
+    data, rig_file, texcoords = sheet_set
+    out = load("material_where").main([str(data), str(texcoords), "--rig", str(rig_file),
+                                       "--picture", str(tmp_path / "where.png")])
+    result = evaluate(load_dataset(data), load_rig(rig_file), open_texcoords(texcoords), progress=False)
+    assert out["images"] == result.num_images
+    assert out["mean"]["texcoords_mm"] == pytest.approx(1e3 * result.material_rmse_m.texcoords.mean, rel=1e-9)
+    assert out["mean"]["baseline_mm"] == pytest.approx(1e3 * result.material_rmse_m.inferred.mean, rel=1e-9)
+    assert out["pixel_share"] == 0 and out["mean"]["error_share"] == 0
+    assert out["mean"]["texcoords_same_chart_mm"] == out["mean"]["texcoords_mm"]
+    assert (tmp_path / "where.png").stat().st_size > 0
