@@ -185,7 +185,7 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
                 with timed_gp_fit(method == "gp_reference", info):
                     summary = train(ds, tc, model, camera="left", options=TrainOptions(arch="gp", device="cpu"),
                                     train_poses=poses, progress=False)
-                info["train_seconds"] = summary["seconds"]
+                info["train_seconds"] = summary.seconds
                 predict(ds, [model], pred_dir, poses=test, rig=left, progress=False)
             else:
                 arch = "paper" if method == "paper" else "unet"
@@ -195,8 +195,8 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
                 model = work / f"model_{method}_{m}"
                 summary = train(ds, tc, model, camera=None if method == "unet_all" else "left", rig=stereo,
                                 options=options, train_poses=poses, progress=False)
-                info = {"epochs_run": summary["epochs_run"], "best_epoch": summary["best_epoch"],
-                        "train_seconds": summary["seconds"]}
+                info = {"epochs_run": summary.epochs_run, "best_epoch": summary.best_epoch,
+                        "train_seconds": summary.seconds}
                 predict(ds, [model], pred_dir, poses=test, rig=left, progress=False)
             info["seconds"] = round(time.perf_counter() - t0, 1)
             r = score(pred_dir)

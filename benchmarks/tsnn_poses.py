@@ -36,7 +36,7 @@ def main(work: Path, total: int = 1200, sizes: tuple[int, ...] = (120, 240, 480,
     ds = load_dataset(data)
     left = load_rig(builtin_rig_path("stereo")).select(["left"])
     train, val, test = ds.split["train"], ds.split["val"], ds.split["test"]
-    rows = [f"| training poses | TSNN SqrtMSE ×10⁻³ (all) | ratio | TSNN SqrtMSE ×10⁻³ (same-chart) | ratio | training time |",
+    rows = ["| training poses | TSNN SqrtMSE ×10⁻³ (all) | ratio | TSNN SqrtMSE ×10⁻³ (same-chart) | ratio | training time |",
             "|---|---|---|---|---|---|"]
     base = None
     for m in sizes:
@@ -49,7 +49,8 @@ def main(work: Path, total: int = 1200, sizes: tuple[int, ...] = (120, 240, 480,
         summary_path = work / f"net_left_{m}.json"
         if not summary_path.exists():
             t = time.perf_counter()
-            summary = train_camera(ds, open_texcoords(ts, ds.num_vertices), "left", model, TrainOptions(arch="paper"))
+            summary = train_camera(ds, open_texcoords(ts, ds.num_vertices), "left", model,
+                                   TrainOptions(arch="paper")).to_json()
             summary["wall_seconds"] = round(time.perf_counter() - t, 1)
             summary_path.write_text(json.dumps(summary, indent=2))
         summary = json.loads(summary_path.read_text())

@@ -36,7 +36,8 @@ _API = {
     "TexcoordSet": "mvtex.data.texcoords", "open_texcoords": "mvtex.data.texcoords",
     "save_texcoords": "mvtex.data.texcoords",
     # the built-in datasets
-    "SynthOptions": "mvtex.synth.generate", "synthesize": "mvtex.synth.generate", "write_synth": "mvtex.synth.generate",
+    "SynthOptions": "mvtex.synth.generate", "SynthResult": "mvtex.synth.generate",
+    "synthesize": "mvtex.synth.generate", "write_synth": "mvtex.synth.generate",
     # rendering
     "GLContext": "mvtex.render.context", "Raster": "mvtex.render.raster", "rasterize": "mvtex.render.raster",
     "rasterize_uv": "mvtex.render.raster", "interpolate": "mvtex.render.raster",
@@ -61,7 +62,8 @@ _API = {
     "write_board_png": "mvtex.calibration.board", "CalibrateOptions": "mvtex.calibration.calibrate",
     "calibrate": "mvtex.calibration.calibrate", "calibrate_folder": "mvtex.calibration.output",
     # texture sliding models
-    "TrainOptions": "mvtex.tsnn.train", "train": "mvtex.tsnn.train", "train_cameras": "mvtex.tsnn.cameras",
+    "TrainOptions": "mvtex.tsnn.train", "TrainResult": "mvtex.tsnn.modeldir", "TrainedCameras": "mvtex.tsnn.modeldir",
+    "train": "mvtex.tsnn.train", "train_cameras": "mvtex.tsnn.cameras",
     "predict": "mvtex.tsnn.predict", "load_model": "mvtex.tsnn.predict",
     # applications
     "run_bench": "mvtex.apps.bench", "DemoOptions": "mvtex.apps.demo", "run_demo": "mvtex.apps.demo",

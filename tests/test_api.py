@@ -13,14 +13,15 @@ PUBLIC = {
     "__version__", "InputError", "OptionError",
     "Camera", "look_at", "Rig", "load_rig", "save_rig", "Dataset", "load_dataset", "save_dataset", "import_sequences",
     "TexcoordSet", "open_texcoords", "save_texcoords",
-    "SynthOptions", "synthesize", "write_synth",
+    "SynthOptions", "SynthResult", "synthesize", "write_synth",
     "GLContext", "Raster", "rasterize", "rasterize_uv", "interpolate", "render_textured", "render_pose",
     "SlideOptions", "slide_pose", "slide_dataset", "fill",
     "evaluate", "Evaluation", "MaterialMap",
-    "ReconOptions", "Reconstruction", "ReconReport", "reconstruct", "triangulate_pose", "project_points", "triangulate_points",
+    "ReconOptions", "Reconstruction", "ReconReport", "reconstruct", "triangulate_pose", "project_points",
+    "triangulate_points",
     "ViewOptions", "interpolate_camera", "novel_views", "PreviewOptions", "stereo_preview",
     "BoardSpec", "parse_board_spec", "write_board_png", "CalibrateOptions", "calibrate", "calibrate_folder",
-    "TrainOptions", "train", "train_cameras", "predict", "load_model",
+    "TrainOptions", "TrainResult", "TrainedCameras", "train", "train_cameras", "predict", "load_model",
     "run_bench", "DemoOptions", "run_demo",
 }
 

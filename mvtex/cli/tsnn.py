@@ -69,8 +69,8 @@ def cmd_train(args):
         with output(args, "train", in_place=True):
             result = train_cameras(dataset, tc, names, args.out, options, workers=args.workers or 1,
                                    scheduler=args.scheduler, progress=not args.quiet)
-        kept = f" (kept from an earlier run with the same inputs: {', '.join(result['kept'])})" if result["kept"] else ""
-        emit(args, result, f"wrote {len(names)} models ({result['arch']}) to {args.out}/<camera>: "
+        kept = f" (kept from an earlier run with the same inputs: {', '.join(result.kept)})" if result.kept else ""
+        emit(args, result, f"wrote {len(names)} models ({result.arch}) to {args.out}/<camera>: "
              f"{', '.join(names)}{kept}")
         return
     rig = None
@@ -82,7 +82,7 @@ def cmd_train(args):
     with output(args, "train"):
         result = train(dataset, tc, args.out, camera=names[0] if names else None, rig=rig, options=options,
                        progress=not args.quiet)
-    emit(args, result, f"wrote {args.out} ({result['arch']}, {', '.join(result['cameras'])})")
+    emit(args, result, f"wrote {args.out} ({result.arch}, {', '.join(result.cameras)})")
 
 
 def cmd_predict(args):

@@ -201,6 +201,25 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
     return garment, poses, split, stats
 
 
+@dataclass(frozen=True)
+class SynthResult:
+    """What `write_synth` wrote (`mvtex synth --json` is `to_json()`: the statistics).
+
+    Attributes:
+        path: the dataset directory; options: the `SynthOptions` it was made with.
+        stats: the dataset's statistics, as stored under "stats" in dataset.json (vertex and
+            face counts, fold depth and wavelength, strain, the predictor's error, and with a
+            body its size and the cloth's clearance from it).
+    """
+
+    path: str
+    options: SynthOptions
+    stats: dict
+
+    def to_json(self) -> dict:
+        return dict(self.stats)
+
+
 def synthesize(options: SynthOptions = SynthOptions()) -> dict:
     """Generate the built-in dataset in memory (nothing is written).
 
@@ -259,7 +278,7 @@ class _RowFile:
         return out
 
 
-def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> dict:
+def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> SynthResult:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
     streaming: the shapes (and the body) go to gt.npy / inferred.npy / body.npy block by
     block as they are made, so memory does not hold all poses, and the predictor fit reads
@@ -271,7 +290,7 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
     "garment".
 
     Returns:
-        The `stats` dict of `synthesize`.
+        A `SynthResult`; its `stats` are those of `synthesize`.
     """
     import json
     from pathlib import Path
@@ -299,4 +318,4 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
         parts = {k: [int(i) for i in split[k]] for k in ("train", "val", "test")}
         (tmp / "split.json").write_text(json.dumps(parts) + "\n")
         (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
-    return stats
+    return SynthResult(path=str(path), options=options, stats=stats)

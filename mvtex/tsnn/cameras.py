@@ -7,14 +7,14 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
-from mvtex.tsnn.modeldir import _kept_model
+from mvtex.tsnn.modeldir import TrainedCameras, TrainResult, _kept_model
 from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, dataset_fingerprint, train
 from mvtex.util.errors import InputError, OptionError
 
 
-def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> dict[str, Any]:
+def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> TrainResult:
     """In a worker: one camera's model from paths (torch on one thread: the workers already
     fill the cores)."""
     from mvtex.data.dataset import load_dataset
@@ -28,7 +28,7 @@ def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, opti
 
 def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.PathLike,
                   options: TrainOptions = TrainOptions(), *, workers: int = 1, scheduler: str | None = None,
-                  progress: bool = True) -> dict[str, Any]:
+                  progress: bool = True) -> TrainedCameras:
     """One model per camera, OUT/<camera>/ (each a model directory as `train` writes it),
     trained side by side on local processes or a Dask cluster (`mvtex.util.parallel`).
 
@@ -40,8 +40,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     not a `gp` model's (tested bit for bit).
 
     Returns:
-        {"out", "cameras", "arch", "models": {camera: the `train` summary}, "kept": the
-        cameras whose models were kept}.
+        A `mvtex.tsnn.modeldir.TrainedCameras` (models: camera -> its `TrainResult`).
     """
     from mvtex.util.parallel import check_backend, map_unordered
 
@@ -60,7 +59,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     resolved = _resolve(options, cameras[0])
     split = _split(dataset, texcoords)
     dataset_hash = None
-    models: dict[str, Any] = {}
+    models: dict[str, TrainResult] = {}
     for c in cameras:
         if not (out / c / "config.json").is_file():
             continue
@@ -83,8 +82,8 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         with tqdm(total=len(cameras), initial=len(cameras) - len(todo), desc="train", unit="camera",
                   disable=not progress, file=sys.stderr) as bar:
             for summary in map_unordered(_train_camera_task, tasks, workers=workers, scheduler=scheduler):
-                models[summary["camera"]] = summary
+                models[summary.camera] = summary
                 bar.update(1)
-    arch = {m["arch"] for m in models.values()}
-    return {"out": str(out), "cameras": cameras, "arch": arch.pop() if len(arch) == 1 else sorted(arch),
-            "models": {c: models[c] for c in cameras}, "kept": [c for c in cameras if c not in todo]}
+    arch = {m.arch for m in models.values()}
+    return TrainedCameras(out=str(out), cameras=cameras, arch=arch.pop() if len(arch) == 1 else sorted(arch),
+                          models={c: models[c] for c in cameras}, kept=[c for c in cameras if c not in todo])

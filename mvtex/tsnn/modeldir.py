@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,58 @@ from mvtex.data.mesh import apply_parent, subdivide
 from mvtex.util.output import atomic_path, readable
 
 MODEL_FORMAT = "mvtex-tsnn"
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What `mvtex.tsnn.train.train` made (`mvtex train --json` is `to_json()`).
+
+    Attributes:
+        camera: the camera of a one-camera model, None for one network of every camera.
+        cameras: the cameras the model predicts; arch: its architecture; out: its directory.
+        device: where it was trained; resolution: its atlas resolution (None for `gp`).
+        epochs_run, best_epoch, seconds: the training's course and time.
+        num_poses: {"train", "val", "test"} pose counts; losses: the final losses per split.
+    """
+
+    camera: str | None
+    cameras: list[str]
+    arch: str
+    out: str
+    device: str
+    resolution: int | None
+    epochs_run: int
+    best_epoch: int
+    seconds: float
+    num_poses: dict[str, int]
+    losses: dict[str, Any]
+
+    def to_json(self) -> dict:
+        return {"camera": self.camera, "cameras": list(self.cameras), "arch": self.arch, "out": self.out,
+                "device": self.device, "resolution": self.resolution, "epochs_run": self.epochs_run,
+                "best_epoch": self.best_epoch, "seconds": self.seconds, "num_poses": dict(self.num_poses),
+                "losses": self.losses}
+
+
+@dataclass(frozen=True)
+class TrainedCameras:
+    """What `mvtex.tsnn.cameras.train_cameras` made: one model per camera, OUT/<camera>.
+
+    Attributes:
+        out: the parent directory; cameras: in the order asked; arch: the architecture (a
+            sorted list if the kept models differ); models: camera -> its `TrainResult`;
+        kept: the cameras whose models were kept from an earlier run with the same inputs.
+    """
+
+    out: str
+    cameras: list[str]
+    arch: str | list[str]
+    models: dict[str, TrainResult]
+    kept: list[str]
+
+    def to_json(self) -> dict:
+        return {"out": self.out, "cameras": list(self.cameras), "arch": self.arch,
+                "models": {c: m.to_json() for c, m in self.models.items()}, "kept": list(self.kept)}
 
 
 MODEL_VERSION = 3
@@ -70,18 +123,18 @@ def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, tit
     fig.savefig(path, format="png")
 
 
-def _kept_model(path: Path, key: str) -> dict[str, Any] | None:
-    """The `train` summary of the finished model directory at `path` if its config.json
+def _kept_model(path: Path, key: str) -> TrainResult | None:
+    """The `train` result of the finished model directory at `path` if its config.json
     records inputs `key`; None if there is none, it is unreadable or it was trained from
     other inputs."""
     try:
         meta = json.loads((path / "config.json").read_text())
         if not (isinstance(meta, dict) and meta.get("inputs") == key and (path / "model.safetensors").is_file()):
             return None
-        return {"camera": meta["camera"], "cameras": list(meta["cameras"]), "arch": meta["options"]["arch"],
-                "out": str(path), "device": meta["device"], "resolution": meta["architecture"].get("resolution"),
-                "epochs_run": meta["epochs_run"], "best_epoch": meta["best_epoch"], "seconds": meta["seconds"],
-                "num_poses": {k: len(v) for k, v in meta["split"].items()}, "losses": meta["losses"]}
+        return TrainResult(camera=meta["camera"], cameras=list(meta["cameras"]), arch=meta["options"]["arch"],
+                           out=str(path), device=meta["device"], resolution=meta["architecture"].get("resolution"),
+                           epochs_run=meta["epochs_run"], best_epoch=meta["best_epoch"], seconds=meta["seconds"],
+                           num_poses={k: len(v) for k, v in meta["split"].items()}, losses=meta["losses"])
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 

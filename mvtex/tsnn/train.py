@@ -37,11 +37,12 @@ import re
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from mvtex.tsnn.modeldir import MODEL_FORMAT, MODEL_VERSION, _write_model, mesh_fingerprint, rebuild_mesh
+from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _write_model, mesh_fingerprint,
+                                 rebuild_mesh)
 from mvtex.util.errors import InputError, OptionError
 
 ARCHS = ("gp", "unet", "paper")
@@ -265,7 +266,7 @@ def _evaluate(predict, data: _Data, batch_size: int) -> dict[str, float]:
 
 
 def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, options: TrainOptions = TrainOptions(),
-                 progress: bool = True) -> dict[str, Any]:
+                 progress: bool = True) -> TrainResult:
     """Train the texture sliding network of one camera (`train` with a camera name)."""
     return train(dataset, texcoords, out, camera=camera, options=options, progress=progress)
 
@@ -308,7 +309,7 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
 
 def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
           options: TrainOptions = TrainOptions(), train_poses: Sequence[int] | None = None,
-          cameras: Sequence[str] | None = None, progress: bool = True) -> dict[str, Any]:
+          cameras: Sequence[str] | None = None, progress: bool = True) -> TrainResult:
     """Train a texture sliding network and write a model directory.
 
     Args:
@@ -410,9 +411,10 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         "history": history,
     }
     _write_model(out, model, meta)
-    return {"camera": camera, "cameras": cameras, "arch": options.arch, "out": str(out), "device": str(device),
-            "resolution": getattr(config, "resolution", None), "epochs_run": meta["epochs_run"], "best_epoch": best_epoch,
-            "seconds": meta["seconds"], "num_poses": {k: len(v) for k, v in split.items()}, "losses": losses}
+    return TrainResult(camera=camera, cameras=list(cameras), arch=options.arch, out=str(out), device=str(device),
+                       resolution=getattr(config, "resolution", None), epochs_run=meta["epochs_run"],
+                       best_epoch=best_epoch, seconds=meta["seconds"], num_poses={k: len(v) for k, v in split.items()},
+                       losses=losses)
 
 
 def _masked_stats(images: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -428,9 +428,11 @@ def test_write_synth_saves_what_synthesize_returns(tmp_path):
     from mvtex.data.dataset import load_dataset
 
     options = SynthOptions(num_poses=6, seed=1)
-    stats = write_synth(tmp_path / "shirt", options)
+    result = write_synth(tmp_path / "shirt", options)
     data = synthesize(options)
-    assert stats == data["stats"]
+    assert result.stats == data["stats"] and result.to_json() == data["stats"] and result.options == options
+    stored = json.loads((tmp_path / "shirt" / "dataset.json").read_text())["stats"]
+    assert stored == json.loads(json.dumps(result.stats))
     meta = json.loads((tmp_path / "shirt" / "dataset.json").read_text())
     assert (meta["num_poses"], meta["num_vertices"], meta["pose_dim"]) == (6, len(data["rest"]), POSE_DIM)
     assert meta["body"] == {"num_vertices": data["body"].shape[1], "num_faces": len(data["body_faces"])}

@@ -143,11 +143,11 @@ def test_training_beats_zero_predictor_and_checkpoint_roundtrips(field_data, tmp
     # The first epoch already starts from the mean displacement (the bias image), so compare
     # with the zero predictor too.
     assert history[-1] < 0.3 * history[0]
-    assert result["losses"]["train"]["loss"] < 0.05 * result["losses"]["train"]["zero_loss"]
+    assert result.losses["train"]["loss"] < 0.05 * result.losses["train"]["zero_loss"]
     assert (tmp_path / "model" / "loss.png").stat().st_size > 1000
     assert meta["mesh"]["subdiv"] == 1 and meta["camera"] == "cam"
     assert meta["split"] == {k: dataset.split[k] for k in ("train", "val", "test")}
-    assert result["losses"]["test"]["loss"] < 0.1 * result["losses"]["test"]["zero_loss"]
+    assert result.losses["test"]["loss"] < 0.1 * result.losses["test"]["zero_loss"]
 
     # Held-out poses: an independent computation of the error from the closed-form field.
     test = dataset.split["test"]
@@ -358,7 +358,7 @@ def test_camera_conditioned_model_serves_a_camera_it_never_saw(rig_data, tmp_pat
     with pytest.raises(ValueError, match="rig"):
         train(ds, tc, tmp_path / "p", options=options)
     result = train(ds, tc, tmp_path / "m", rig=rig, options=options, progress=False)
-    assert result["cameras"] == ["a", "b", "c"] and result["camera"] is None
+    assert result.cameras == ["a", "b", "c"] and result.camera is None
     model = load_model(tmp_path / "m")
     assert model.conditioned and sorted(model.cameras) == ["a", "b", "c"]
     meta = json.loads((tmp_path / "m" / "config.json").read_text())
@@ -391,7 +391,7 @@ def test_unet_learns_and_predicts_deterministically(rig_data, tmp_path):
     options = TrainOptions(arch="unet", epochs=40, resolution=16, widths=(8, 16), batch_size=4, device="cpu",
                            patience=100, seed=2)
     result = train(ds, tc, tmp_path / "m1", camera="b", options=options, progress=False)
-    assert result["losses"]["test"]["loss"] < 0.7 * result["losses"]["test"]["zero_loss"]
+    assert result.losses["test"]["loss"] < 0.7 * result.losses["test"]["zero_loss"]
     train(ds, tc, tmp_path / "m2", camera="b", options=options, progress=False)
     a, b = load_file(tmp_path / "m1" / "model.safetensors"), load_file(tmp_path / "m2" / "model.safetensors")
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
@@ -509,7 +509,7 @@ def test_gp_learns_the_field_roundtrips_and_is_deterministic(field_data, tmp_pat
 
     dataset, tc, _ = field_data
     result = train_camera(dataset, tc, "cam", tmp_path / "a", TrainOptions(components=8), progress=False)
-    assert result["arch"] == "gp" and (tmp_path / "a" / "relevance.png").stat().st_size > 1000
+    assert result.arch == "gp" and (tmp_path / "a" / "relevance.png").stat().st_size > 1000
     test = dataset.split["test"]
     model = load_model(tmp_path / "a")
     pred = predict_displacements(model, dataset.poses[test], tc.uv)
