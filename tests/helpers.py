@@ -216,3 +216,15 @@ def mesh_distance(points, vertices, faces, cutoff=0.05):
     np.minimum.at(exact, owner, d)
     out[near] = exact[near]
     return out
+
+
+# Tasks for process pools: spawned workers import them by module name, and `helpers` is on
+# every process's path (pytest's `pythonpath`), where a test module's own name may not be.
+def square(x: int) -> int:
+    return x * x
+
+
+def bad_input(x: int) -> int:
+    from mvtex import InputError
+
+    raise InputError(f"file{x}.npy", f"problem {x}")

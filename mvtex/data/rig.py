@@ -117,8 +117,11 @@ def load_rig(path: str | os.PathLike) -> Rig:
             raise InputError(path, "no 'cameras' sequence")
         cameras = []
         for i in range(seq.size()):
-            node = seq.at(i)
-            cameras.append(_camera_from_node(node, path, i))
+            try:  # a damaged document can hold a scalar where a map should be; OpenCV asserts
+                cameras.append(_camera_from_node(seq.at(i), path, i))
+            except cv2.error as err:
+                detail = str(err).strip().splitlines()
+                raise InputError(path, f"camera {i}: malformed entry ({detail[-1] if detail else 'parse error'})") from None
         try:
             return Rig(tuple(cameras))
         except ValueError as err:

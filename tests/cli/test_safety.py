@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import fake_model, one_line_error, run
+from helpers import bad_input, fake_model, one_line_error, run, square
 
 from mvtex.cli import main
 from mvtex.data.camera import Camera
@@ -612,10 +612,6 @@ def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path
     assert threaded == evaluate(slow_dataset, rig, reference_set / "tc", poses=list(range(0, 40, 2)), progress=False)
 
 
-def _bad_input(x: int) -> int:
-    raise InputError(f"file{x}.npy", f"problem {x}")
-
-
 def test_an_input_error_in_a_worker_process_reaches_the_command_intact():
     """InputError pickles by (path, problem), so a worker's error is the caller's."""
     from mvtex.util.parallel import map_unordered
@@ -623,7 +619,7 @@ def test_an_input_error_in_a_worker_process_reaches_the_command_intact():
     err = pickle.loads(pickle.dumps(InputError("a/b.npy", "NaN  at\nrow 3")))
     assert (err.path, err.problem, str(err)) == ("a/b.npy", "NaN at row 3", "a/b.npy: NaN at row 3")
     with pytest.raises(InputError, match=r"^file\d\.npy: problem \d$"):
-        list(map_unordered(_bad_input, [(i,) for i in range(4)], workers=2))
+        list(map_unordered(bad_input, [(i,) for i in range(4)], workers=2))
 
 
 def test_nan_in_the_targets_of_parallel_views_and_training_exits_2_before_any_work(tmp_path, slid_sheet0, tiny_dataset,
@@ -642,10 +638,6 @@ def test_nan_in_the_targets_of_parallel_views_and_training_exits_2_before_any_wo
         assert not out.exists()
 
 
-def _square(x: int) -> int:
-    return x * x
-
-
 @pytest.mark.parametrize("backend", ["here", "processes", "dask"])
 def test_map_unordered_returns_every_task_once(backend):
     from mvtex.util.parallel import map_unordered
@@ -655,9 +647,9 @@ def test_map_unordered_returns_every_task_once(backend):
         distributed = pytest.importorskip("dask.distributed")
         with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                                       dashboard_address=None) as cluster:
-            results = list(map_unordered(_square, tasks, scheduler=cluster.scheduler_address, max_in_flight=4))
+            results = list(map_unordered(square, tasks, scheduler=cluster.scheduler_address, max_in_flight=4))
     else:
-        results = list(map_unordered(_square, tasks, workers=1 if backend == "here" else 2, max_in_flight=4))
+        results = list(map_unordered(square, tasks, workers=1 if backend == "here" else 2, max_in_flight=4))
     assert sorted(results) == [i * i for i in range(23)]
 
 

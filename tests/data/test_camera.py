@@ -116,3 +116,19 @@ def test_bad_rig_files_name_the_file(tmp_path, text, problem):
 def test_missing_rig_file(tmp_path):
     with pytest.raises(InputError, match="not found"):
         load_rig(tmp_path / "nope.yaml")
+
+
+@pytest.mark.parametrize("name", ["stereo", "square4"])
+def test_every_truncation_of_a_rig_file_loads_or_names_the_file(tmp_path, name):
+    """A rig file cut anywhere (a copy interrupted) is read or refused in one line, never an OpenCV assertion."""
+    text = builtin_rig_path(name).read_text()
+    path = tmp_path / "rig.yaml"
+    refused = 0
+    for end in range(0, len(text), 7):
+        path.write_text(text[:end].replace('"a"', '"../../x"'))
+        try:
+            load_rig(path)
+        except InputError as err:
+            assert str(err).startswith(f"{path}: ") and "\n" not in str(err)
+            refused += 1
+    assert refused > len(text) // 14
