@@ -102,20 +102,11 @@ def fit_pose_gp(poses, d, components=32, iterations=60, progress=None, device="c
     """The reference fit, with `mvtex.tsnn.gp.fit_pose_gp`'s signature (CPU only)."""
     import torch
 
-    from mvtex.tsnn.gp import GPConfig, PoseGP
+    from mvtex.tsnn.gp import GPConfig, PoseGP, pose_pca
 
-    x = np.asarray(poses, dtype=np.float64)
-    y = np.asarray(d, dtype=np.float64).reshape(len(d), -1)
+    x, y, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
     k, p = x.shape
-    mean_x, std_x = x.mean(0), x.std(0)
-    std_x = np.where(std_x > 1e-12, std_x, 1.0)
-    mean_d = y.mean(0)
-    centred = y - mean_d
-    eigval, eigvec = np.linalg.eigh(centred @ centred.T)
-    order = np.argsort(eigval)[::-1][: max(0, min(components, k - 1))]
-    order = order[eigval[order] > 1e-12 * max(float(eigval.max(initial=0.0)), 1e-300)]
-    basis = (eigvec[:, order].T @ centred) / np.sqrt(eigval[order])[:, None]
-    coef = centred @ basis.T
+    order = range(len(basis))
     model = PoseGP(GPConfig(pose_dim=p, num_vertices=y.shape[1] // 2, num_train=k, components=len(order)))
     z = torch.from_numpy((x - mean_x) / std_x)
     hyper = None if k <= HYPER_POSES else _evenly_spaced(k, HYPER_POSES)

@@ -51,3 +51,11 @@ def test_an_unknown_name_is_an_attribute_error():
 
     with pytest.raises(AttributeError, match="no attribute 'slide'"):
         mvtex.slide
+
+
+def test_the_installed_version_is_the_package_version():
+    from importlib.metadata import version
+
+    import mvtex
+
+    assert version("mvtex") == mvtex.__version__
