@@ -106,8 +106,7 @@ def fit_pose_gp(poses, d, components=32, iterations=60, progress=None, device="c
 
     x, y, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
     k, p = x.shape
-    order = range(len(basis))
-    model = PoseGP(GPConfig(pose_dim=p, num_vertices=y.shape[1] // 2, num_train=k, components=len(order)))
+    model = PoseGP(GPConfig(pose_dim=p, num_vertices=y.shape[1] // 2, num_train=k, components=len(basis)))
     z = torch.from_numpy((x - mean_x) / std_x)
     hyper = None if k <= HYPER_POSES else _evenly_spaced(k, HYPER_POSES)
     with torch.no_grad():
@@ -116,7 +115,7 @@ def fit_pose_gp(poses, d, components=32, iterations=60, progress=None, device="c
         model.inputs.copy_(z)
         model.basis.copy_(torch.from_numpy(basis))
         model.mean.copy_(torch.from_numpy(mean_d))
-    for c in range(len(order)):
+    for c in range(len(basis)):
         scale = float(coef[:, c].std()) or 1.0
         log_l, log_s, log_a, alpha = _fit_component(z, torch.from_numpy(coef[:, c] / scale), iterations, hyper)
         with torch.no_grad():
@@ -125,7 +124,7 @@ def fit_pose_gp(poses, d, components=32, iterations=60, progress=None, device="c
             model.log_additive[c] = log_a + math.log(scale)
             model.alpha[:, c] = alpha / scale
         if progress is not None:
-            progress(c + 1, len(order))
+            progress(c + 1, len(basis))
     model.eval()
     return model
 

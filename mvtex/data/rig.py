@@ -101,8 +101,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_YAML)
     except (cv2.error, SystemError) as err:  # OpenCV 5 surfaces parse errors as either
-        detail = str(getattr(err, "__cause__", None) or err).strip().splitlines()
-        raise InputError(path, f"malformed rig YAML ({detail[-1] if detail else 'parse error'})") from None
+        raise InputError(path, f"malformed rig YAML ({_opencv_detail(getattr(err, '__cause__', None) or err)})") from None
     try:
         if not fs.isOpened():
             raise InputError(path, "cannot be read as OpenCV YAML")
@@ -120,14 +119,19 @@ def load_rig(path: str | os.PathLike) -> Rig:
             try:  # a damaged document can hold a scalar where a map should be; OpenCV asserts
                 cameras.append(_camera_from_node(seq.at(i), path, i))
             except cv2.error as err:
-                detail = str(err).strip().splitlines()
-                raise InputError(path, f"camera {i}: malformed entry ({detail[-1] if detail else 'parse error'})") from None
+                raise InputError(path, f"camera {i}: malformed entry ({_opencv_detail(err)})") from None
         try:
             return Rig(tuple(cameras))
         except ValueError as err:
             raise InputError(path, str(err)) from None
     finally:
         fs.release()
+
+
+def _opencv_detail(err: BaseException) -> str:
+    """The last line of an OpenCV error: the assertion or parse message, without its banner."""
+    lines = str(err).strip().splitlines()
+    return lines[-1] if lines else "parse error"
 
 
 def _camera_from_node(node, path: Path, index: int) -> Camera:

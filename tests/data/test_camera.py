@@ -125,7 +125,7 @@ def test_every_truncation_of_a_rig_file_loads_or_names_the_file(tmp_path, name):
     path = tmp_path / "rig.yaml"
     refused = 0
     for end in range(0, len(text), 7):
-        path.write_text(text[:end].replace('"a"', '"../../x"'))
+        path.write_text(text[:end])
         try:
             load_rig(path)
         except InputError as err:
