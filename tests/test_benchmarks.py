@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
@@ -38,20 +39,23 @@ def test_table_recon_small(tmp_path):
 
 
 def test_material_where_splits_eval_s_error(sheet_set, tmp_path):
-    """Its all-pixel figures are `mvtex eval`'s; without the other-chart pixels (none on
-    the one-chart sheet) they are the same numbers."""
+    """Its classes of pixels on the one-chart flat sheet seen from the front: no other chart,
+    no inside; the openings are the sheet's border, at closed-form distances; with a
+    distance that takes in everything, every pixel and all the error is near an opening."""
     from mvtex.data.dataset import load_dataset
-    from mvtex.data.rig import load_rig
-    from mvtex.data.texcoords import open_texcoords
-    from mvtex.evaluation.evaluate import evaluate
 
     data, rig_file, texcoords = sheet_set
-    out = load("material_where").main([str(data), str(texcoords), "--rig", str(rig_file),
-                                       "--picture", str(tmp_path / "where.png")])
-    result = evaluate(load_dataset(data), load_rig(rig_file), open_texcoords(texcoords), progress=False)
-    assert out["images"] == result.num_images
-    assert out["mean"]["texcoords_mm"] == pytest.approx(1e3 * result.material_rmse_m.texcoords.mean, rel=1e-9)
-    assert out["mean"]["baseline_mm"] == pytest.approx(1e3 * result.material_rmse_m.inferred.mean, rel=1e-9)
-    assert out["pixel_share"] == 0 and out["mean"]["error_share"] == 0
-    assert out["mean"]["texcoords_same_chart_mm"] == out["mean"]["texcoords_mm"]
+    where = load("material_where")
+    ds = load_dataset(data)
+    x, y = np.asarray(ds.rest, np.float64)[:, 0], np.asarray(ds.rest, np.float64)[:, 1]
+    expected = np.minimum(x.max() - np.abs(x), y.max() - np.abs(y))
+    assert np.allclose(where.opening_distance(ds), expected, atol=1e-6)
+    out = where.main([str(data), str(texcoords), "--rig", str(rig_file), "--picture", str(tmp_path / "where.png")])
+    classes = out["classes"]
+    assert classes["another chart"]["pixel_share"] == 0 and classes["another chart"]["error_share"] == 0
+    assert classes["inside shown"]["pixel_share"] == 0
+    assert 0 < classes["near an opening"]["pixel_share"] < 1
+    everything = where.main([str(data), str(texcoords), "--rig", str(rig_file), "--near-opening", "1"])["classes"]
+    assert everything["near an opening"]["pixel_share"] == 1
+    assert everything["near an opening"]["error_share"] == pytest.approx(1)
     assert (tmp_path / "where.png").stat().st_size > 0

@@ -12,8 +12,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
-SETUP = ['pip install -c constraints.txt ".[all]" && mvtex demo --out mvtex-demo',
-         'pip install -c constraints.txt ".[test]" && pytest -q']
+TORCH_CPU = "pip install -c constraints.txt --no-deps torch --index-url https://download.pytorch.org/whl/cpu"
+SETUP = [f'{TORCH_CPU} && pip install -c constraints.txt ".[all]" && mvtex demo --out mvtex-demo',
+         f'{TORCH_CPU} && pip install -c constraints.txt ".[test]" && pytest -q']
 
 
 def prose(text: str) -> str:

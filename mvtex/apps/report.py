@@ -176,15 +176,20 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
 
     def ts_rows(items):
         return [[name, r["num_images"], r.get("material_inferred_mm"), r.get("material_texcoords_mm"),
-                 r.get("ratio_material"), r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
+                 r.get("ratio_material"), r.get("material_assigned_inferred_mm"),
+                 r.get("material_assigned_texcoords_mm"), r.get("ratio_material_assigned"),
+                 None if r.get("assigned_share") is None else 100 * r["assigned_share"],
+                 r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
                  r["same_chart_texcoords_e3"], r["ratio_same_chart"]] for name, r in items]
 
-    header = ["", "images", "material inferred mm", "material texcoords mm", "material ratio", "inferred e-3",
-              "texcoords e-3", "ratio", "same-chart inferred e-3", "same-chart texcoords e-3", "same-chart ratio"]
+    header = ["", "images", "material error, inferred mm", "material error, texcoords mm", "ratio",
+              "assigned triangles: inferred mm", "texcoords mm", "ratio", "% of pixels",
+              "uv error inferred e-3", "uv error texcoords e-3", "ratio", "uv error same chart, inferred e-3",
+              "texcoords e-3", "ratio"]
     ts = summary.get("texture_sliding", {})
     heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS; top uv error (blue 0, red >= 0.04), bottom material error (red >= 20 mm)")
                                          for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
-    sections.append(("Texture sliding (material error in mm and SqrtMSE per image, mean)", table(header, ts_rows(ts.items())) + heat))
+    sections.append(("Texture sliding from ground truth (material error in mm, uv error = the paper's SqrtMSE; per image, mean)", table(header, ts_rows(ts.items())) + heat))
 
     rec = summary.get("reconstruction")
     if rec:

@@ -18,6 +18,12 @@ garment's material — for gt the barycentric combination of the rest positions 
 uv layout, mapped back to the rest shape (`MaterialMap`). Their distance on the rest
 garment, in meters, is small across a seam (both sides of it are neighbours on the
 cloth). `evaluate` reports its RMSE per image as `material_rmse_m` (null without `rest`).
+
+Texture sliding cannot name the material where no ray assigned it (the paper's occluded
+vertices, filled smoothly). `material_rmse_assigned_m` is the material error over the
+pixels of the set's triangles whose three corners are all assigned (`assigned.npy`), and
+`assigned_share` the share of the compared pixels that is; the baseline is measured over
+the same pixels. For a set assigned everywhere (a model's prediction) both errors are one.
 """
 
 from __future__ import annotations
@@ -85,6 +91,10 @@ class Evaluation:
         body_share: of the pixels where either render shows cloth, the share where the
             other shows the body (left out of both errors), per image; None for a dataset
             without a body.
+        material_rmse_assigned_m: the material error over the pixels of fully assigned
+            triangles (all three corners assigned in the set); None without a rest shape.
+        assigned_share: of the compared pixels, the share on fully assigned triangles, per
+            image.
         per_camera: camera name -> the same for its images (no `per_camera` of its own).
     """
 
@@ -93,6 +103,8 @@ class Evaluation:
     sqrt_mse_same_chart: Comparison
     material_rmse_m: Comparison | None
     body_share: Stats | None = None
+    material_rmse_assigned_m: Comparison | None = None
+    assigned_share: Stats | None = None
     per_camera: dict[str, "Evaluation"] = field(default_factory=dict)
 
     @property
@@ -107,6 +119,10 @@ class Evaluation:
     def ratio_material(self) -> float | None:
         return None if self.material_rmse_m is None else self.material_rmse_m.ratio
 
+    @property
+    def ratio_material_assigned(self) -> float | None:
+        return None if self.material_rmse_assigned_m is None else self.material_rmse_assigned_m.ratio
+
     def to_json(self) -> dict:
         """The JSON object of `mvtex eval --json`."""
         out = {"num_images": self.num_images,
@@ -114,6 +130,10 @@ class Evaluation:
                "sqrt_mse_same_chart": self.sqrt_mse_same_chart.to_json(), "ratio_same_chart": self.ratio_same_chart,
                "material_rmse_m": None if self.material_rmse_m is None else self.material_rmse_m.to_json(),
                "ratio_material": self.ratio_material,
+               "material_rmse_assigned_m": (None if self.material_rmse_assigned_m is None
+                                            else self.material_rmse_assigned_m.to_json()),
+               "ratio_material_assigned": self.ratio_material_assigned,
+               "assigned_share": None if self.assigned_share is None else asdict(self.assigned_share),
                "body_share": None if self.body_share is None else asdict(self.body_share)}
         if self.per_camera:
             out["per_camera"] = {name: e.to_json() for name, e in self.per_camera.items()}
@@ -122,9 +142,8 @@ class Evaluation:
 
 def _summary(images: list[tuple], has_rest: bool, has_body: bool,
              per_camera: dict[str, Evaluation] | None = None) -> Evaluation:
-    """Per-image values (s_b, s_t, same_b, same_t, m_b, m_t, body_share; NaN where an image
-    does not count) -> an `Evaluation` over the images where both the baseline and the
-    texcoords have an error."""
+    """Per-image values (`ImageErrors.values`; NaN where an image does not count) -> an
+    `Evaluation` over the images where both the baseline and the texcoords have an error."""
     ok = [v for v in images if np.isfinite(v[0]) and np.isfinite(v[1])]
 
     def compare(i):
@@ -132,7 +151,9 @@ def _summary(images: list[tuple], has_rest: bool, has_body: bool,
 
     return Evaluation(num_images=len(ok), sqrt_mse=compare(0), sqrt_mse_same_chart=compare(2),
                       material_rmse_m=compare(4) if has_rest else None,
-                      body_share=Stats.of([v[6] for v in ok]) if has_body else None, per_camera=per_camera or {})
+                      body_share=Stats.of([v[6] for v in ok]) if has_body else None,
+                      material_rmse_assigned_m=compare(7) if has_rest else None,
+                      assigned_share=Stats.of([v[9] for v in ok]), per_camera=per_camera or {})
 
 
 @dataclass(frozen=True)
@@ -161,14 +182,21 @@ class ImageErrors:
         material_rmse_m: (baseline, texcoords) material RMSE in meters (NaN without rest).
         body_share: of the pixels where either render shows cloth, the share where the other
             shows the body (NaN without a body).
-        pixels, e_b, e_t, other_chart, mat_b, mat_t: per-pixel values; body_pixels: where
-            either render shows the body. raster: the `PairRaster` they were read from.
+        material_rmse_assigned_m: (baseline, texcoords) material RMSE over the pixels of
+            fully assigned triangles (NaN without rest or without such pixels).
+        assigned_share: the share of `pixels` on fully assigned triangles.
+        pixels, e_b, e_t, other_chart, mat_b, mat_t: per-pixel values; in_assigned: pixels on
+            fully assigned triangles; body_pixels: where either render shows the body.
+            raster: the `PairRaster` they were read from.
     """
 
     sqrt_mse: tuple[float, float]
     sqrt_mse_same_chart: tuple[float, float]
     material_rmse_m: tuple[float, float]
     body_share: float
+    material_rmse_assigned_m: tuple[float, float]
+    assigned_share: float
+    in_assigned: np.ndarray
     pixels: np.ndarray
     e_b: np.ndarray
     e_t: np.ndarray
@@ -179,8 +207,9 @@ class ImageErrors:
     raster: Any
 
     def values(self) -> tuple[float, ...]:
-        """(s_b, s_t, same_b, same_t, m_b, m_t, body_share)."""
-        return (*self.sqrt_mse, *self.sqrt_mse_same_chart, *self.material_rmse_m, self.body_share)
+        """(s_b, s_t, same_b, same_t, m_b, m_t, body_share, assigned m_b, assigned m_t, assigned_share)."""
+        return (*self.sqrt_mse, *self.sqrt_mse_same_chart, *self.material_rmse_m, self.body_share,
+                *self.material_rmse_assigned_m, self.assigned_share)
 
 
 def _rms(e: np.ndarray) -> float:
@@ -242,10 +271,11 @@ class ImageEvaluator:
         return PairRaster(box=(0, cam.height, 0, cam.width), base_tri=base_tri, sub_tri=sub_tri,
                           base_bary=r_g.bary, sub_bary=r_t.bary)
 
-    def __call__(self, pose: int, cam, texcoords: np.ndarray, *, gt: np.ndarray | None = None,
-                 inferred: np.ndarray | None = None) -> ImageErrors:
+    def __call__(self, pose: int, cam, texcoords: np.ndarray, *, assigned: np.ndarray | None = None,
+                 gt: np.ndarray | None = None, inferred: np.ndarray | None = None) -> ImageErrors:
         """The errors of pose `pose` from camera `cam` with `texcoords` (n',2) on the set's
-        mesh, over the pixels where both renders show cloth. gt, inferred: the pose's base
+        mesh, over the pixels where both renders show cloth. assigned: (n',) bool, the set's
+        assigned vertices for this image (None: all). gt, inferred: the pose's base
         positions when already read (else read through the files)."""
         from mvtex.evaluation.kernels import pixel_errors
 
@@ -264,16 +294,24 @@ class ImageEvaluator:
             self.face_chart, self.sub_face_chart)
         body_share = float("nan") if body is None or not covered else hidden / covered
         body_pixels = np.flatnonzero((base_tri >= m) | (sub_tri >= ms)) if body is not None else np.zeros(0, np.int64)
+        if assigned is None:
+            in_assigned = np.ones(len(pixels), bool)
+        else:
+            in_assigned = np.asarray(assigned, bool)[self.sub_faces[sub_tri[pixels]]].all(axis=1)
         mat_t = None
-        materials = (float("nan"), float("nan"))
+        materials = assigned_materials = (float("nan"), float("nan"))
         if self.material_map is not None:
             mat_t = np.linalg.norm(self.material_map(uv_t) - points_g, axis=1)
             materials = (_rms(mat_b), _rms(mat_t))
+            assigned_materials = (_rms(mat_b[in_assigned]), _rms(mat_t[in_assigned]))
         else:
             mat_b = None
+        share = float(in_assigned.mean()) if len(pixels) else float("nan")
         return ImageErrors(sqrt_mse=(_rms(e_b), _rms(e_t)), sqrt_mse_same_chart=(_rms(e_b[~other]), _rms(e_t[~other])),
-                           material_rmse_m=materials, body_share=body_share, pixels=pixels, e_b=e_b, e_t=e_t,
-                           other_chart=other, mat_b=mat_b, mat_t=mat_t, body_pixels=body_pixels, raster=raster)
+                           material_rmse_m=materials, body_share=body_share,
+                           material_rmse_assigned_m=assigned_materials, assigned_share=share, in_assigned=in_assigned,
+                           pixels=pixels, e_b=e_b, e_t=e_t, other_chart=other, mat_b=mat_b, mat_t=mat_t,
+                           body_pixels=body_pixels, raster=raster)
 
 
 @dataclass
@@ -352,7 +390,7 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
     out = []
     for index, k, name in jobs:
         cam = spec.rig[name]
-        image = state.evaluator(k, cam, tc.texcoords(cam.name, k))
+        image = state.evaluator(k, cam, tc.texcoords(cam.name, k), assigned=tc.assigned(cam.name, k))
         out.append((index, *image.values()))
         if spec.heatmaps is not None:
             save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", _heatmap_picture(image, cam, tc.source))

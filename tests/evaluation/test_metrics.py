@@ -329,3 +329,46 @@ def test_evaluate_equals_separate_renders_on_the_shirt(gl, tmp_path):
             assert per.material_rmse_m.inferred.mean == pytest.approx(m_b, rel=2e-3)
             assert per.material_rmse_m.texcoords.mean == pytest.approx(m_t, rel=2e-3)
             assert s_t > 1e-3 and m_t > 1e-4  # the case measures something
+
+
+def test_material_error_on_assigned_triangles_matches_direct_computation(gl, tiny_dataset, front_rig, tmp_path):
+    """The material error over fully assigned triangles, and their share of the pixels,
+    against separate rasters read here: on the flat sheet, uv is rest xy scaled by 1/0.6, so
+    a pixel's material error is 0.6 times its uv error."""
+    ds = load_dataset(tiny_dataset)
+    poses = [2]
+    rng = np.random.default_rng(5)
+    inner = np.all((ds.uv > 0.08) & (ds.uv < 0.92), axis=1)  # texcoords stay on the layout
+    disp = {c.name: (0.01 * np.sin(ds.uv[None, :, ::-1] * 7 + rng.uniform(0, 3, (1, 1, 2))) * inner[None, :, None]
+                     ).astype(np.float32) for c in front_rig}
+    assigned = {c.name: rng.random((1, ds.num_vertices)) < 0.9 for c in front_rig}
+    tc_path = save_texcoords(tmp_path / "tc", faces=ds.faces, uv=ds.uv, parent=np.stack([np.arange(480)] * 2, 1),
+                             source="test", subdiv=0, poses=poses, displacement=disp, assigned=assigned)
+    gt, inf = np.asarray(ds.gt[2], np.float64), np.asarray(ds.inferred[2], np.float64)
+    shares, base, tex = [], [], []
+    for cam in front_rig:
+        r_g, r_i = rasterize(gl, gt, ds.faces, cam), rasterize(gl, inf, ds.faces, cam)
+        both = (r_g.tri_id >= 0) & (r_i.tri_id >= 0)
+        full = assigned[cam.name][0][ds.faces[r_i.tri_id[both]]].all(axis=1)
+        shares.append(full.mean())
+        e_b, _, _ = direct_sqrt_mse(gl, gt, ds.faces, ds.uv, inf, ds.faces, ds.uv, cam)
+        e_t, _, _ = direct_sqrt_mse(gl, gt, ds.faces, ds.uv, inf, ds.faces, ds.uv + disp[cam.name][0], cam)
+        base.append(0.6 * np.sqrt(np.mean(e_b[full] ** 2)))
+        tex.append(0.6 * np.sqrt(np.mean(e_t[full] ** 2)))
+    assert 0.3 < np.mean(shares) < 0.95  # some triangles left out, most kept
+    result = evaluate(tiny_dataset, front_rig, tc_path, progress=False)
+    assert result.assigned_share.mean == pytest.approx(np.mean(shares), abs=1e-9)
+    a = result.material_rmse_assigned_m
+    assert a.inferred.mean == pytest.approx(np.mean(base), rel=2e-3)
+    assert a.texcoords.mean == pytest.approx(np.mean(tex), rel=2e-3)
+    assert result.ratio_material_assigned == pytest.approx(np.mean(base) / np.mean(tex), rel=4e-3)
+    js = result.to_json()
+    assert js["ratio_material_assigned"] == result.ratio_material_assigned
+    assert js["per_camera"]["a"]["assigned_share"]["mean"] == pytest.approx(shares[0], abs=1e-9)
+    # Assigned everywhere: the two material errors are one.
+    every = save_texcoords(tmp_path / "tc_all", faces=ds.faces, uv=ds.uv, parent=np.stack([np.arange(480)] * 2, 1),
+                           source="test", subdiv=0, poses=poses, displacement=disp,
+                           assigned={c: np.ones_like(m) for c, m in assigned.items()})
+    result = evaluate(tiny_dataset, front_rig, every, progress=False)
+    assert result.assigned_share.mean == 1.0
+    assert result.material_rmse_assigned_m == result.material_rmse_m
