@@ -199,7 +199,7 @@ def _text(summary: dict) -> str:
         lines.append("  a model's accuracy grows with its training poses (docs/tsnn.md)")
     if "views" in summary:
         v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
-        lines.append("novel view at the stereo midpoint (same-chart SqrtMSE e-3): " +
+        lines.append("novel view at the stereo midpoint, uv error, same chart (e-3): " +
                      ", ".join(f"{k} {x:.3f}" for k, x in v.items()))
     if "preview" in summary:
         e = summary["preview"]["eyes"]
