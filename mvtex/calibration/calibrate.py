@@ -191,10 +191,37 @@ def find_images(folder: str | os.PathLike) -> list[CameraImages]:
     return cameras
 
 
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of a PNG or JPEG from its header, without decoding the pixels (Pillow
+    opens lazily).
+
+    Raises:
+        InputError: naming the file when it is not a readable image, or larger than
+            `mvtex.data.camera.MAX_IMAGE_SIZE` on a side (checked before any memory is taken).
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    from mvtex.data.camera import MAX_IMAGE_SIZE
+
+    try:
+        with Image.open(path) as image:
+            width, height = image.size
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
+        raise InputError(path, f"cannot be read as an image ({err.__class__.__name__})") from None
+    except Image.DecompressionBombError:
+        raise InputError(path, f"image larger than {MAX_IMAGE_SIZE}x{MAX_IMAGE_SIZE} pixels") from None
+    if not (1 <= width <= MAX_IMAGE_SIZE and 1 <= height <= MAX_IMAGE_SIZE):
+        raise InputError(path, f"image is {width}x{height}: mvtex reads images of 1..{MAX_IMAGE_SIZE} pixels "
+                         "a side")
+    return int(width), int(height)
+
+
 def read_gray(path: Path) -> np.ndarray:
-    """A gray (H,W) uint8 image; unreadable files raise InputError naming them."""
+    """A gray (H,W) uint8 image; unreadable files and images larger than MAX_IMAGE_SIZE a
+    side (`image_size`, read from the header before decoding) raise InputError naming them."""
     import cv2
 
+    image_size(path)
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if image is None or image.size == 0:
         raise InputError(path, "cannot be read as an image")

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from mvtex.data.rig import Rig, check_sees
+from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.util.files import read_row
 from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
@@ -413,6 +413,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     if poses:
         check_sees(rig, read_row(ds.inferred, poses[0]), rig_source,
                    what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
+    check_outside_body(rig, ds, poses, rig_source)
     for p in poses:
         tc.row(p)  # InputError for a pose the set does not have
     for name in rig.names:

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_outside_body
 from mvtex.util.errors import InputError
 
 if TYPE_CHECKING:
@@ -58,6 +58,7 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         raise InputError(texcoords.path, f"triangulation needs ≥ 2 cameras present in both the texcoord set "
                          f"({', '.join(texcoords.cameras)}) and the rig ({', '.join(rig.names)})")
     sub_rig = rig.select(names)
+    check_outside_body(sub_rig, dataset, [pose])
     options = options.for_source(texcoords.source)
     X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
     T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}

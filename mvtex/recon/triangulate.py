@@ -47,7 +47,8 @@ from mvtex.data.camera import Camera
 from mvtex.data.mesh import weld_groups, welded_adjacency
 from mvtex.data.rig import Rig
 from mvtex.recon.consensus import HypothesisLedger, Vote, screen_hypotheses, vote
-from mvtex.recon.geometry import project_points, reprojection_errors, surface_distance, triangulate_points
+from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, observed, project_points, reprojection_errors,
+                                  surface_distance, triangulate_points, triangulation_angles)
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
 from mvtex.recon.options import ENGINES, ReconOptions
 from mvtex.util.checks import check_shape
@@ -147,7 +148,9 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
     """Step 3: triangulate every point observed ≥ 2 times, robustly.
 
     While a point's worst observation exceeds options.max_reprojection_px and ≥ 3 remain,
-    that observation is dropped and the point triangulated again.
+    that observation is dropped and the point triangulated again. Observations with a
+    non-finite pixel do not count, and a point whose rays meet within
+    `mvtex.recon.geometry.MIN_TRIANGULATION_ANGLE_DEG` is NaN, whichever the engine.
 
     Args:
         cameras: the C cameras.
@@ -159,10 +162,16 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
         points (N,3) float64 (NaN where fewer than 2 observations or degenerate), the
         weights (N,C) with dropped observations set to 0, and counts {"outlier_observations"}.
     """
-    triangulate = track_triangulator(options) if triangulate is None else triangulate
+    engine = track_triangulator(options) if triangulate is None else triangulate
+
+    def triangulate(cameras, pixels, weights):  # no engine returns a point of too narrow rays
+        X = np.array(engine(cameras, pixels, weights), dtype=np.float64)
+        X[~(triangulation_angles(cameras, X, weights) >= MIN_TRIANGULATION_ANGLE_DEG)] = np.nan
+        return X
+
     sizes = check_shape(pixels, "pixels", ("N", len(cameras), 2))
     check_shape(weights, "weights", ("N", len(cameras)), sizes)
-    weights = np.array(weights, dtype=np.float64)
+    weights = observed(pixels, weights)
     counts = {"outlier_observations": 0}
     rows = np.flatnonzero(weights.sum(axis=1) >= 2)
     X = np.full((len(pixels), 3), np.nan)

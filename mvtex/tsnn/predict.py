@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.data.camera import check_camera_name
-from mvtex.data.texcoords import dataset_record, rig_record, write_header
+from mvtex.data.texcoords import MAX_DISPLACEMENT, dataset_record, rig_record, write_header
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
@@ -205,6 +205,28 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
     return out
 
 
+def check_prediction(displacement: np.ndarray, model: LoadedModel, camera: str, poses: Sequence[int]) -> None:
+    """Refuse (InputError naming the model's weights) a prediction that is not a texcoord
+    perturbation: NaN or infinite values, or |d| above `MAX_DISPLACEMENT` (the whole
+    atlas). A model whose weights are finite can still overflow on some poses; its output
+    must never reach a texcoord set.
+
+    Args:
+        displacement: (k,n',2) the model's d for `poses` of `camera`.
+    """
+    d = np.asarray(displacement, dtype=np.float64)
+    finite = np.isfinite(d).all(axis=(1, 2))
+    with np.errstate(invalid="ignore", over="ignore"):
+        length = np.sqrt((np.where(np.isfinite(d), d, 0.0) ** 2).sum(axis=2)).max(axis=1, initial=0.0)
+    bad = ~finite | (length > MAX_DISPLACEMENT)
+    if bad.any():
+        row = int(np.argmax(bad))
+        what = "NaN or infinite displacements" if not finite[row] else \
+            f"a displacement of length {length[row]:.4g} uv units (more than {MAX_DISPLACEMENT}, the whole atlas)"
+        raise InputError(model.path / "model.safetensors", f"predicts {what} for camera {camera!r} at pose "
+                         f"{int(poses[row])}: the model is broken; train it again")
+
+
 def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.ndarray | None]]:
     """(camera name, model, cam_from_world or None) for every camera to predict."""
     jobs: dict[str, tuple[LoadedModel, np.ndarray | None]] = {}
@@ -316,6 +338,7 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                     g = geometry[key]
                 d = predict_displacements(m, x[start:start + len(rows)], uv, geometry=g, cam_from_world=view,
                                           device=device)
+                check_prediction(d, m, name, rows)
                 write_npy_rows(tmp / name / "displacement.npy", index, d)
                 write_npy_rows(tmp / name / "assigned.npy", index, np.ones((len(rows), len(uv)), dtype=bool))
                 bar.update(len(rows))

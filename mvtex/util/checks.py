@@ -7,6 +7,8 @@ from typing import Sequence
 
 import numpy as np
 
+from mvtex.util.errors import OptionError
+
 
 def check_shape(array: np.ndarray, name: str, spec: Sequence[int | str],
                 sizes: dict[str, int] | None = None) -> dict[str, int]:
@@ -23,7 +25,8 @@ def check_shape(array: np.ndarray, name: str, spec: Sequence[int | str],
         The bound sizes (`sizes`, or a new dict).
 
     Raises:
-        ValueError: "name must have shape (N,C,2), got (5, 3)" (with N=... where bound).
+        OptionError (a ValueError): "name must have shape (N,C,2), got (5, 3)" (with N=...
+            where bound).
     """
     sizes = {} if sizes is None else sizes
     shape = np.shape(array)
@@ -38,7 +41,7 @@ def check_shape(array: np.ndarray, name: str, spec: Sequence[int | str],
                 ok = False
     if not ok:
         known = ", ".join(f"{k}={v}" for k, v in sizes.items() if k in spec)
-        raise ValueError(f"{name} must have shape ({','.join(map(str, spec))}){' with ' + known if known else ''}, "
+        raise OptionError(f"{name} must have shape ({','.join(map(str, spec))}){' with ' + known if known else ''}, "
                          f"got {tuple(shape)}")
     sizes.update(bound)
     return sizes

@@ -15,7 +15,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from mvtex.data.camera import Camera, check_camera_name
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_outside_body
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.parallel import ThreadState, check_backend
 from mvtex.views.cameras import check_weights, interpolate_camera
@@ -148,6 +148,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
                              f"(it has {', '.join(texcoords.cameras)})")
     cameras = [interpolate_camera(rig, w, name) for w, name in zip(weights, names)]
     poses = texcoords.poses if poses is None else [int(p) for p in poses]
+    check_outside_body(rig, dataset, poses, rig_source)
+    check_outside_body(Rig(tuple(cameras)), dataset, poses, "the novel views")
     for p in poses:
         texcoords.row(p)
     if poses:  # reading a row checks the camera's whole arrays: here, before any worker starts

@@ -35,7 +35,7 @@ from typing import Mapping
 import numpy as np
 
 from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_outside_body
 from mvtex.util.errors import InputError, OptionError
 
 BACKGROUND = (40, 40, 46)
@@ -256,6 +256,8 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         raise InputError(texcoords.path, "method reconstruct needs texcoords of at least 2 rig cameras")
     viewpoint = interpolate_camera(rig, weights, "viewpoint")
     left, right = eye_cameras(viewpoint, options.ipd)
+    check_outside_body(rig, dataset, [pose], rig_source)
+    check_outside_body(Rig((left, right)), dataset, [pose], "the preview's eyes")
     cloth = np.asarray(dataset.inferred[pose], np.float64)
     for eye in (left, right):
         if not eye.sees(cloth):  # scores of two empty pictures would say "identical"
