@@ -36,6 +36,7 @@ import numpy as np
 from mvtex.calibration.board import BoardDetector, BoardSpec, Detection
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -71,6 +72,7 @@ class CalibrateOptions:
     huber_px: float = 1.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.distortion not in DISTORTION_MODELS:
             raise OptionError(f"distortion must be one of {', '.join(DISTORTION_MODELS)}, got {self.distortion!r}")
         if self.min_corners < 4:
@@ -526,6 +528,14 @@ def calibrate(cameras: Sequence[CameraImages], options: CalibrateOptions, *, pro
         InputError: unreadable images, a camera with too few usable frames, a camera that
             shares no frame with the others, an unknown reference camera.
     """
+    from mvtex.util.checks import check_instance
+
+    check_instance(options, CalibrateOptions, "options")
+    from mvtex.util.checks import as_list
+
+    cameras = as_list(cameras, "cameras", CameraImages, "CameraImages (`find_images`)")
+    if not cameras:
+        raise OptionError("cameras must be a non-empty list of CameraImages (`find_images`)")
     import cv2
     from scipy.optimize import least_squares
     from tqdm import tqdm

@@ -27,6 +27,13 @@ from mvtex.util.errors import InputError, OptionError
 MAX_IMAGE_SIZE = 16384
 
 
+MAX_RENDER_PIXELS = 12_000_000
+"""Most pixels of one rendered image (12 megapixels, e.g. 4000x3000). Rendering takes
+about 140 bytes a pixel (id, barycentric and depth buffers and their readback), so one
+image stays within the 2 GB memory target; larger cameras are refused before anything is
+allocated. Calibration and rig tools take cameras up to MAX_IMAGE_SIZE a side."""
+
+
 ROTATION_TOLERANCE = 1e-6
 """Largest |R Rᵀ - I| entry and |det R - 1| a camera's rotation may have (a rotation stored
 as decimal text in a rig YAML keeps ~1e-15)."""
@@ -203,6 +210,13 @@ class Camera:
                              "(mvtex rig RIG --undistort --out RIG2) and compare with undistorted images "
                              "(mvtex undistort IMAGES --rig RIG --out DIR)")
 
+    def require_renderable(self, source: str | os.PathLike | None = None) -> None:
+        """Raise InputError (naming `source`, e.g. the rig file) unless the camera is pinhole
+        (`require_pinhole`) and its image has at most MAX_RENDER_PIXELS pixels: checked
+        before a renderer allocates its buffers."""
+        self.require_pinhole(source)
+        check_render_size(self.width, self.height, source, f"camera {self.name!r}")
+
     def sees(self, points: np.ndarray) -> bool:
         """True if any world point (..., 3) lies in front of the camera and inside its image."""
         pixels, z = self.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))
@@ -219,6 +233,16 @@ class Camera:
 
     def with_name(self, name: str) -> "Camera":
         return replace(self, name=name)
+
+
+def check_render_size(width: int, height: int, source: str | os.PathLike | None = None,
+                      what: str = "the image") -> None:
+    """Raise InputError (naming `source`) when a width x height image has more than
+    MAX_RENDER_PIXELS pixels (before any buffer of it is allocated)."""
+    if int(width) * int(height) > MAX_RENDER_PIXELS:
+        raise InputError(source, f"{what} is {int(width)}x{int(height)} ({int(width) * int(height) / 1e6:.1f} "
+                         f"megapixels): mvtex renders images of at most {MAX_RENDER_PIXELS / 1e6:g} megapixels "
+                         "(e.g. 4000x3000); render a camera of fewer pixels (K scaled with the size)")
 
 
 def look_at(name: str, center: Sequence[float], target: Sequence[float], *, width: int, height: int,

@@ -34,9 +34,9 @@ class Rig:
     cameras: tuple[Camera, ...]
 
     def __post_init__(self) -> None:
-        if isinstance(self.cameras, (str, bytes, Camera)) or not hasattr(self.cameras, "__iter__"):
-            raise OptionError(f"cameras must be a sequence of Camera, got {type(self.cameras).__name__}")
-        object.__setattr__(self, "cameras", tuple(self.cameras))
+        from mvtex.util.checks import as_list
+
+        object.__setattr__(self, "cameras", tuple(as_list(self.cameras, "cameras", what="Camera")))
         wrong = [type(c).__name__ for c in self.cameras if not isinstance(c, Camera)]
         if wrong:
             raise OptionError(f"cameras must be a sequence of Camera, got an element of type {wrong[0]}")
@@ -66,10 +66,13 @@ class Rig:
 
     def select(self, names: Sequence[str] | None, source: str | os.PathLike | None = None) -> "Rig":
         """The sub-rig with these camera names (all if None); unknown names raise InputError."""
+        from mvtex.util.checks import as_list
+
+        if names is None:
+            return self
+        names = as_list(names, "cameras", str, "camera names")
         if not names:
             return self
-        if isinstance(names, (str, bytes)) or not all(isinstance(n, str) for n in names):
-            raise OptionError(f"cameras must be a list of camera names, got {names!r}")
         unknown = [n for n in names if n not in self.names]
         if unknown:
             raise InputError(source, f"no camera named {', '.join(unknown)} (the rig has {', '.join(self.names)})")

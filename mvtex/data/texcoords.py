@@ -256,8 +256,11 @@ def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
     """
     from mvtex.data.camera import check_camera_name
     from mvtex.data.dataset import validate_mesh
+    from mvtex.util.checks import as_index, as_path
 
-    path = Path(path)
+    path = as_path(path, "path")
+    num_vertices = None if num_vertices is None else as_index(num_vertices, "num_vertices")
+    num_poses = None if num_poses is None else as_index(num_poses, "num_poses")
     header = path / "texcoords.json"
     meta = read_header(path, "texcoords.json", FORMAT, VERSION, "a texcoord set")
     poses = _int_list(meta, "poses", header)
@@ -298,6 +301,16 @@ def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
         raise InputError(mesh_file, f"made for a mesh of {tc.num_base_vertices} vertices, "
                          f"the dataset has {num_vertices}")
     return tc
+
+
+def as_texcoords(texcoords: "TexcoordSet | str | os.PathLike", name: str = "texcoords") -> TexcoordSet:
+    """A `TexcoordSet` as is, or the texcoord set folder at a path opened (`open_texcoords`);
+    OptionError naming `name` for anything else."""
+    if isinstance(texcoords, TexcoordSet):
+        return texcoords
+    if not isinstance(texcoords, (str, os.PathLike)):
+        raise OptionError(f"{name} must be a TexcoordSet or a texcoord set folder path, got {type(texcoords).__name__}")
+    return open_texcoords(texcoords)
 
 
 def write_header(path: Path, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray, source: str,

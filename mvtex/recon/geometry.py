@@ -45,13 +45,17 @@ a point 2 m away by ~1 cm). COLMAP's default (`min_tri_angle`) is 1.5°."""
 
 def camera_arrays(cameras: Sequence[Camera]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stacked intrinsics K (C,3,3), rotations R (C,3,3) and translations t (C,3), float64."""
-    if isinstance(cameras, (str, bytes, Camera)) or not hasattr(cameras, "__iter__") \
-            or not all(isinstance(c, Camera) for c in cameras):
-        raise OptionError(f"cameras must be a sequence of Camera (or a Rig), got {type(cameras).__name__}")
-    cameras = list(cameras)
+    cameras = _cameras(cameras)
     if len(cameras) == 0:
         raise OptionError("cameras must hold at least one camera, got 0")
     return (np.stack([c.K for c in cameras]), np.stack([c.R for c in cameras]), np.stack([c.t for c in cameras]))
+
+
+def _cameras(cameras) -> list[Camera]:
+    """The cameras argument as a list of Camera (a Rig will do); OptionError otherwise."""
+    from mvtex.util.checks import as_list
+
+    return as_list(cameras, "cameras", Camera, "Camera (or a Rig)")
 
 
 def _project(K: np.ndarray, R: np.ndarray, t: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,9 +79,10 @@ def project_points(cameras: Sequence[Camera], points: np.ndarray) -> tuple[np.nd
         pixels (N,C,2) float64 (NaN/inf where z = 0) and camera coordinates (N,C,3) float64
         (z = [..., 2] is the depth; ≤ 0 behind the camera).
     """
-    points = np.asarray(points, dtype=np.float64)
+    arrays = camera_arrays(cameras)
+    points = _as_array(points, "points")
     check_shape(points, "points", ("N", 3))
-    return _project(*camera_arrays(cameras), points)
+    return _project(*arrays, points)
 
 
 def in_image(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -102,6 +107,7 @@ def reprojection_errors(cameras: Sequence[Camera], points: np.ndarray, pixels: n
 
 
 def _check_observations(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray) -> dict[str, int]:
+    cameras = _cameras(cameras)
     sizes = check_shape(pixels, "pixels", ("N", len(cameras), 2))
     return check_shape(weights, "weights", ("N", len(cameras)), sizes)
 
@@ -274,6 +280,7 @@ def triangulate_points(cameras: Sequence[Camera], pixels: np.ndarray, weights: n
     if isinstance(min_angle_deg, bool) or not isinstance(min_angle_deg, (int, float, np.floating)) \
             or not 0 <= min_angle_deg < 180:
         raise OptionError(f"min_angle_deg must be a number in [0, 180), got {min_angle_deg!r}")
+    cameras = _cameras(cameras)
     pixels = _as_array(pixels, "pixels")
     weights = _as_array(weights, "weights")
     X = triangulate_dlt(cameras, pixels, weights)

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mvtex.data.rig import Rig, check_outside_body
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
@@ -42,6 +42,17 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         InputError: a pose outside the dataset or the texcoord set, a texcoord set made
             for another mesh, fewer than 2 cameras shared by rig and texcoord set.
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import as_texcoords
+    from mvtex.util.checks import as_index, as_path, check_instance
+
+    dataset = as_dataset(dataset)
+    rig = as_rig(rig)[0]
+    texcoords = as_texcoords(texcoords)
+    pose = as_index(pose, "pose")
+    out = as_path(out, "out", optional=True)
+    check_instance(options, ReconOptions, "options")
     if ctx is None:
         from mvtex.render.context import GLContext
 

@@ -137,7 +137,11 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
     from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
+    from mvtex.util.checks import as_path, check_instance
+
     check_backend(workers, scheduler)
+    out = as_path(out, "out")
+    check_instance(options, SlideOptions, "options")
     ds = as_dataset(dataset)
     rig, rig_path = as_rig(rig)
     rig = rig.select(cameras, source=rig_path)

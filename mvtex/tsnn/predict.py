@@ -25,7 +25,7 @@ from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
 from mvtex.tsnn.train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import create_npy, read_json, write_npy_rows
 from mvtex.util.output import atomic_path
 
@@ -84,7 +84,9 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
 
     from mvtex.tsnn.model import build_network
 
-    path = Path(path)
+    from mvtex.util.checks import as_path
+
+    path = as_path(path, "path")
     if not path.is_dir():
         raise InputError(path, "model directory not found")
     file = path / "config.json"
@@ -276,6 +278,18 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
             for one camera, a model made for another mesh or pose size, a rig camera no
             model can predict.
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.util.checks import as_path
+
+    dataset = as_dataset(dataset)
+    out = as_path(out, "out")
+    rig = None if rig is None else as_rig(rig)[0]
+    if isinstance(models, (str, os.PathLike)):
+        models = [models]
+    if not hasattr(models, "__iter__") or isinstance(models, (bytes, dict)):
+        raise OptionError(f"models must be a list of model folder paths, got {type(models).__name__}")
+    models = [as_path(m, "models") for m in models]
     from tqdm import tqdm
 
     out = Path(out)

@@ -38,12 +38,12 @@ def worker_count(workers: int) -> int:
 
 
 def check_backend(workers: int | None = None, scheduler: str | None = None, *,
-                  timeout: float = SCHEDULER_TIMEOUT_S) -> None:
+                  timeout: float | None = None) -> None:
     """Refuse (OptionError) a worker count outside 1..MAX_WORKERS, and a Dask scheduler
     address that is not `tcp://HOST:PORT` (or `HOST:PORT`), where nothing accepts a
     connection, or where what answers is not a Dask scheduler (no answer to Dask's
     handshake and identity request within `timeout` seconds): before any work starts or
-    anything is written."""
+    anything is written. `timeout` None: SCHEDULER_TIMEOUT_S."""
     import socket
 
     from mvtex.util.errors import OptionError
@@ -53,10 +53,13 @@ def check_backend(workers: int | None = None, scheduler: str | None = None, *,
         raise OptionError(f"workers must be an integer in 1..{MAX_WORKERS}, got {workers!r}")
     if scheduler is None:
         return
+    if not isinstance(scheduler, str):
+        raise OptionError(f"scheduler must be a Dask scheduler address tcp://HOST:PORT, got {type(scheduler).__name__}")
     match = re.fullmatch(r"(?:(?:tcp|tls)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9._-]+):(\d{1,5})/?", str(scheduler).strip())
     if not match or not 0 < int(match.group(2)) < 65536:
         raise OptionError(f"scheduler must be a Dask scheduler address tcp://HOST:PORT, got {scheduler!r}")
     host, port = match.group(1).strip("[]"), int(match.group(2))
+    timeout = SCHEDULER_TIMEOUT_S if timeout is None else float(timeout)
     try:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as err:
