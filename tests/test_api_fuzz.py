@@ -170,6 +170,24 @@ def targets(sb: Sandbox) -> dict:
                             lambda: dict(ctx=sb.gl, positions=np.asarray(ds.gt[0], np.float64), faces=ds.faces,
                                          texcoords=ds.uv, camera=cam),
                             every("ctx", "positions", "faces", "texcoords", "camera", "normals", "body")),
+        "interpolate": (mvtex.interpolate, lambda: dict(values=ds.uv, raster=sb.raster, faces=ds.faces),
+                        every("values", "raster", "faces")),
+        "MaterialMap": (mvtex.MaterialMap, lambda: dict(faces=ds.faces, uv=ds.uv, rest=ds.rest, resolution=64,
+                                                        ctx=sb.gl),
+                        every("faces", "uv", "rest", "resolution")),
+        "slide_pose": (mvtex.slide_pose,
+                       lambda: dict(gt_positions=np.asarray(ds.gt[0], np.float64),
+                                    inferred_positions=np.asarray(ds.inferred[0], np.float64), faces=ds.faces,
+                                    uv=ds.uv, camera=cam, subdivision=sb.subdivision,
+                                    options=mvtex.SlideOptions(subdiv=0), ctx=sb.gl),
+                       every("gt_positions", "inferred_positions", "faces", "uv", "camera", "subdivision", "options",
+                             "topology", "body")),
+        "reconstruct": (mvtex.reconstruct,
+                        lambda: dict(gt_uv=ds.uv, inferred_positions=tc.positions(np.asarray(ds.inferred[0], np.float64)),
+                                     faces=tc.faces, uv=tc.uv, texcoords={c: tc.texcoords(c, 0) for c in tc.cameras},
+                                     rig=rig, gt_faces=ds.faces, ctx=sb.gl),
+                        every("gt_uv", "inferred_positions", "faces", "uv", "texcoords", "rig", "options", "gt_faces",
+                              "assigned", "rest", "body")),
         "rasterize_uv": (mvtex.rasterize_uv, lambda: dict(ctx=sb.gl, uv=ds.uv, faces=ds.faces, width=32, height=32),
                          every("ctx", "uv", "faces", "width", "height")),
     }
@@ -206,6 +224,11 @@ def sandbox(tmp_path, tiny_dataset, front_rig, slid_sheet, gl, monkeypatch):
     monkeypatch.chdir(tmp_path)  # a hostile path that is valid text stays in here
     sb = Sandbox(tmp_path, tiny_dataset, front_rig, slid_sheet)
     sb.gl = gl
+    from mvtex.data.mesh import subdivide
+
+    ds = sb.dataset
+    sb.raster = mvtex.rasterize(gl, np.asarray(ds.gt[0], np.float64), ds.faces, front_rig.cameras[0])
+    sb.subdivision = subdivide(ds.faces, ds.num_vertices, 0)
     return sb
 
 
@@ -214,7 +237,7 @@ NAMES = ["Camera", "look_at", "Rig", "load_rig", "save_rig", "load_dataset", "sa
          "write_board_png", "fill", "load_model", "slide_dataset", "evaluate", "triangulate_pose", "novel_views",
          "stereo_preview", "render_pose", "train", "train_cameras", "predict", "run_bench", "run_demo",
          "write_synth", "synthesize", "import_sequences", "calibrate_folder", "calibrate", "rasterize",
-         "render_textured", "rasterize_uv"]
+         "render_textured", "rasterize_uv", "interpolate", "MaterialMap", "slide_pose", "reconstruct"]
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -253,6 +276,5 @@ def test_an_options_field_of_a_hostile_type_raises_a_typed_error(name, sandbox):
 def test_the_fuzzed_names_are_the_public_api():
     """Every public function and options class is fuzzed (the result types are not)."""
     results = {"InputError", "OptionError", "Dataset", "TexcoordSet", "SynthResult", "GLContext", "Raster",
-               "Evaluation", "Reconstruction", "ReconReport", "TrainResult", "TrainedCameras", "MaterialMap",
-               "interpolate", "reconstruct", "slide_pose", "__version__"}
+               "Evaluation", "Reconstruction", "ReconReport", "TrainResult", "TrainedCameras", "__version__"}
     assert set(mvtex.__all__) - results - set(NAMES) - set(OPTIONS) == set()

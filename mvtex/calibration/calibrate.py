@@ -206,12 +206,20 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     from mvtex.data.camera import MAX_IMAGE_SIZE
 
     try:
-        with Image.open(path) as image:
-            width, height = image.size
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
-        raise InputError(path, f"cannot be read as an image ({err.__class__.__name__})") from None
-    except Image.DecompressionBombError:
-        raise InputError(path, f"image larger than {MAX_IMAGE_SIZE}x{MAX_IMAGE_SIZE} pixels") from None
+        with open(path, "rb") as file:
+            head = file.read(24)
+    except OSError as err:
+        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":  # the size is in the first chunk
+        width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    else:
+        try:
+            with Image.open(path) as image:
+                width, height = image.size
+        except Image.DecompressionBombError:  # Pillow's own bound (far above ours) says so first
+            raise InputError(path, f"image larger than {MAX_IMAGE_SIZE}x{MAX_IMAGE_SIZE} pixels") from None
+        except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
+            raise InputError(path, f"cannot be read as an image ({err.__class__.__name__})") from None
     if not (1 <= width <= MAX_IMAGE_SIZE and 1 <= height <= MAX_IMAGE_SIZE):
         raise InputError(path, f"image is {width}x{height}: mvtex reads images of 1..{MAX_IMAGE_SIZE} pixels "
                          "a side")

@@ -47,12 +47,12 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     from mvtex.data.texcoords import as_texcoords
     from mvtex.util.checks import as_index, as_path, check_instance
 
+    pose = as_index(pose, "pose")  # the plain arguments first, before any file is opened
+    out = as_path(out, "out", optional=True)
+    check_instance(options, ReconOptions, "options")
     dataset = as_dataset(dataset)
     rig = as_rig(rig)[0]
     texcoords = as_texcoords(texcoords)
-    pose = as_index(pose, "pose")
-    out = as_path(out, "out", optional=True)
-    check_instance(options, ReconOptions, "options")
     if ctx is None:
         from mvtex.render.context import GLContext
 

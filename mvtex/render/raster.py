@@ -443,9 +443,20 @@ def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, came
 
 def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.ndarray:
     """Per-vertex values (n,C) interpolated at every pixel, (H,W,C) float32; 0 on background."""
-    values = np.asarray(values)
+    from mvtex.util.checks import as_array, check_instance, check_shape
+    from mvtex.util.errors import OptionError
+
+    check_instance(raster, Raster, "raster")
+    values = as_array(values, "values")
+    check_shape(values, "values", ("n", "C"))
+    faces = as_array(faces, "faces", None)
+    check_shape(faces, "faces", ("m", 3))
+    if faces.dtype.kind not in "iu" or (faces.size and (faces.min() < 0 or faces.max() >= len(values))):
+        raise OptionError(f"faces must be integer indices into the {len(values)} values")
+    if raster.tri_id.size and raster.tri_id.max() >= len(faces):
+        raise OptionError(f"raster names triangle {int(raster.tri_id.max())}, faces has {len(faces)}")
     if raster.bary is None:
-        raise ValueError("interpolate needs a raster with barycentrics (attributes=True)")
+        raise OptionError("raster: interpolate needs a raster with barycentrics (attributes=True)")
     mask = raster.mask
     out = np.zeros(raster.tri_id.shape + (values.shape[1],), dtype=np.float32)
     f = np.asarray(faces)[raster.tri_id[mask]]
