@@ -116,6 +116,12 @@ class Camera:
         R: (3,3) float64 rotation, world -> camera.
         t: (3,) float64 translation, world -> camera.
         dist: (5,) float64 OpenCV distortion (k1,k2,p1,p2,k3); must be zero to render.
+
+    Raises:
+        OptionError: a name that is not allowed (`check_camera_name`), a size outside
+            1..MAX_IMAGE_SIZE, K, R, t or dist not finite numbers of their shape, K not
+            upper triangular with fx, fy > 0, or R not a rotation (`check_rotation`). The rig
+            loader and `save_rig` accept exactly these cameras.
     """
 
     name: str

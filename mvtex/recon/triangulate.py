@@ -359,7 +359,7 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     check_instance(options, ReconOptions, "options")
     rig = as_rig(rig)[0]
     gt_uv = as_array(gt_uv, "gt_uv")
-    X_N, faces = check_mesh(inferred_positions, faces, "inferred_positions")
+    X_N, faces = check_mesh(inferred_positions, faces, "inferred_positions", size="n'", faces_size="m'")
     faces = faces.astype(np.int64)
     uv = as_array(uv, "uv")
     if not isinstance(texcoords, dict) or not all(isinstance(k, str) for k in texcoords):

@@ -23,22 +23,23 @@ from mvtex.data.camera import Camera
 from mvtex.render.context import GLContext
 
 
-def check_mesh(positions, faces, name: str = "positions", dims: int = 3) -> tuple[np.ndarray, np.ndarray]:
+def check_mesh(positions, faces, name: str = "positions", dims: int = 3, size: str = "n",
+               faces_size: str = "m") -> tuple[np.ndarray, np.ndarray]:
     """Positions (n,dims) finite float64 and faces (m,3) integer indices into them, checked
     before anything reaches GL (OptionError naming the argument)."""
     from mvtex.util.checks import as_array, check_shape
     from mvtex.util.errors import OptionError
 
     positions = as_array(positions, name)
-    sizes = check_shape(positions, name, ("n", dims))
+    sizes = check_shape(positions, name, (size, dims))
     if not np.all(np.isfinite(positions)):
         raise OptionError(f"{name} has NaN or infinite values")
     faces = as_array(faces, "faces", None)
-    check_shape(faces, "faces", ("m", 3))
+    check_shape(faces, "faces", (faces_size, 3))
     if faces.dtype.kind not in "iu":
         raise OptionError(f"faces must be integers, got {faces.dtype}")
-    if faces.size and (faces.min() < 0 or faces.max() >= sizes["n"]):
-        raise OptionError(f"faces index vertices outside [0, {sizes['n']})")
+    if faces.size and (faces.min() < 0 or faces.max() >= sizes[size]):
+        raise OptionError(f"faces index vertices outside [0, {sizes[size]})")
     return positions, faces
 
 
