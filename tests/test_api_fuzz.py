@@ -8,7 +8,6 @@ IndexError, KeyError, AttributeError or TypeError from inside, never a hang."""
 from __future__ import annotations
 
 import itertools
-import os
 from pathlib import Path
 
 import numpy as np

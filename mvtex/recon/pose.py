@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mvtex.data.rig import Rig, check_outside_body
-from mvtex.util.errors import InputError, OptionError
+from mvtex.util.errors import InputError
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext

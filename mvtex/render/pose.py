@@ -21,7 +21,7 @@ from mvtex.data.camera import Camera
 from mvtex.data.dataset import Dataset
 from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.data.texcoords import TexcoordSet
-from mvtex.util.errors import InputError, OptionError
+from mvtex.util.errors import InputError
 from mvtex.util.files import read_row, save_png, write_json
 from mvtex.util.output import atomic_path
 

@@ -202,7 +202,6 @@ def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, 
     (DESIGN §3). Only texels whose centre is inside a triangle are written; where
     triangles overlap in uv, the last drawn wins. `depth` is 0.
     """
-    from mvtex.data.camera import check_render_size
     from mvtex.util.checks import as_index
     from mvtex.util.errors import OptionError
 
