@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig, check_sees
+from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.sliding.hits import Hits, find_hits_raster, in_front, intersect_pairs, owning_vertices
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import displacement_from_hits
@@ -162,6 +162,9 @@ def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
+    from mvtex.util.parallel import worker_count
+
+    workers = worker_count(workers)  # never more processes than cores
     ctx = mp.get_context("spawn")
     with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
         barrier = manager.Barrier(workers)
@@ -223,6 +226,13 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     Returns:
         A `BenchResult`.
     """
+    from mvtex.util.checks import as_index, as_indices
+    from mvtex.util.errors import OptionError
+
+    poses = None if poses is None else as_indices(poses, "poses")
+    subdiv, repeats = as_index(subdiv, "subdiv"), as_index(repeats, "repeats")
+    if not 0 <= subdiv <= 3 or not 1 <= repeats <= 100:
+        raise OptionError(f"subdiv must be in 0..3 and repeats in 1..100, got {subdiv} and {repeats}")
     from tqdm import tqdm
 
     from mvtex.data.dataset import as_dataset, reference_shape
@@ -235,6 +245,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     poses = list(range(min(10, ds.num_poses))) if poses is None else ds.check_poses(poses)
     check_sees(rig, np.asarray(ds.inferred[poses[0]]), rig_source,
                what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
+    check_outside_body(rig, ds, poses, rig_source)
     if ctx is None:
         with GLContext() as own:
             return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,

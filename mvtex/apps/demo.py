@@ -34,7 +34,10 @@ class DemoOptions:
     tsnn: bool = True
 
     def __post_init__(self) -> None:
+        from mvtex.util.checks import check_field_types
         from mvtex.util.errors import OptionError
+
+        check_field_types(self)
 
         if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, int) or self.num_poses < MIN_POSES:
             raise OptionError(f"num_poses must be an integer of at least {MIN_POSES}, got {self.num_poses!r}")
@@ -50,6 +53,10 @@ def _step(name: str, progress: bool) -> float:
 
 def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progress: bool = True) -> dict:
     """Run the demo into `out`; returns a summary dict (also written to OUT/summary.json)."""
+    from mvtex.util.checks import as_path, check_instance
+
+    out = as_path(out, "out")
+    check_instance(options, DemoOptions, "options")
     from mvtex.data.dataset import load_dataset
     from mvtex.data.rig import builtin_rig_path, load_rig
     from mvtex.data.texcoords import open_texcoords

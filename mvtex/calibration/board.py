@@ -53,6 +53,20 @@ class BoardSpec:
     marker_m: float
     dictionary: str
 
+    def __post_init__(self) -> None:
+        import cv2
+
+        from mvtex.util.checks import check_field_types
+
+        check_field_types(self)
+        if self.cols < 3 or self.rows < 3:
+            raise OptionError(f"cols and rows must be at least 3, got {self.cols}x{self.rows}")
+        if not 0 < self.marker_m < self.square_m:
+            raise OptionError(f"marker_m must be in (0, square_m), got square_m {self.square_m:g} and "
+                              f"marker_m {self.marker_m:g}")
+        if not self.dictionary.startswith("DICT_") or not isinstance(getattr(cv2.aruco, self.dictionary, None), int):
+            raise OptionError(f"dictionary must be an OpenCV ArUco dictionary (cv2.aruco.DICT_*), got {self.dictionary!r}")
+
     def __str__(self) -> str:
         return f"charuco:{self.cols}x{self.rows}:{self.square_m:g}:{self.marker_m:g}:{self.dictionary}"
 
@@ -143,6 +157,16 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
     Returns:
         {"path", "spec", "pixels_per_square", "dpi", "width_px", "height_px", "width_mm", "height_mm"}.
     """
+    from mvtex.util.checks import as_path, check_instance
+
+    check_instance(spec, BoardSpec, "spec")
+    path = as_path(path, "path")
+    for key, value in (("dpi", dpi), ("pixels_per_square", pixels_per_square), ("margin_m", margin_m)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
+                                  or not np.isfinite(value)):
+            raise OptionError(f"{key} must be a finite number, got {value!r:.60}")
+    if pixels_per_square is not None and not float(pixels_per_square).is_integer():
+        raise OptionError(f"pixels_per_square must be an integer, got {pixels_per_square!r}")
     import cv2
     from PIL import Image, PngImagePlugin
 

@@ -36,6 +36,7 @@ import numpy as np
 from mvtex.calibration.board import BoardDetector, BoardSpec, Detection
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -71,6 +72,7 @@ class CalibrateOptions:
     huber_px: float = 1.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.distortion not in DISTORTION_MODELS:
             raise OptionError(f"distortion must be one of {', '.join(DISTORTION_MODELS)}, got {self.distortion!r}")
         if self.min_corners < 4:
@@ -191,10 +193,45 @@ def find_images(folder: str | os.PathLike) -> list[CameraImages]:
     return cameras
 
 
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of a PNG or JPEG from its header, without decoding the pixels (Pillow
+    opens lazily).
+
+    Raises:
+        InputError: naming the file when it is not a readable image, or larger than
+            `mvtex.data.camera.MAX_IMAGE_SIZE` on a side (checked before any memory is taken).
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    from mvtex.data.camera import MAX_IMAGE_SIZE
+
+    try:
+        with open(path, "rb") as file:
+            head = file.read(24)
+    except OSError as err:
+        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":  # the size is in the first chunk
+        width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    else:
+        try:
+            with Image.open(path) as image:
+                width, height = image.size
+        except Image.DecompressionBombError:  # Pillow's own bound (far above ours) says so first
+            raise InputError(path, f"image larger than {MAX_IMAGE_SIZE}x{MAX_IMAGE_SIZE} pixels") from None
+        except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
+            raise InputError(path, f"cannot be read as an image ({err.__class__.__name__})") from None
+    if not (1 <= width <= MAX_IMAGE_SIZE and 1 <= height <= MAX_IMAGE_SIZE):
+        raise InputError(path, f"image is {width}x{height}: mvtex reads images of 1..{MAX_IMAGE_SIZE} pixels "
+                         "a side")
+    return int(width), int(height)
+
+
 def read_gray(path: Path) -> np.ndarray:
-    """A gray (H,W) uint8 image; unreadable files raise InputError naming them."""
+    """A gray (H,W) uint8 image; unreadable files and images larger than MAX_IMAGE_SIZE a
+    side (`image_size`, read from the header before decoding) raise InputError naming them."""
     import cv2
 
+    image_size(path)
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if image is None or image.size == 0:
         raise InputError(path, "cannot be read as an image")
@@ -499,6 +536,14 @@ def calibrate(cameras: Sequence[CameraImages], options: CalibrateOptions, *, pro
         InputError: unreadable images, a camera with too few usable frames, a camera that
             shares no frame with the others, an unknown reference camera.
     """
+    from mvtex.util.checks import check_instance
+
+    check_instance(options, CalibrateOptions, "options")
+    from mvtex.util.checks import as_list
+
+    cameras = as_list(cameras, "cameras", CameraImages, "CameraImages (`find_images`)")
+    if not cameras:
+        raise OptionError("cameras must be a non-empty list of CameraImages (`find_images`)")
     import cv2
     from scipy.optimize import least_squares
     from tqdm import tqdm

@@ -60,6 +60,11 @@ def calibrate_folder(images: str | os.PathLike, rig_path: str | os.PathLike, opt
                      pictures: str | os.PathLike | None = None, progress: bool = True) -> Calibration:
     """`mvtex calibrate`: find the images, calibrate, write the rig (and, into `pictures`,
     the record and pictures of the calibration)."""
+    from mvtex.util.checks import as_path, check_instance
+
+    images, rig_path = as_path(images, "images"), as_path(rig_path, "rig_path")
+    pictures = as_path(pictures, "pictures", optional=True)
+    check_instance(options, CalibrateOptions, "options")
     calibration = calibrate(find_images(images), options, progress=progress)
     write_calibration(calibration, rig_path, pictures)
     return calibration

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mvtex.calibration.calibrate import image_size
 from mvtex.data.camera import undistort_image, undistorted_camera
 from mvtex.data.rig import Rig, save_rig, undistort_rig
 from mvtex.util.errors import InputError, OptionError
@@ -128,6 +129,7 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
         tmp.mkdir()
         for name, files in plan.items():
             for source, relative in files:
+                image_size(source)  # the header's size is checked before decoding
                 image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
                 if image is None:
                     raise InputError(source, "cannot be read as an image")

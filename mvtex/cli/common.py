@@ -173,7 +173,7 @@ def load_rig(spec: str, pinhole: bool = True):
     rig = load(path)
     if pinhole:
         for camera in rig:
-            camera.require_pinhole(path)
+            camera.require_renderable(path)
     return rig, str(path)
 
 

@@ -22,9 +22,21 @@ from typing import Sequence
 
 import numpy as np
 
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 MAX_IMAGE_SIZE = 16384
+
+
+MAX_RENDER_PIXELS = 12_000_000
+"""Most pixels of one rendered image (12 megapixels, e.g. 4000x3000). Rendering takes
+about 140 bytes a pixel (id, barycentric and depth buffers and their readback), so one
+image stays within the 2 GB memory target; larger cameras are refused before anything is
+allocated. Calibration and rig tools take cameras up to MAX_IMAGE_SIZE a side."""
+
+
+ROTATION_TOLERANCE = 1e-6
+"""Largest |R Rᵀ - I| entry and |det R - 1| a camera's rotation may have (a rotation stored
+as decimal text in a rig YAML keeps ~1e-15)."""
 
 
 CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
@@ -38,20 +50,51 @@ RESERVED_NAMES = frozenset({
 })
 
 
+# Names that YAML (the rig format, read by OpenCV) reads as a boolean or null, not as text.
+YAML_NON_STRINGS = frozenset({"true", "false", "null"})
+
+
 def check_camera_name(name) -> str:
-    """Return `name` if it is a safe camera name, else raise ValueError saying why.
+    """Return `name` if it is a safe camera name, else raise OptionError (a ValueError) saying why.
 
     Camera names become folder and file names, so they are restricted to
     ``[A-Za-z0-9][A-Za-z0-9_.-]{0,63}`` (no path separators, no leading dot, so never "."
-    or ".."), must not end with a dot, and must not be one of the names of mvtex's output
-    layouts (`RESERVED_NAMES`, compared without case).
+    or ".."), must not end with a dot, must not be one of the names of mvtex's output
+    layouts (`RESERVED_NAMES`, compared without case), and must not be a word YAML reads
+    as a boolean or null (`YAML_NON_STRINGS`, without case): a rig file could not store it.
     """
     if not isinstance(name, str) or not CAMERA_NAME.fullmatch(name) or name.endswith("."):
-        raise ValueError(f"camera name {name!r} is not allowed: use 1-64 letters, digits, '_', '-' or '.', "
-                         "starting with a letter or digit (it becomes a folder name)")
+        raise OptionError(f"camera name {name!r} is not allowed: use 1-64 letters, digits, '_', '-' or '.', "
+                          "starting with a letter or digit (it becomes a folder name)")
     if name.lower() in RESERVED_NAMES:
-        raise ValueError(f"camera name {name!r} is reserved (an mvtex output uses that file name)")
+        raise OptionError(f"camera name {name!r} is reserved (an mvtex output uses that file name)")
+    if name.lower() in YAML_NON_STRINGS:
+        raise OptionError(f"camera name {name!r} is not allowed: a rig file (YAML) would read it as "
+                          f"{'null' if name.lower() == 'null' else 'a boolean'}, not as a name")
     return name
+
+
+def check_rotation(R: np.ndarray, what: str = "R") -> None:
+    """Raise OptionError unless R (3,3) is a proper rotation: orthonormal (|R Rᵀ - I| ≤
+    ROTATION_TOLERANCE entrywise) with determinant +1 (a reflection is not a camera)."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise OptionError(f"{what} must be a finite 3x3 rotation matrix, got shape {R.shape}")
+    error = float(np.abs(R @ R.T - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if error > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
+        raise OptionError(f"{what} is not a rotation matrix (|R Rᵀ - I| = {error:.3g}, det {det:.6g}; "
+                          f"needs orthonormal rows and det +1 within {ROTATION_TOLERANCE:g})")
+
+
+def _as_float_array(value, what: str) -> np.ndarray:
+    """`value` as a float64 array; OptionError (naming `what`) for what is not numbers."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise OptionError(f"{what} must be an array of numbers, got {type(value).__name__}")
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise OptionError(f"{what} must be an array of numbers, got {type(value).__name__}") from None
 
 
 def image_contains(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -73,6 +116,12 @@ class Camera:
         R: (3,3) float64 rotation, world -> camera.
         t: (3,) float64 translation, world -> camera.
         dist: (5,) float64 OpenCV distortion (k1,k2,p1,p2,k3); must be zero to render.
+
+    Raises:
+        OptionError: a name that is not allowed (`check_camera_name`), a size outside
+            1..MAX_IMAGE_SIZE, K, R, t or dist not finite numbers of their shape, K not
+            upper triangular with fx, fy > 0, or R not a rotation (`check_rotation`). The rig
+            loader and `save_rig` accept exactly these cameras.
     """
 
     name: str
@@ -84,26 +133,32 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
 
     def __post_init__(self) -> None:
+        # Every check raises OptionError (an InputError, a ValueError): the rig loader and the
+        # rig writer accept exactly the cameras this constructor accepts.
         check_camera_name(self.name)
         for key in ("width", "height"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (numbers.Integral, numbers.Real)) \
-                    or not float(value).is_integer() or not 1 <= value <= MAX_IMAGE_SIZE:
-                raise ValueError(f"camera {self.name!r}: {key} must be an integer in 1..{MAX_IMAGE_SIZE}, got {value!r}")
+                    or not np.isfinite(float(value)) or not float(value).is_integer() \
+                    or not 1 <= value <= MAX_IMAGE_SIZE:
+                raise OptionError(f"camera {self.name!r}: {key} must be an integer in 1..{MAX_IMAGE_SIZE}, "
+                                  f"got {value!r}")
         for key, shape in (("K", (3, 3)), ("R", (3, 3)), ("t", (3,)), ("dist", (5,))):
-            value = np.asarray(getattr(self, key), dtype=np.float64)
+            value = _as_float_array(getattr(self, key), f"camera {self.name!r}: {key}")
             if key in ("t", "dist"):
                 value = value.reshape(-1)
                 if key == "dist" and value.size < 5:
                     value = np.pad(value, (0, 5 - value.size))
             if value.shape != shape or not np.all(np.isfinite(value)):
-                raise ValueError(f"camera {self.name!r}: {key} must be finite with shape {shape}, got {value.shape}")
+                raise OptionError(f"camera {self.name!r}: {key} must be finite with shape {shape}, got "
+                                  f"{value.shape}{'' if np.all(np.isfinite(value)) else ' with NaN or infinite values'}")
             value.setflags(write=False)
             object.__setattr__(self, key, value)
         K = self.K
         if not (K[0, 0] > 0 and K[1, 1] > 0) or K[1, 0] != 0 or np.any(K[2] != (0, 0, 1)):
-            raise ValueError(f"camera {self.name!r}: K must be [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, "
-                             f"got {K.tolist()}")
+            raise OptionError(f"camera {self.name!r}: K must be [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, "
+                              f"got {K.tolist()}")
+        check_rotation(self.R, f"camera {self.name!r}: R")
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
 
@@ -161,6 +216,13 @@ class Camera:
                              "(mvtex rig RIG --undistort --out RIG2) and compare with undistorted images "
                              "(mvtex undistort IMAGES --rig RIG --out DIR)")
 
+    def require_renderable(self, source: str | os.PathLike | None = None) -> None:
+        """Raise InputError (naming `source`, e.g. the rig file) unless the camera is pinhole
+        (`require_pinhole`) and its image has at most MAX_RENDER_PIXELS pixels: checked
+        before a renderer allocates its buffers."""
+        self.require_pinhole(source)
+        check_render_size(self.width, self.height, source, f"camera {self.name!r}")
+
     def sees(self, points: np.ndarray) -> bool:
         """True if any world point (..., 3) lies in front of the camera and inside its image."""
         pixels, z = self.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))
@@ -179,20 +241,56 @@ class Camera:
         return replace(self, name=name)
 
 
+def check_render_size(width: int, height: int, source: str | os.PathLike | None = None,
+                      what: str = "the image") -> None:
+    """Raise InputError (naming `source`) when a width x height image has more than
+    MAX_RENDER_PIXELS pixels (before any buffer of it is allocated)."""
+    if int(width) * int(height) > MAX_RENDER_PIXELS:
+        raise InputError(source, f"{what} is {int(width)}x{int(height)} ({int(width) * int(height) / 1e6:.1f} "
+                         f"megapixels): mvtex renders images of at most {MAX_RENDER_PIXELS / 1e6:g} megapixels "
+                         "(e.g. 4000x3000); render a camera of fewer pixels (K scaled with the size)")
+
+
 def look_at(name: str, center: Sequence[float], target: Sequence[float], *, width: int, height: int,
             focal: float, up: Sequence[float] = (0.0, 1.0, 0.0)) -> Camera:
     """A camera at `center` looking at `target`, world `up` appearing up in the image.
 
     The principal point is the image centre ((W-1)/2, (H-1)/2) in OpenCV pixel coordinates.
+
+    Raises:
+        OptionError: naming the argument: centre, target or up not finite 3-vectors, the
+            target at the centre (no viewing direction), `up` along the viewing direction
+            (no roll defined), a focal length that is not a positive finite number, and
+            whatever `Camera` refuses (name, width, height).
     """
-    center = np.asarray(center, dtype=np.float64)
-    z = np.asarray(target, dtype=np.float64) - center
-    z /= np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, dtype=np.float64))
+    check_camera_name(name)
+    vectors = {}
+    for key, value in (("center", center), ("target", target), ("up", up)):
+        vec = _as_float_array(value, key)
+        if vec.shape != (3,) or not np.all(np.isfinite(vec)):
+            raise OptionError(f"{key} must be 3 finite numbers (x, y, z), got {vec.tolist() if vec.size <= 9 else vec.shape}")
+        vectors[key] = vec
+    if isinstance(focal, bool) or not isinstance(focal, numbers.Real) or not 0 < float(focal) < float("inf"):
+        raise OptionError(f"focal must be a positive finite number of pixels, got {focal!r}")
+    center = vectors["center"]
+    z = vectors["target"] - center
+    distance = float(np.linalg.norm(z))
+    if not distance > 1e-12 * max(1.0, float(np.abs(center).max())):
+        raise OptionError(f"target must differ from center (the camera looks from center towards target), "
+                          f"both are {center.tolist()}")
+    z /= distance
+    up_norm = float(np.linalg.norm(vectors["up"]))
+    x = np.cross(z, vectors["up"])
+    if not up_norm > 0 or np.linalg.norm(x) < 1e-9 * up_norm:
+        raise OptionError(f"up must not be parallel to the viewing direction target - center "
+                          f"({z.tolist()}), got {vectors['up'].tolist()}: choose another up vector")
     x /= np.linalg.norm(x)
     y = np.cross(z, x)  # image y points down: world up appears up
     R = np.stack([x, y, z])
-    K = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    for key, value in (("width", width), ("height", height)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(float(value)):
+            raise OptionError(f"{key} must be an integer in 1..{MAX_IMAGE_SIZE}, got {value!r}")
+    K = np.array([[float(focal), 0.0, (width - 1) / 2.0], [0.0, float(focal), (height - 1) / 2.0], [0.0, 0.0, 1.0]])
     return Camera(name=name, width=width, height=height, K=K, R=R, t=-R @ center)
 
 
@@ -215,7 +313,7 @@ def undistorted_camera(camera: Camera, alpha: float | None = None) -> Camera:
         import cv2
 
         if not 0.0 <= float(alpha) <= 1.0:
-            raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+            raise OptionError(f"alpha must be in [0, 1], got {alpha}")
         size = (camera.width, camera.height)
         K, _ = cv2.getOptimalNewCameraMatrix(camera.K, camera.dist, size, float(alpha), size)
     return replace(camera, K=np.asarray(K, dtype=np.float64), dist=np.zeros(5))

@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_row, read_rows
 from mvtex.util.output import atomic_path
 
@@ -96,8 +96,10 @@ class Dataset:
 
     def check_poses(self, poses) -> list[int]:
         """Pose indices as ints; InputError (naming the dataset) when none, one out of range
-        or one given twice."""
-        poses = [int(p) for p in poses]
+        or one given twice; OptionError when `poses` is not a list of integers."""
+        from mvtex.util.checks import as_indices
+
+        poses = as_indices(poses, "poses")
         if not poses:
             raise InputError(self.path, "no pose selected")
         _check_range(poses, self.num_poses, self.path)
@@ -112,8 +114,13 @@ class Dataset:
 
 
 def as_dataset(dataset: "Dataset | str | os.PathLike") -> Dataset:
-    """A `Dataset` as is, or the dataset directory at a path loaded (`load_dataset`)."""
-    return dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
+    """A `Dataset` as is, or the dataset directory at a path loaded (`load_dataset`);
+    OptionError for anything else."""
+    if isinstance(dataset, Dataset):
+        return dataset
+    if not isinstance(dataset, (str, os.PathLike)):
+        raise OptionError(f"dataset must be a Dataset or a dataset folder path, got {type(dataset).__name__}")
+    return load_dataset(dataset)
 
 
 def reference_shape(dataset: Dataset) -> np.ndarray:
@@ -243,7 +250,9 @@ def _check_finite(array: np.ndarray, source: Path) -> None:
 
 def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
     """Open a dataset directory (arrays memory-mapped); problems raise InputError."""
-    path = Path(path)
+    from mvtex.util.checks import as_path
+
+    path = as_path(path, "path")
     meta = read_header(path, "dataset.json", FORMAT, VERSION, "an mvtex dataset")
     mesh = load_npz(path / "mesh.npz")
     for key in ("faces", "uv"):
@@ -371,27 +380,67 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
                  body_faces: np.ndarray | None = None, body: np.ndarray | None = None, **extra_meta) -> Path:
     """Write a dataset directory atomically (the whole directory appears at once).
 
+    Everything `load_dataset` checks is checked first (shapes, finite values, the split's
+    pose indices, the body), so that a dataset written is a dataset that loads.
+
     Args:
         faces: (m,3) int. uv: (n,2). gt, inferred: (K,n,3). poses: (K,P).
         rest: optional (n,3). split: optional train/val/test lists (default 80/10/10).
         body_faces: optional (mb,3) int, and body: optional (K,nb,3): the wearer's body
             (both or neither), written as body.npz and body.npy.
         extra_meta: extra JSON-serialisable keys for dataset.json (e.g. "stats").
+
+    Raises:
+        OptionError: naming the argument of a wrong type, shape or value.
     """
     import json
 
-    path = Path(path)
-    gt = np.asarray(gt, dtype=np.float32)
-    inferred = np.asarray(inferred, dtype=np.float32)
-    poses = np.asarray(poses, dtype=np.float32).reshape(len(gt), -1)
-    validate_mesh(faces, uv, path)
-    if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3):
-        raise InputError(path, f"gt {gt.shape} and inferred {inferred.shape} must both be (K,{len(uv)},3)")
-    check_body_arrays(body_faces, body, len(gt), path)
+    from mvtex.util.checks import as_array, as_path
+
+    path = as_path(path, "path")
+    if not isinstance(name, str):
+        raise OptionError(f"name must be a string, got {type(name).__name__}")
+    faces, uv = as_array(faces, "faces", None), as_array(uv, "uv", None)
+    gt = as_array(gt, "gt", np.float32)
+    inferred = as_array(inferred, "inferred", np.float32)
+    poses = as_array(poses, "poses", np.float32)
+    try:
+        validate_mesh(faces, uv, None)
+    except InputError as err:
+        raise OptionError(f"faces/uv: {err.problem}") from None
+    if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3) or not len(gt):
+        raise OptionError(f"gt and inferred must both have shape (K,{len(uv)},3) with K ≥ 1, got {gt.shape} and "
+                          f"{inferred.shape}")
+    if poses.ndim == 1 and len(poses) == len(gt):
+        poses = poses[:, None]
+    if poses.ndim != 2 or len(poses) != len(gt) or poses.shape[1] == 0:
+        raise OptionError(f"poses must have shape ({len(gt)},P), got {poses.shape}")
+    for key, array in (("gt", gt), ("inferred", inferred), ("poses", poses)):
+        if not np.all(np.isfinite(array)):
+            raise OptionError(f"{key} has NaN or infinite values (float32)")
+    if rest is not None:
+        rest = as_array(rest, "rest", np.float32)
+        if rest.shape != (len(uv), 3) or not np.all(np.isfinite(rest)):
+            raise OptionError(f"rest must be finite with shape ({len(uv)},3), got {rest.shape}")
+    if split is not None:
+        if not isinstance(split, dict) or not all(k in split for k in ("train", "val", "test")):
+            raise OptionError("split must be a dict with lists 'train', 'val' and 'test'")
+        from mvtex.util.checks import as_indices
+
+        split = {k: as_indices(split[k], f"split[{k!r}]") for k in ("train", "val", "test")}
+        if any(not 0 <= i < len(gt) for k in split for i in split[k]):
+            raise OptionError(f"split has a pose index outside [0, {len(gt)})")
     if body is not None:
-        body = np.asarray(body, dtype=np.float32)
-        if not np.all(np.isfinite(body)):
-            raise InputError(path, "body positions have NaN or infinite values")
+        body = as_array(body, "body", np.float32)
+    if body_faces is not None:
+        body_faces = as_array(body_faces, "body_faces", None)
+    try:
+        check_body_arrays(body_faces, body, len(gt), None)
+    except InputError as err:
+        raise OptionError(f"body: {err.problem}") from None
+    check_body_arrays(body_faces, body, len(gt), path)
+    if body is not None and not np.all(np.isfinite(body)):
+        raise OptionError("body positions have NaN or infinite values")
     split = split or default_split(len(gt))
     meta = metadata(name, gt.shape[0], gt.shape[1], poses.shape[1], body_faces, body, **extra_meta)
     with atomic_path(path) as tmp:

@@ -140,6 +140,15 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     With `body_glob`, a third sequence (one connectivity, no uv needed, as many meshes as
     gt, paired in sorted order) becomes the dataset's body (body.npz + body.npy).
     """
+    from mvtex.util.checks import as_path
+    from mvtex.util.errors import OptionError
+
+    out = as_path(out, "out")
+    poses_file = as_path(poses_file, "poses_file", optional=True)
+    for key, value in (("gt_glob", gt_glob), ("inferred_glob", inferred_glob), ("body_glob", body_glob),
+                       ("name", name)):
+        if value is not None and not isinstance(value, str) or value is None and key in ("gt_glob", "inferred_glob"):
+            raise OptionError(f"{key} must be a string, got {type(value).__name__}")
     gt_files = _sorted_glob(gt_glob, "gt")
     inf_files = _sorted_glob(inferred_glob, "inferred")
     if len(gt_files) != len(inf_files):

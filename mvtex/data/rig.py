@@ -14,7 +14,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from mvtex.data.camera import MAX_IMAGE_SIZE, Camera, undistorted_camera
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 
 RIG_FORMAT = "mvtex-rig"
 
@@ -24,16 +24,28 @@ RIG_VERSION = 1
 
 @dataclass(frozen=True)
 class Rig:
-    """An ordered set of uniquely named cameras."""
+    """An ordered set of at least one uniquely named camera (`Camera`).
+
+    Raises:
+        OptionError: `cameras` is not a sequence of `Camera`s, is empty, or names a camera
+            twice (ignoring case).
+    """
 
     cameras: tuple[Camera, ...]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "cameras", tuple(self.cameras))
+        from mvtex.util.checks import as_list
+
+        object.__setattr__(self, "cameras", tuple(as_list(self.cameras, "cameras", what="Camera")))
+        wrong = [type(c).__name__ for c in self.cameras if not isinstance(c, Camera)]
+        if wrong:
+            raise OptionError(f"cameras must be a sequence of Camera, got an element of type {wrong[0]}")
+        if not self.cameras:
+            raise OptionError("cameras must hold at least one camera, got none")
         names = [c.name for c in self.cameras]
         # Unique without case too: the names become folders on case-insensitive file systems.
         if len({n.lower() for n in names}) != len(names):
-            raise ValueError(f"camera names must be unique (ignoring case), got {names}")
+            raise OptionError(f"camera names must be unique (ignoring case), got {names}")
 
     def __iter__(self) -> Iterator[Camera]:
         return iter(self.cameras)
@@ -46,13 +58,19 @@ class Rig:
         return [c.name for c in self.cameras]
 
     def __getitem__(self, name: str) -> Camera:
+        """The camera of this name; `UnknownCamera` (an OptionError and a KeyError) if none."""
         for cam in self.cameras:
             if cam.name == name:
                 return cam
-        raise KeyError(name)
+        raise UnknownCamera(name, self.names)
 
     def select(self, names: Sequence[str] | None, source: str | os.PathLike | None = None) -> "Rig":
         """The sub-rig with these camera names (all if None); unknown names raise InputError."""
+        from mvtex.util.checks import as_list
+
+        if names is None:
+            return self
+        names = as_list(names, "cameras", str, "camera names")
         if not names:
             return self
         unknown = [n for n in names if n not in self.names]
@@ -61,12 +79,39 @@ class Rig:
         return Rig(tuple(self[n] for n in names))
 
 
+class UnknownCamera(OptionError, KeyError):
+    """`Rig[name]` of a name the rig does not have: an OptionError (exit code 2 from the CLI)
+    that `except KeyError` also catches."""
+
+    def __init__(self, name, names: Sequence[str] = ()):
+        self.name = name
+        self.names = list(names)
+        OptionError.__init__(self, f"camera: no camera named {name!r} (the rig has {', '.join(self.names)})")
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return self.args[0]
+
+    def __reduce__(self):
+        return type(self), (self.name, self.names)
+
+
 def save_rig(rig: Rig, path: str | os.PathLike) -> None:
-    """Write a rig as OpenCV FileStorage YAML (atomically)."""
+    """Write a rig as OpenCV FileStorage YAML (atomically).
+
+    The file is read back with `load_rig`'s reader before it is renamed into place and must
+    give the same cameras: `save_rig` writes exactly the rigs `load_rig` accepts.
+
+    Raises:
+        OptionError: `rig` is not a `Rig`, or a camera would not read back as it is.
+    """
     import cv2
 
     from mvtex.util.output import atomic_path
 
+    if not isinstance(rig, Rig):
+        raise OptionError(f"rig must be a Rig, got {type(rig).__name__}")
+    if not isinstance(path, (str, os.PathLike)):
+        raise OptionError(f"path must be a file path, got {type(path).__name__}")
     path = Path(path)
     with atomic_path(path) as tmp:
         # FileStorage picks the format from the extension: keep ".yaml" on the temporary.
@@ -87,14 +132,33 @@ def save_rig(rig: Rig, path: str | os.PathLike) -> None:
             fs.endWriteStruct()
         fs.endWriteStruct()
         fs.release()
+        _check_reads_back(rig, tmp_yaml)
         os.replace(tmp_yaml, tmp)
+
+
+def _check_reads_back(rig: Rig, written: Path) -> None:
+    """Refuse (OptionError) a written rig file that `load_rig` refuses or reads differently."""
+    try:
+        loaded = load_rig(written)
+    except InputError as err:
+        written.unlink(missing_ok=True)
+        raise OptionError(f"rig: would be written as a file the rig reader refuses ({err.problem})") from None
+    for cam, back in zip(rig, loaded):
+        same = (cam.name == back.name and (cam.width, cam.height) == (back.width, back.height)
+                and all(np.array_equal(getattr(cam, k), getattr(back, k)) for k in ("K", "R", "t", "dist")))
+        if not same:
+            written.unlink(missing_ok=True)
+            raise OptionError(f"rig: camera {cam.name!r} does not read back as written")
 
 
 def load_rig(path: str | os.PathLike) -> Rig:
     """Read an mvtex-rig YAML, or a built-in rig by name (`stereo`, `square4`,
-    `trapezoid12`); any problem raises InputError naming the file."""
+    `trapezoid12`); any problem raises InputError naming the file. Every camera is checked
+    by `Camera` (the same checks `save_rig` makes)."""
     import cv2
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise OptionError(f"rig must be a rig file path or a built-in rig name, got {type(path).__name__}")
     path = resolve_rig(path)
     if not path.is_file():
         raise InputError(path, "rig file not found")
@@ -166,17 +230,15 @@ def _camera_from_node(node, path: Path, index: int) -> Camera:
     if not name_node.isString():
         raise InputError(path, f"camera {index}: 'name' must be a string")
     name = name_node.string()
-    R = matrix("R", 9).reshape(3, 3)
-    if not np.all(np.isfinite(R)) or np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
-        raise InputError(path, f"camera {index}: R is not a rotation matrix")
+    R = matrix("R", 9).reshape(3, 3)  # a rotation: `Camera` checks it, as for every camera
     if not name:
         raise InputError(path, f"camera {index}: empty name")
     fields = dict(width=integer("width"), height=integer("height"), K=matrix("K", 9).reshape(3, 3),
                   dist=matrix("dist", 5) if not node.getNode("dist").empty() else np.zeros(5), R=R, t=matrix("t", 3))
-    try:  # the fields' own errors above name the file once; Camera's checks are plain ValueErrors
+    try:  # the fields' own errors above name the file once; Camera's checks name no file
         return Camera(name=name, **fields)
     except ValueError as err:
-        raise InputError(path, str(err)) from None
+        raise InputError(path, f"camera {index}: {err}" if not str(err).startswith("camera ") else str(err)) from None
 
 
 def check_sees(rig: Rig, positions: np.ndarray, source: str | os.PathLike | None = None, *,
@@ -188,10 +250,60 @@ def check_sees(rig: Rig, positions: np.ndarray, source: str | os.PathLike | None
         raise InputError(source, f"camera {blind[0]!r} sees nothing of {what}: check its R, t and K")
 
 
+def winding_numbers(points: np.ndarray, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Generalised winding numbers of points (N,3) with respect to a triangle mesh: the
+    summed signed solid angle of its triangles over 4π (Van Oosterom & Strackee's formula),
+    ±1 inside a closed mesh, 0 outside, fractional near the holes of an open one.
+
+    Returns:
+        (N,) float64.
+    """
+    tri = np.asarray(positions, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]  # (m,3,3)
+    out = np.zeros(len(points))
+    for i, p in enumerate(np.asarray(points, dtype=np.float64)):
+        a, b, c = (tri[:, k] - p for k in range(3))
+        la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+        det = np.einsum("ij,ij->i", a, np.cross(b, c))
+        den = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", b, c) * la \
+            + np.einsum("ij,ij->i", c, a) * lb
+        out[i] = np.sum(2.0 * np.arctan2(det, den)) / (4.0 * np.pi)
+    return out
+
+
+def check_outside_body(rig: Rig, dataset, poses: Sequence[int], source: str | os.PathLike | None = None) -> None:
+    """Refuse (InputError naming `source`, e.g. the rig file) a camera whose centre lies
+    inside the dataset's body at one of `poses`: it would see the body's inside only.
+
+    Inside means a winding number above 1/2 (`winding_numbers`; exact for a closed body,
+    robust to small holes); it is computed only where the centre is inside the body's
+    bounding box at that pose. Without a body nothing is checked.
+    """
+    from mvtex.util.files import read_row
+
+    body = getattr(dataset, "body", None)
+    if body is None:
+        return
+    centers = np.stack([cam.center for cam in rig])
+    for k in poses:
+        positions = read_row(body.positions, int(k)).astype(np.float64)
+        low, high = positions.min(axis=0), positions.max(axis=0)
+        boxed = np.flatnonzero(np.all((centers >= low) & (centers <= high), axis=1))
+        if not len(boxed):
+            continue
+        inside = np.abs(winding_numbers(centers[boxed], positions, body.faces)) > 0.5
+        if inside.any():
+            cam = rig.cameras[int(boxed[np.argmax(inside)])]
+            raise InputError(source, f"camera {cam.name!r} is inside the body of {dataset.path} at pose {int(k)} "
+                             f"(its centre {np.round(cam.center, 4).tolist()} lies within the body mesh): "
+                             "check its R and t")
+
+
 def as_rig(rig: "Rig | str | os.PathLike") -> tuple[Rig, Path | None]:
     """A `Rig` as is (source None), or a rig path / built-in rig name loaded: (rig, its file)."""
     if isinstance(rig, Rig):
         return rig, None
+    if not isinstance(rig, (str, os.PathLike)):
+        raise OptionError(f"rig must be a Rig, a rig file path or a built-in rig name, got {type(rig).__name__}")
     path = resolve_rig(rig)
     return load_rig(path), path
 

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.data.mesh import apply_extension, extension_matrix
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_row, read_rows
 from mvtex.util.output import atomic_path
 
@@ -223,6 +223,18 @@ def _check_displacements(d: np.ndarray, source: Path) -> None:
                              f"(more than {MAX_DISPLACEMENT}: not a texcoord perturbation)")
 
 
+def _check_parent(parent: np.ndarray, num_vertices: int, source) -> None:
+    """InputError (naming `source`) unless parent is (n',2) integers, each vertex's parents
+    preceding it (the base vertices name themselves)."""
+    if parent.shape != (num_vertices, 2) or not np.issubdtype(parent.dtype, np.integer):
+        raise InputError(source, f"parent must be integers with shape ({num_vertices},2), got "
+                         f"{parent.shape} {parent.dtype}")
+    index = np.arange(len(parent))
+    base = (parent[:, 0] == index) & (parent[:, 1] == index)
+    if len(parent) and (parent.min() < 0 or not np.all(base | (parent.max(axis=1) < index))):
+        raise InputError(source, "parent names a vertex that does not precede it")
+
+
 def _int_list(meta: dict, key: str, source: Path) -> list:
     values = meta.get(key)
     if not isinstance(values, list):
@@ -244,8 +256,11 @@ def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
     """
     from mvtex.data.camera import check_camera_name
     from mvtex.data.dataset import validate_mesh
+    from mvtex.util.checks import as_index, as_path
 
-    path = Path(path)
+    path = as_path(path, "path")
+    num_vertices = None if num_vertices is None else as_index(num_vertices, "num_vertices")
+    num_poses = None if num_poses is None else as_index(num_poses, "num_poses")
     header = path / "texcoords.json"
     meta = read_header(path, "texcoords.json", FORMAT, VERSION, "a texcoord set")
     poses = _int_list(meta, "poses", header)
@@ -279,19 +294,23 @@ def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
             raise InputError(mesh_file, f"missing array '{key}'")
     validate_mesh(mesh["faces"], mesh["uv"], mesh_file)
     parent = mesh["parent"]
-    if parent.shape != (len(mesh["uv"]), 2) or not np.issubdtype(parent.dtype, np.integer):
-        raise InputError(mesh_file, f"parent must be integers with shape ({len(mesh['uv'])},2), got "
-                         f"{parent.shape} {parent.dtype}")
-    index = np.arange(len(parent))
-    base = (parent[:, 0] == index) & (parent[:, 1] == index)
-    if len(parent) and (parent.min() < 0 or not np.all(base | (parent.max(axis=1) < index))):
-        raise InputError(mesh_file, "parent names a vertex that does not precede it")
+    _check_parent(parent, len(mesh["uv"]), mesh_file)
     tc = TexcoordSet(path=path, meta=meta, faces=mesh["faces"].astype(np.int32), uv=mesh["uv"].astype(np.float32),
                      parent=parent.astype(np.int32))
     if num_vertices is not None and tc.num_base_vertices != num_vertices:
         raise InputError(mesh_file, f"made for a mesh of {tc.num_base_vertices} vertices, "
                          f"the dataset has {num_vertices}")
     return tc
+
+
+def as_texcoords(texcoords: "TexcoordSet | str | os.PathLike", name: str = "texcoords") -> TexcoordSet:
+    """A `TexcoordSet` as is, or the texcoord set folder at a path opened (`open_texcoords`);
+    OptionError naming `name` for anything else."""
+    if isinstance(texcoords, TexcoordSet):
+        return texcoords
+    if not isinstance(texcoords, (str, os.PathLike)):
+        raise OptionError(f"{name} must be a TexcoordSet or a texcoord set folder path, got {type(texcoords).__name__}")
+    return open_texcoords(texcoords)
 
 
 def write_header(path: Path, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray, source: str,
@@ -431,12 +450,23 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
                    displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray], **extra: Any) -> Path:
     """Write a whole texcoord set atomically from in-memory arrays.
 
+    Everything is checked before anything is written, with the rules `open_texcoords`
+    reads by: the mesh (faces, uv, parent), subdiv in 0..MAX_SUBDIV, poses distinct
+    non-negative integers, camera names, and every displacement finite with |d| at most
+    MAX_DISPLACEMENT uv units (the whole atlas: larger is no texcoord perturbation).
+
     Args:
         displacement: camera name -> (len(poses), n', 2) float32.
         assigned: camera name -> (len(poses), n') bool.
+
+    Raises:
+        OptionError: an argument of the wrong type, shape or value, named.
     """
+    cameras = check_texcoord_arrays(faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses,
+                                    displacement=displacement, assigned=assigned)
+    if not isinstance(path, (str, os.PathLike)):
+        raise OptionError(f"path must be a folder path, got {type(path).__name__}")
     path = Path(path)
-    cameras = list(displacement)
     with atomic_path(path) as tmp:
         tmp.mkdir()
         write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses,
@@ -446,3 +476,66 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
             np.save(tmp / cam / "displacement.npy", np.asarray(displacement[cam], np.float32), allow_pickle=False)
             np.save(tmp / cam / "assigned.npy", np.asarray(assigned[cam], bool), allow_pickle=False)
     return path
+
+
+def _array(value, name: str, dtype=None) -> np.ndarray:
+    if value is None or isinstance(value, (str, bytes, dict)):
+        raise OptionError(f"{name} must be an array, got {type(value).__name__}")
+    try:
+        return np.asarray(value) if dtype is None else np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError, OverflowError):
+        raise OptionError(f"{name} must be an array of numbers, got {type(value).__name__}") from None
+
+
+def check_texcoord_arrays(*, faces, uv, parent, source, subdiv, poses, displacement, assigned) -> list[str]:
+    """Check what `save_texcoords` is given, by the rules `open_texcoords` reads a set by.
+
+    Returns:
+        The camera names (the keys of `displacement`).
+
+    Raises:
+        OptionError: naming the argument ("displacement['left']: ...").
+    """
+    from mvtex.data.camera import check_camera_name
+    from mvtex.data.dataset import validate_mesh
+
+    def named(name: str, check, *args) -> None:
+        try:
+            check(*args)
+        except InputError as err:
+            raise OptionError(f"{name}: {err.problem}") from None
+
+    faces, uv, parent = _array(faces, "faces"), _array(uv, "uv"), _array(parent, "parent")
+    named("faces/uv", validate_mesh, faces, uv, None)
+    named("parent", _check_parent, parent, len(uv), None)
+    if not isinstance(source, str) or not source:
+        raise OptionError(f"source must be a non-empty string (\"ts\", \"tsnn\", ...), got {source!r}")
+    if isinstance(subdiv, bool) or not isinstance(subdiv, (int, np.integer)) or not 0 <= subdiv <= MAX_SUBDIV:
+        raise OptionError(f"subdiv must be an integer in 0..{MAX_SUBDIV}, got {subdiv!r}")
+    if isinstance(poses, (str, bytes)) or not hasattr(poses, "__len__"):
+        raise OptionError(f"poses must be a list of pose indices, got {type(poses).__name__}")
+    if not len(poses) or not all(isinstance(p, (int, np.integer)) and not isinstance(p, bool) and p >= 0
+                                 for p in poses):
+        raise OptionError(f"poses must be a non-empty list of non-negative integer pose indices, got {poses!r}")
+    if len(set(int(p) for p in poses)) != len(poses):
+        raise OptionError("poses lists a pose twice")
+    if not isinstance(displacement, dict) or not displacement:
+        raise OptionError("displacement must be a non-empty dict: camera name -> (len(poses), n', 2) array")
+    if not isinstance(assigned, dict) or set(assigned) != set(displacement):
+        raise OptionError("assigned must be a dict with the cameras of displacement: camera name -> "
+                          "(len(poses), n') bool array")
+    cameras = list(displacement)
+    for cam in cameras:
+        check_camera_name(cam)
+    if len({c.lower() for c in cameras}) != len(cameras):
+        raise OptionError("displacement names a camera twice (ignoring case)")
+    shape = (len(poses), len(uv))
+    for cam in cameras:
+        d = _array(displacement[cam], f"displacement[{cam!r}]")
+        a = _array(assigned[cam], f"assigned[{cam!r}]")
+        if d.shape != shape + (2,) or d.dtype.kind not in "fiu":
+            raise OptionError(f"displacement[{cam!r}] must be numbers with shape {shape + (2,)}, got {d.shape} {d.dtype}")
+        if a.shape != shape or a.dtype != np.bool_:
+            raise OptionError(f"assigned[{cam!r}] must be bool with shape {shape}, got {a.shape} {a.dtype}")
+        named(f"displacement[{cam!r}]", _check_displacements, d.astype(np.float32), None)
+    return cameras

@@ -36,7 +36,8 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from mvtex.data.rig import Rig, check_sees
+from mvtex.data.rig import Rig, check_outside_body, check_sees
+from mvtex.util.errors import OptionError
 from mvtex.util.files import read_row
 from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
@@ -429,6 +430,13 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     Returns:
         An `Evaluation`; `.to_json()` is the JSON object of `mvtex eval --json`.
     """
+    from mvtex.util.checks import as_indices, as_path
+
+    heatmaps = as_path(heatmaps, "heatmaps", optional=True)
+    poses = None if poses is None else as_indices(poses, "poses")
+    if cameras is not None and (isinstance(cameras, (str, bytes)) or not hasattr(cameras, "__iter__")
+                                or not all(isinstance(c, str) for c in cameras)):
+        raise OptionError(f"cameras must be a list of camera names, got {cameras!r:.60}")
     from tqdm import tqdm
 
     from mvtex.data.dataset import as_dataset
@@ -438,7 +446,11 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     from mvtex.util.parallel import map_unordered
 
     check_backend(workers, scheduler)
+    workers = 1 if workers is None else workers
     ds = as_dataset(dataset)
+    if not isinstance(texcoord_set, (TexcoordSet, str, os.PathLike)):
+        raise OptionError(f"texcoord_set must be a TexcoordSet or a texcoord set folder path, got "
+                          f"{type(texcoord_set).__name__}")
     tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
     tc.check_dataset(ds)
     rig, rig_source = as_rig(rig)
@@ -451,6 +463,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     if poses:
         check_sees(rig, read_row(ds.inferred, poses[0]), rig_source,
                    what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
+    check_outside_body(rig, ds, poses, rig_source)
     for p in poses:
         tc.row(p)  # InputError for a pose the set does not have
     for name in rig.names:

@@ -44,12 +44,20 @@ class MaterialMap:
         from mvtex.render.context import context_or_new
         from mvtex.render.raster import rasterize_uv
 
-        self.faces = np.asarray(faces, dtype=np.int64)
-        self.uv = np.asarray(uv, dtype=np.float64)
-        self.rest = np.asarray(rest, dtype=np.float64)
-        if self.rest.shape != (len(self.uv), 3):
-            raise ValueError(f"rest must be ({len(self.uv)}, 3), got {self.rest.shape}")
-        self.resolution = int(resolution)
+        from mvtex.render.raster import check_mesh
+        from mvtex.util.checks import as_array, as_index, check_shape
+        from mvtex.util.errors import OptionError
+
+        uv, faces = check_mesh(uv, faces, "uv", dims=2)
+        self.faces = faces.astype(np.int64)
+        self.uv = uv
+        self.rest = as_array(rest, "rest")
+        check_shape(self.rest, "rest", (len(self.uv), 3))
+        if not np.all(np.isfinite(self.rest)):
+            raise OptionError("rest has NaN or infinite values")
+        self.resolution = as_index(resolution, "resolution")
+        if not 16 <= self.resolution <= 8192:
+            raise OptionError(f"resolution must be in 16..8192, got {self.resolution}")
         with context_or_new(ctx) as gl:
             self.ids = rasterize_uv(gl, self.uv, self.faces, self.resolution, self.resolution, attributes=False).tri_id
         m, n = len(self.faces), len(self.uv)

@@ -9,11 +9,15 @@ the same C cameras:
                              scale that camera's rows / residuals)
 
 Inputs with a wrong shape raise ValueError naming the argument, the expected shape and
-the shape received.
+the shape received. An observation counts only where its weight is > 0 *and* its pixel is
+finite; a point needs 2 such observations whose rays meet at an angle of at least
+MIN_TRIANGULATION_ANGLE_DEG (cameras at one centre, or almost one, see no depth), else
+it is NaN ("no point").
 
     triangulate_dlt       linear DLT in normalised coordinates
     refine_points         Gauss-Newton on the summed squared reprojection error
     triangulate_points    both (what `mvtex triangulate --engine mvtex` runs per track)
+    triangulation_angles  the widest angle between the rays that observe each point
     project_points        all points into all cameras
     in_image              which pixels fall inside an image
     reprojection_errors   (N,C) pixel distances
@@ -31,13 +35,27 @@ import numpy as np
 from mvtex.data.camera import Camera, image_contains
 from mvtex.data.mesh import rms_distance
 from mvtex.util.checks import check_shape
+from mvtex.util.errors import OptionError
+
+MIN_TRIANGULATION_ANGLE_DEG = 1.0
+"""Points whose observing rays all meet within this angle (degrees) are not triangulated:
+their depth is set by pixel noise (at 1°, 0.1 px of error on a 1000 px focal length moves
+a point 2 m away by ~1 cm). COLMAP's default (`min_tri_angle`) is 1.5°."""
 
 
 def camera_arrays(cameras: Sequence[Camera]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stacked intrinsics K (C,3,3), rotations R (C,3,3) and translations t (C,3), float64."""
+    cameras = _cameras(cameras)
     if len(cameras) == 0:
-        raise ValueError("cameras must hold at least one camera, got 0")
+        raise OptionError("cameras must hold at least one camera, got 0")
     return (np.stack([c.K for c in cameras]), np.stack([c.R for c in cameras]), np.stack([c.t for c in cameras]))
+
+
+def _cameras(cameras) -> list[Camera]:
+    """The cameras argument as a list of Camera (a Rig will do); OptionError otherwise."""
+    from mvtex.util.checks import as_list
+
+    return as_list(cameras, "cameras", Camera, "Camera (or a Rig)")
 
 
 def _project(K: np.ndarray, R: np.ndarray, t: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,9 +79,10 @@ def project_points(cameras: Sequence[Camera], points: np.ndarray) -> tuple[np.nd
         pixels (N,C,2) float64 (NaN/inf where z = 0) and camera coordinates (N,C,3) float64
         (z = [..., 2] is the depth; ≤ 0 behind the camera).
     """
-    points = np.asarray(points, dtype=np.float64)
+    arrays = camera_arrays(cameras)
+    points = _as_array(points, "points")
     check_shape(points, "points", ("N", 3))
-    return _project(*camera_arrays(cameras), points)
+    return _project(*arrays, points)
 
 
 def in_image(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -88,8 +107,53 @@ def reprojection_errors(cameras: Sequence[Camera], points: np.ndarray, pixels: n
 
 
 def _check_observations(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray) -> dict[str, int]:
+    cameras = _cameras(cameras)
     sizes = check_shape(pixels, "pixels", ("N", len(cameras), 2))
     return check_shape(weights, "weights", ("N", len(cameras)), sizes)
+
+
+def observed(pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(N,C) float64 weights of the observations that count: the weight where it is > 0
+    and the pixel (N,C,2) finite, else 0.
+
+    Raises:
+        OptionError: a weight that is negative or not finite.
+    """
+    w = np.array(weights, dtype=np.float64)
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise OptionError("weights must be finite and ≥ 0 (0 where a camera does not observe the point)")
+    finite = np.all(np.isfinite(np.asarray(pixels, dtype=np.float64)), axis=-1)
+    return np.where(finite & (w > 0), w, 0.0)
+
+
+def triangulation_angles(cameras: Sequence[Camera], points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The widest angle (degrees) between two rays that observe each point.
+
+    Args:
+        cameras: the C cameras.
+        points: (N,3) world points.
+        weights: (N,C) > 0 where camera c observes point n.
+
+    Returns:
+        (N,) float64 degrees: 0 where the observing cameras share one centre, NaN where the
+        point is not finite or fewer than 2 cameras observe it.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    sizes = check_shape(points, "points", ("N", 3))
+    check_shape(weights, "weights", ("N", len(cameras)), sizes)
+    centers = np.stack([c.center for c in cameras])  # (C,3)
+    rays = points[:, None, :] - centers[None]  # (N,C,3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    cos = np.einsum("nci,ndi->ncd", rays, rays)
+    seen = np.asarray(weights) > 0
+    pair = seen[:, :, None] & seen[:, None, :]
+    cos = np.where(pair & np.isfinite(cos), cos, np.inf)
+    smallest = cos.min(axis=(1, 2))
+    with np.errstate(invalid="ignore"):
+        angle = np.degrees(np.arccos(np.clip(smallest, -1.0, 1.0)))
+    enough = (seen.sum(axis=1) >= 2) & np.all(np.isfinite(points), axis=1) & np.isfinite(smallest)
+    return np.where(enough, angle, np.nan)
 
 
 def triangulate_dlt(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -104,9 +168,11 @@ def triangulate_dlt(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.n
         weights: (N,C) weights; ≥ 2 non-zero per point.
 
     Returns:
-        (N,3) float64 points (NaN where degenerate).
+        (N,3) float64 points (NaN where degenerate or fewer than 2 observations count:
+        weight > 0 and a finite pixel).
     """
     _check_observations(cameras, pixels, weights)
+    weights = observed(pixels, weights)
     K, R, t = camera_arrays(cameras)
     P = np.concatenate([R, t[:, :, None]], axis=2)  # (C,3,4) cam_from_world
     pix = np.nan_to_num(np.asarray(pixels, dtype=np.float64))
@@ -119,7 +185,7 @@ def triangulate_dlt(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.n
     X = vt[:, -1]
     with np.errstate(divide="ignore", invalid="ignore"):
         out = X[:, :3] / X[:, 3:4]
-    out[~np.all(np.isfinite(out), axis=1)] = np.nan
+    out[~np.all(np.isfinite(out), axis=1) | ((weights > 0).sum(axis=1) < 2)] = np.nan
     return out
 
 
@@ -164,13 +230,14 @@ def refine_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
     check_shape(points, "points", ("N", 3), sizes)
     K, R, t = camera_arrays(cameras)
     X = np.array(points, dtype=np.float64)
+    w = observed(pixels, weights)
     pixels = np.nan_to_num(np.asarray(pixels, dtype=np.float64))
-    w = np.asarray(weights, dtype=np.float64)
 
     def cost(X):
-        pix, y = _project(K, R, t, X)
-        r = np.nan_to_num(pix - pixels, nan=1e6) * w[..., None]
-        return np.sum(r ** 2, axis=(1, 2)), pix, y
+        with np.errstate(invalid="ignore", over="ignore"):
+            pix, y = _project(K, R, t, X)
+            r = np.nan_to_num(pix - pixels, nan=1e6) * w[..., None]
+            return np.sum(r ** 2, axis=(1, 2)), pix, y
 
     c0, pix, y = cost(X)
     for _ in range(iterations):
@@ -193,19 +260,48 @@ def refine_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
 
 
 def triangulate_points(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray,
-                       iterations: int = 5) -> np.ndarray:
+                       iterations: int = 5, min_angle_deg: float = MIN_TRIANGULATION_ANGLE_DEG) -> np.ndarray:
     """DLT, then Gauss-Newton from it where the DLT is not degenerate.
 
     Args and shapes as `triangulate_dlt`; iterations as `refine_points`.
+        min_angle_deg: a point whose observing rays all meet within this angle is NaN
+            (`triangulation_angles`; 0 keeps every point that is not degenerate).
 
     Returns:
-        (N,3) float64 points (NaN where degenerate).
+        (N,3) float64 points: NaN where degenerate, where fewer than 2 observations count
+        (weight > 0 and a finite pixel), or where the rays meet at less than min_angle_deg.
+
+    Raises:
+        ValueError: shapes that do not fit (naming the argument); OptionError: weights
+            negative or not finite, iterations or min_angle_deg out of range.
     """
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or not 0 <= iterations <= 100:
+        raise OptionError(f"iterations must be an integer in 0..100, got {iterations!r}")
+    if isinstance(min_angle_deg, bool) or not isinstance(min_angle_deg, (int, float, np.floating)) \
+            or not 0 <= min_angle_deg < 180:
+        raise OptionError(f"min_angle_deg must be a number in [0, 180), got {min_angle_deg!r}")
+    cameras = _cameras(cameras)
+    pixels = _as_array(pixels, "pixels")
+    weights = _as_array(weights, "weights")
     X = triangulate_dlt(cameras, pixels, weights)
+    weights = observed(pixels, weights)
     good = np.all(np.isfinite(X), axis=1)
     if good.any():
-        X[good] = refine_points(cameras, X[good], np.asarray(pixels)[good], np.asarray(weights)[good], iterations)
+        X[good] = refine_points(cameras, X[good], pixels[good], weights[good], iterations)
+    if min_angle_deg > 0 and len(X):
+        narrow = ~(triangulation_angles(cameras, X, weights) >= min_angle_deg)
+        X[narrow] = np.nan
     return X
+
+
+def _as_array(value, name: str) -> np.ndarray:
+    """`value` as a float64 array; OptionError naming `name` when it is not numbers."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise OptionError(f"{name} must be an array of numbers, got {type(value).__name__}")
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise OptionError(f"{name} must be an array of numbers, got {type(value).__name__}") from None
 
 
 def least_disagreement(cameras: Sequence[Camera], pixels: np.ndarray) -> tuple[int, np.ndarray]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import OptionError
 
 # Triangulation engines of `ReconOptions.engine`.
@@ -82,6 +83,7 @@ class ReconOptions:
     engine: str = "mvtex"
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         positive = {"max_reprojection_px": self.max_reprojection_px,
                     "max_surface_distance_m": self.max_surface_distance_m, "consensus_px": self.consensus_px,
                     "depth_tolerance": self.depth_tolerance, "error_scale_m": self.error_scale_m,

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_outside_body
 from mvtex.util.errors import InputError
 
 if TYPE_CHECKING:
@@ -42,6 +42,17 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         InputError: a pose outside the dataset or the texcoord set, a texcoord set made
             for another mesh, fewer than 2 cameras shared by rig and texcoord set.
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import as_texcoords
+    from mvtex.util.checks import as_index, as_path, check_instance
+
+    pose = as_index(pose, "pose")  # the plain arguments first, before any file is opened
+    out = as_path(out, "out", optional=True)
+    check_instance(options, ReconOptions, "options")
+    dataset = as_dataset(dataset)
+    rig = as_rig(rig)[0]
+    texcoords = as_texcoords(texcoords)
     if ctx is None:
         from mvtex.render.context import GLContext
 
@@ -58,6 +69,7 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         raise InputError(texcoords.path, f"triangulation needs ≥ 2 cameras present in both the texcoord set "
                          f"({', '.join(texcoords.cameras)}) and the rig ({', '.join(rig.names)})")
     sub_rig = rig.select(names)
+    check_outside_body(sub_rig, dataset, [pose])
     options = options.for_source(texcoords.source)
     X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
     T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}

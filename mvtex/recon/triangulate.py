@@ -47,7 +47,8 @@ from mvtex.data.camera import Camera
 from mvtex.data.mesh import weld_groups, welded_adjacency
 from mvtex.data.rig import Rig
 from mvtex.recon.consensus import HypothesisLedger, Vote, screen_hypotheses, vote
-from mvtex.recon.geometry import project_points, reprojection_errors, surface_distance, triangulate_points
+from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, observed, project_points, reprojection_errors,
+                                  surface_distance, triangulate_points, triangulation_angles)
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
 from mvtex.recon.options import ENGINES, ReconOptions
 from mvtex.util.checks import check_shape
@@ -147,7 +148,9 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
     """Step 3: triangulate every point observed ≥ 2 times, robustly.
 
     While a point's worst observation exceeds options.max_reprojection_px and ≥ 3 remain,
-    that observation is dropped and the point triangulated again.
+    that observation is dropped and the point triangulated again. Observations with a
+    non-finite pixel do not count, and a point whose rays meet within
+    `mvtex.recon.geometry.MIN_TRIANGULATION_ANGLE_DEG` is NaN, whichever the engine.
 
     Args:
         cameras: the C cameras.
@@ -159,10 +162,16 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
         points (N,3) float64 (NaN where fewer than 2 observations or degenerate), the
         weights (N,C) with dropped observations set to 0, and counts {"outlier_observations"}.
     """
-    triangulate = track_triangulator(options) if triangulate is None else triangulate
+    engine = track_triangulator(options) if triangulate is None else triangulate
+
+    def triangulate(cameras, pixels, weights):  # no engine returns a point of too narrow rays
+        X = np.array(engine(cameras, pixels, weights), dtype=np.float64)
+        X[~(triangulation_angles(cameras, X, weights) >= MIN_TRIANGULATION_ANGLE_DEG)] = np.nan
+        return X
+
     sizes = check_shape(pixels, "pixels", ("N", len(cameras), 2))
     check_shape(weights, "weights", ("N", len(cameras)), sizes)
-    weights = np.array(weights, dtype=np.float64)
+    weights = observed(pixels, weights)
     counts = {"outlier_observations": 0}
     rows = np.flatnonzero(weights.sum(axis=1) >= 2)
     X = np.full((len(pixels), 3), np.nan)
@@ -342,28 +351,55 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     Raises:
         ValueError: shapes that do not fit, or fewer than 2 cameras.
     """
-    gt_uv = np.asarray(gt_uv, dtype=np.float64)
-    X_N = np.asarray(inferred_positions, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    uv = np.asarray(uv, dtype=np.float64)
+    from mvtex.data.rig import as_rig
+    from mvtex.render.raster import check_mesh
+    from mvtex.util.checks import as_array, check_instance
+    from mvtex.util.errors import OptionError
+
+    check_instance(options, ReconOptions, "options")
+    rig = as_rig(rig)[0]
+    gt_uv = as_array(gt_uv, "gt_uv")
+    X_N, faces = check_mesh(inferred_positions, faces, "inferred_positions", size="n'", faces_size="m'")
+    faces = faces.astype(np.int64)
+    uv = as_array(uv, "uv")
+    if not isinstance(texcoords, dict) or not all(isinstance(k, str) for k in texcoords):
+        raise OptionError("texcoords must be a dict: camera name -> (n',2) T_N")
+    texcoords = {c: as_array(t, f"texcoords[{c!r}]") for c, t in texcoords.items()}
+    for c, t in texcoords.items():
+        check_shape(t, f"texcoords[{c!r}]", (len(X_N), 2))
+        if not np.all(np.isfinite(t)):
+            raise OptionError(f"texcoords[{c!r}] has NaN or infinite values")
+    if gt_faces is not None:
+        gt_faces = as_array(gt_faces, "gt_faces", np.int64)
+    if rest is not None:
+        rest = as_array(rest, "rest")
     sizes = check_shape(gt_uv, "gt_uv", ("n", 2))
     check_shape(X_N, "inferred_positions", ("n'", 3), sizes)
     check_shape(uv, "uv", ("n'", 2), sizes)
     check_shape(faces, "faces", ("m'", 3), sizes)
     n = len(gt_uv)
     if len(X_N) < n:
-        raise ValueError(f"inferred_positions has {len(X_N)} vertices, fewer than the gt mesh's {n}")
+        raise OptionError(f"inferred_positions has {len(X_N)} vertices, fewer than the gt mesh's {n}")
     if gt_faces is None:
         if len(X_N) != n:
-            raise ValueError("gt_faces is needed when the texcoord mesh is subdivided (n' > n)")
+            raise OptionError("gt_faces is needed when the texcoord mesh is subdivided (n' > n)")
         gt_faces = faces
     gt_faces = np.asarray(gt_faces, dtype=np.int64)
     check_shape(gt_faces, "gt_faces", ("m", 3))
+    if gt_faces.size and (gt_faces.min() < 0 or gt_faces.max() >= n):
+        raise OptionError(f"gt_faces must index the {n} gt vertices")
+    if assigned is not None and (not isinstance(assigned, dict) or not all(
+            isinstance(a, np.ndarray) and a.dtype == np.bool_ and a.shape == (len(X_N),) for a in assigned.values())):
+        raise OptionError(f"assigned must be a dict: camera name -> ({len(X_N)},) bool array")
+    if body is not None:
+        if not isinstance(body, (tuple, list)) or len(body) != 2:
+            raise OptionError("body must be (positions (nb,3), faces (mb,3))")
+        body = check_mesh(body[0], body[1], "body positions")
     if rest is not None:
         check_shape(rest, "rest", (n, 3))
     names = [c for c in rig.names if c in texcoords]
     if len(names) < 2:
-        raise ValueError(f"reconstruction needs texcoords of ≥ 2 rig cameras, got {sorted(texcoords)}")
+        raise OptionError(f"texcoords: reconstruction needs texcoords of ≥ 2 rig cameras, got {sorted(texcoords)}")
     cameras = [rig[c] for c in names]
     hypotheses, stats = collect_hypotheses(gt_uv, X_N, faces, texcoords, cameras, uv_resolution=options.uv_resolution,
                                            depth_tolerance=options.depth_tolerance, assigned=assigned,

@@ -19,7 +19,7 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.dataset import Dataset
-from mvtex.data.rig import Rig, check_sees
+from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.data.texcoords import TexcoordSet
 from mvtex.util.errors import InputError
 from mvtex.util.files import read_row, save_png, write_json
@@ -69,6 +69,17 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
     Returns:
         {"pose": k, "cameras": [...], "files": [...]} (paths relative to out).
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import as_texcoords
+    from mvtex.util.checks import as_index, as_path
+
+    dataset = as_dataset(dataset)
+    rig, source = as_rig(rig)
+    rig_path = rig_path if rig_path is not None else source
+    texcoord_set = None if texcoord_set is None else as_texcoords(texcoord_set, "texcoord_set")
+    pose = as_index(pose, "pose")
+    out = as_path(out, "out")
     from mvtex.render import raster as gl
     from mvtex.render.context import GLContext
     from mvtex.render.shading import render_textured
@@ -82,6 +93,7 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
         texcoord_set.check_rig(rig, rig_path, cameras=rig.names)
     check_sees(rig, read_row(dataset.inferred, pose), rig_path,
                what=f"the inferred mesh of {dataset.path} at pose {pose}")
+    check_outside_body(rig, dataset, [pose], rig_path)
     if ctx is None:
         with GLContext() as own:
             return render_pose(dataset, rig, pose, out, texcoord_set=texcoord_set, raster=raster,

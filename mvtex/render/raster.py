@@ -23,6 +23,40 @@ from mvtex.data.camera import Camera
 from mvtex.render.context import GLContext
 
 
+def check_mesh(positions, faces, name: str = "positions", dims: int = 3, size: str = "n",
+               faces_size: str = "m") -> tuple[np.ndarray, np.ndarray]:
+    """Positions (n,dims) finite float64 and faces (m,3) integer indices into them, checked
+    before anything reaches GL (OptionError naming the argument)."""
+    from mvtex.util.checks import as_array, check_shape
+    from mvtex.util.errors import OptionError
+
+    positions = as_array(positions, name)
+    sizes = check_shape(positions, name, (size, dims))
+    if not np.all(np.isfinite(positions)):
+        raise OptionError(f"{name} has NaN or infinite values")
+    faces = as_array(faces, "faces", None)
+    check_shape(faces, "faces", (faces_size, 3))
+    if faces.dtype.kind not in "iu":
+        raise OptionError(f"faces must be integers, got {faces.dtype}")
+    if faces.size and (faces.min() < 0 or faces.max() >= sizes[size]):
+        raise OptionError(f"faces index vertices outside [0, {sizes[size]})")
+    return positions, faces
+
+
+def _check_draw(ctx, camera=False, occluder=None):
+    from mvtex.util.checks import check_instance
+    from mvtex.util.errors import OptionError
+
+    check_instance(ctx, GLContext, "ctx")
+    if camera is not False:
+        check_instance(camera, Camera, "camera")
+    if occluder is not None:
+        if not isinstance(occluder, (tuple, list)) or len(occluder) != 2:
+            raise OptionError("occluder must be (positions (nb,3), faces (mb,3))")
+        return check_mesh(occluder[0], occluder[1], "occluder positions")
+    return None
+
+
 def clip_from_camera(camera: Camera, near: float, far: float) -> np.ndarray:
     """(4,4) float64 matrix from OpenCV camera coordinates to GL clip coordinates.
 
@@ -139,8 +173,9 @@ def rasterize(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, camera: 
     Returns:
         Raster with (H,W) fields; pixel centres are sampled (OpenCV convention).
     """
-    camera.require_pinhole()
-    faces = np.asarray(faces)
+    occluder = _check_draw(ctx, camera, occluder)
+    camera.require_renderable()
+    positions, faces = check_mesh(positions, faces)
     m = len(faces)
     if occluder is not None:
         body_positions, body_faces = occluder
@@ -167,9 +202,16 @@ def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, 
     (DESIGN §3). Only texels whose centre is inside a triangle are written; where
     triangles overlap in uv, the last drawn wins. `depth` is 0.
     """
-    uv = np.asarray(uv, dtype=np.float64)
+    from mvtex.util.checks import as_index
+    from mvtex.util.errors import OptionError
+
+    _check_draw(ctx)
+    uv, faces = check_mesh(uv, faces, "uv", dims=2)
+    width, height = as_index(width, "width"), as_index(height, "height")
+    if not (1 <= width <= 8192 and 1 <= height <= 8192):
+        raise OptionError(f"width and height must be in 1..8192, got {width}x{height}")
     points = np.hstack([uv, np.zeros((len(uv), 1))])
-    return _draw_ids(ctx, points, np.asarray(faces), width, height, _uv_clip(), False, attributes)
+    return _draw_ids(ctx, points, faces, width, height, _uv_clip(), False, attributes)
 
 
 class _PairBuffers:
@@ -305,7 +347,7 @@ def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, came
                pixels, occluder, attributes: bool) -> PairRaster:
     import moderngl
 
-    camera.require_pinhole()
+    camera.require_renderable()
     base_positions = np.asarray(base_positions, np.float64)
     n, m = len(base_positions), len(faces)
     points = [base_positions, np.asarray(subdivided_positions, np.float64)]
@@ -401,9 +443,20 @@ def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, came
 
 def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.ndarray:
     """Per-vertex values (n,C) interpolated at every pixel, (H,W,C) float32; 0 on background."""
-    values = np.asarray(values)
+    from mvtex.util.checks import as_array, check_instance, check_shape
+    from mvtex.util.errors import OptionError
+
+    check_instance(raster, Raster, "raster")
+    values = as_array(values, "values")
+    check_shape(values, "values", ("n", "C"))
+    faces = as_array(faces, "faces", None)
+    check_shape(faces, "faces", ("m", 3))
+    if faces.dtype.kind not in "iu" or (faces.size and (faces.min() < 0 or faces.max() >= len(values))):
+        raise OptionError(f"faces must be integer indices into the {len(values)} values")
+    if raster.tri_id.size and raster.tri_id.max() >= len(faces):
+        raise OptionError(f"raster names triangle {int(raster.tri_id.max())}, faces has {len(faces)}")
     if raster.bary is None:
-        raise ValueError("interpolate needs a raster with barycentrics (attributes=True)")
+        raise OptionError("raster: interpolate needs a raster with barycentrics (attributes=True)")
     mask = raster.mask
     out = np.zeros(raster.tri_id.shape + (values.shape[1],), dtype=np.float32)
     f = np.asarray(faces)[raster.tri_id[mask]]

@@ -111,8 +111,17 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
 
     from mvtex.data.mesh import vertex_normals, weld_groups
 
-    camera.require_pinhole()
-    positions = np.asarray(positions, dtype=np.float64)
+    from mvtex.render.raster import _check_draw, check_mesh
+    from mvtex.util.checks import as_array, check_shape
+
+    body = _check_draw(ctx, camera, body)
+    camera.require_renderable()
+    positions, faces = check_mesh(positions, faces)
+    texcoords = as_array(texcoords, "texcoords")
+    check_shape(texcoords, "texcoords", (len(positions), 2))
+    if normals is not None:
+        normals = as_array(normals, "normals")
+        check_shape(normals, "normals", (len(positions), 3))
     if normals is None:
         normals = vertex_normals(positions, faces, weld_groups(positions))
     if body is not None:

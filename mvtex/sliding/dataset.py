@@ -17,12 +17,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mvtex.data.rig import Rig, check_sees
+from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import slide_pose
 from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
 from mvtex.util.files import read_row
-from mvtex.util.parallel import ThreadState, WorkerState, check_backend
+from mvtex.util.parallel import ThreadState, WorkerState, check_backend, worker_count
 
 if TYPE_CHECKING:
     from mvtex.data.dataset import Dataset
@@ -137,13 +137,18 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
     from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
+    from mvtex.util.checks import as_path, check_instance
+
     check_backend(workers, scheduler)
+    out = as_path(out, "out")
+    check_instance(options, SlideOptions, "options")
     ds = as_dataset(dataset)
     rig, rig_path = as_rig(rig)
     rig = rig.select(cameras, source=rig_path)
     poses = ds.check_poses(poses)
     check_sees(rig, read_row(ds.inferred, poses[0]), rig_path,
                what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
+    check_outside_body(rig, ds, poses, rig_path)
     out = Path(out)
     reference = reference_shape(ds)
     topo = build_topology(ds.faces, ds.uv, reference, options.subdiv)
@@ -163,6 +168,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     left = sum(len(r) for _, r in tasks)
     if workers is None:
         workers = min(_AUTO_WORKERS, os.cpu_count() or 1) if left >= _AUTO_MIN_JOBS else 1
+    workers = worker_count(workers)  # never more processes than cores: more would only take memory
     # Smaller tasks when they would not keep every worker busy.
     if workers > 1 and not scheduler and len(tasks) < 4 * workers:
         tasks = [(c, rows[i:i + 2]) for c, rows in tasks for i in range(0, len(rows), 2)]

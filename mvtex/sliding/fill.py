@@ -217,8 +217,38 @@ def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned:
         (n,C) array of values' dtype (float64 if values is integer); assigned rows are the
         input rows unchanged, bit for bit. Parts of the mesh with no assigned vertex get 0.
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown fill method {method!r} (use {' or '.join(METHODS)})")
+    from mvtex.data.dataset import validate_mesh
+    from mvtex.util.checks import as_array, check_shape
+    from mvtex.util.errors import InputError, OptionError
+
+    if not isinstance(method, str) or method not in METHODS:
+        raise OptionError(f"method must be one of {', '.join(METHODS)}, got {method!r:.60}")
+    if system is None or not isinstance(values, np.ndarray) or values.ndim != 1:  # checked once, not per column
+        positions = as_array(positions, "positions")
+        sizes = check_shape(positions, "positions", ("n", 3))
+        faces = as_array(faces, "faces", None)
+        try:
+            validate_mesh(faces, np.zeros((len(positions), 2)), None)
+        except InputError as err:
+            raise OptionError(f"faces: {err.problem}") from None
+        if not np.all(np.isfinite(positions)):
+            raise OptionError("positions has NaN or infinite values")
+        values = as_array(values, "values", None)
+        if values.ndim not in (1, 2) or values.dtype.kind not in "biuf":
+            raise OptionError(f"values must be numbers with shape (n,) or (n,C), got {values.shape} {values.dtype}")
+        check_shape(values[:, None] if values.ndim == 1 else values, "values", ("n", "C"), sizes)
+        if not np.all(np.isfinite(values[np.asarray(assigned, dtype=bool)] if np.shape(assigned) == (len(values),)
+                                  else values)):
+            raise OptionError("values has NaN or infinite values where assigned")
+        assigned = as_array(assigned, "assigned", None)
+        if assigned.dtype != np.bool_:
+            raise OptionError(f"assigned must be bool, got {assigned.dtype}")
+        check_shape(assigned, "assigned", ("n",), sizes)
+        if groups is not None:
+            groups = as_array(groups, "groups", None)
+            check_shape(groups, "groups", ("n",), sizes)
+            if groups.dtype.kind not in "iu" or (len(groups) and groups.min() < 0):
+                raise OptionError("groups must be non-negative integers, one per vertex")
     values = np.asarray(values)
     if values.ndim == 1:
         return fill(faces, positions, values[:, None], assigned, method, groups,

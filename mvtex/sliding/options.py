@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
 from mvtex.sliding.fill import METHODS
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import OptionError
 
 if TYPE_CHECKING:
@@ -44,6 +45,7 @@ class SlideOptions:
     cross_chart: bool = False
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if int(self.subdiv) != self.subdiv or not 0 <= self.subdiv <= 4:
             raise OptionError(f"subdiv must be an integer in [0, 4], got {self.subdiv!r}")
         if self.fill not in METHODS:

@@ -90,12 +90,28 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
         d: (n',2) float32 displacement T_N - T_G on the subdivided mesh, filled everywhere.
         assigned: (n',) bool, True where d came from the ray.
     """
-    gt = np.asarray(gt_positions, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
+    from mvtex.render.raster import check_mesh
+    from mvtex.util.checks import as_array, check_instance, check_shape
+    from mvtex.util.errors import OptionError
+
+    gt, faces = check_mesh(gt_positions, faces, "gt_positions")
+    inferred, _ = check_mesh(inferred_positions, faces, "inferred_positions")
+    check_shape(inferred, "inferred_positions", gt.shape)
+    uv = as_array(uv, "uv")
+    check_shape(uv, "uv", (len(gt), 2))
+    check_instance(camera, Camera, "camera")
+    check_instance(subdivision, Subdivision, "subdivision")
+    check_instance(options, SlideOptions, "options")
+    if topology is not None:
+        check_instance(topology, SlideTopology, "topology")
+    if body is not None and (not isinstance(body, (tuple, list)) or len(body) != 2):
+        raise OptionError("body must be (positions (nb,3), faces (mb,3))")
+    if body is not None:
+        body = check_mesh(body[0], body[1], "body positions")
+    faces = faces.astype(np.int64)
     if topology is None:
         levels = int(round(np.log(len(subdivision.faces) / max(len(faces), 1)) / np.log(4)))
         topology = build_topology(faces, uv, gt, levels)
-    inferred = np.asarray(inferred_positions, dtype=np.float64)
     X = topology.positions(inferred)
     occluder = None
     if body is not None:

@@ -27,6 +27,7 @@ import numpy as np
 from mvtex.data.dataset import default_split
 from mvtex.data.mesh import edge_strain, edges
 from mvtex.synth.predictor import _CHUNK, fit_predictor
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import OptionError
 
 GARMENTS = ("shirt", "skirt")
@@ -57,6 +58,7 @@ class SynthOptions:
     body: bool = True
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.garment not in GARMENTS:
             raise OptionError(f"garment must be one of {', '.join(GARMENTS)}, got {self.garment!r}")
         if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, (int, np.integer)) \
@@ -240,6 +242,9 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
         inside the body) and inferred_inside_body_depth_m (the deepest of them).
 
     """
+    from mvtex.util.checks import check_instance
+
+    check_instance(options, SynthOptions, "options")
     garment = _garment(options.garment)
     shape = (options.num_poses, len(garment.rest), 3)
     gt, inferred = np.empty(shape, dtype=np.float32), np.empty(shape, dtype=np.float32)
@@ -292,6 +297,10 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
     Returns:
         A `SynthResult`; its `stats` are those of `synthesize`.
     """
+    from mvtex.util.checks import as_path, check_instance
+
+    path = as_path(path, "path")
+    check_instance(options, SynthOptions, "options")
     import json
     from pathlib import Path
 

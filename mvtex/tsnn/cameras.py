@@ -42,6 +42,18 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     Returns:
         A `mvtex.tsnn.modeldir.TrainedCameras` (models: camera -> its `TrainResult`).
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.texcoords import as_texcoords
+    from mvtex.tsnn.train import TrainOptions
+    from mvtex.util.checks import as_path, check_instance
+
+    dataset = as_dataset(dataset)
+    texcoords = as_texcoords(texcoords)
+    out = as_path(out, "out")
+    check_instance(options, TrainOptions, "options")
+    if isinstance(cameras, (str, bytes)) or not hasattr(cameras, "__iter__") \
+            or not all(isinstance(c, str) for c in cameras) or not list(cameras):
+        raise OptionError(f"cameras must be a non-empty list of camera names, got {cameras!r:.60}")
     from mvtex.util.parallel import check_backend, map_unordered
 
     out = Path(out)

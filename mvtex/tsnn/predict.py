@@ -20,12 +20,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.data.camera import check_camera_name
-from mvtex.data.texcoords import dataset_record, rig_record, write_header
+from mvtex.data.texcoords import MAX_DISPLACEMENT, dataset_record, rig_record, write_header
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
 from mvtex.tsnn.train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import create_npy, read_json, write_npy_rows
 from mvtex.util.output import atomic_path
 
@@ -84,7 +84,9 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
 
     from mvtex.tsnn.model import build_network
 
-    path = Path(path)
+    from mvtex.util.checks import as_path
+
+    path = as_path(path, "path")
     if not path.is_dir():
         raise InputError(path, "model directory not found")
     file = path / "config.json"
@@ -205,6 +207,28 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
     return out
 
 
+def check_prediction(displacement: np.ndarray, model: LoadedModel, camera: str, poses: Sequence[int]) -> None:
+    """Refuse (InputError naming the model's weights) a prediction that is not a texcoord
+    perturbation: NaN or infinite values, or |d| above `MAX_DISPLACEMENT` (the whole
+    atlas). A model whose weights are finite can still overflow on some poses; its output
+    must never reach a texcoord set.
+
+    Args:
+        displacement: (k,n',2) the model's d for `poses` of `camera`.
+    """
+    d = np.asarray(displacement, dtype=np.float64)
+    finite = np.isfinite(d).all(axis=(1, 2))
+    with np.errstate(invalid="ignore", over="ignore"):
+        length = np.sqrt((np.where(np.isfinite(d), d, 0.0) ** 2).sum(axis=2)).max(axis=1, initial=0.0)
+    bad = ~finite | (length > MAX_DISPLACEMENT)
+    if bad.any():
+        row = int(np.argmax(bad))
+        what = "NaN or infinite displacements" if not finite[row] else \
+            f"a displacement of length {length[row]:.4g} uv units (more than {MAX_DISPLACEMENT}, the whole atlas)"
+        raise InputError(model.path / "model.safetensors", f"predicts {what} for camera {camera!r} at pose "
+                         f"{int(poses[row])}: the model is broken; train it again")
+
+
 def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.ndarray | None]]:
     """(camera name, model, cam_from_world or None) for every camera to predict."""
     jobs: dict[str, tuple[LoadedModel, np.ndarray | None]] = {}
@@ -254,6 +278,18 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
             for one camera, a model made for another mesh or pose size, a rig camera no
             model can predict.
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.util.checks import as_path
+
+    dataset = as_dataset(dataset)
+    out = as_path(out, "out")
+    rig = None if rig is None else as_rig(rig)[0]
+    if isinstance(models, (str, os.PathLike)):
+        models = [models]
+    if not hasattr(models, "__iter__") or isinstance(models, (bytes, dict)):
+        raise OptionError(f"models must be a list of model folder paths, got {type(models).__name__}")
+    models = [as_path(m, "models") for m in models]
     from tqdm import tqdm
 
     out = Path(out)
@@ -316,6 +352,7 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                     g = geometry[key]
                 d = predict_displacements(m, x[start:start + len(rows)], uv, geometry=g, cam_from_world=view,
                                           device=device)
+                check_prediction(d, m, name, rows)
                 write_npy_rows(tmp / name / "displacement.npy", index, d)
                 write_npy_rows(tmp / name / "assigned.npy", index, np.ones((len(rows), len(uv)), dtype=bool))
                 bar.update(len(rows))

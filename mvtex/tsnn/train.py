@@ -43,6 +43,7 @@ import numpy as np
 
 from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _write_model, mesh_fingerprint,
                                  rebuild_mesh)
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 
 ARCHS = ("gp", "unet", "paper")
@@ -115,6 +116,13 @@ class TrainOptions:
     weight_decay: float = 0.0
     pose_noise: float = 0.0
     dropout: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_field_types(self)
+        if self.widths is not None and (isinstance(self.widths, (str, bytes)) or not hasattr(self.widths, "__iter__")
+                                        or not all(isinstance(w, int) and not isinstance(w, bool) and w >= 1
+                                                   for w in self.widths)):
+            raise OptionError(f"widths must be a tuple of positive integers or None, got {self.widths!r:.60}")
 
     def resolved(self) -> "TrainOptions":
         """A copy with device, resolution and widths filled in for the device that runs it."""
@@ -337,6 +345,18 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             mesh that is not the dataset mesh subdivided, overlapping uv charts.
         OptionError: bad options (`paper` without a camera name).
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import as_texcoords
+    from mvtex.util.checks import as_path, check_instance
+
+    dataset = as_dataset(dataset)
+    texcoords = as_texcoords(texcoords)
+    out = as_path(out, "out")
+    rig = None if rig is None else as_rig(rig)[0]
+    check_instance(options, TrainOptions, "options")
+    if camera is not None and not isinstance(camera, str):
+        raise OptionError(f"camera must be a camera name or None, got {type(camera).__name__}")
     import torch
 
     out = Path(out)

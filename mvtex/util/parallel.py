@@ -21,13 +21,29 @@ import sys
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
-MAX_WORKERS = 256  # local worker processes one run starts
+MAX_WORKERS = 64
+"""Most local worker processes a run accepts. Each worker holds its own GL context and a
+copy of the run's inputs (100-300 MB); a run also never starts more workers than the
+cores it may use (`worker_count`)."""
 
 
-def check_backend(workers: int | None = None, scheduler: str | None = None, *, timeout: float = 5.0) -> None:
-    """Refuse (OptionError) a worker count below 1, and a Dask scheduler address that is not
-    `tcp://HOST:PORT` (or `HOST:PORT`) or where nothing accepts a connection within
-    `timeout` seconds: before any work starts or anything is written."""
+SCHEDULER_TIMEOUT_S = 10.0
+"""Seconds a Dask scheduler has to accept a connection and answer mvtex's handshake."""
+
+
+def worker_count(workers: int) -> int:
+    """The local worker processes a run starts for `workers` asked: at most the cores this
+    process may use (`available_cores`); more would only take memory."""
+    return max(1, min(int(workers), available_cores()))
+
+
+def check_backend(workers: int | None = None, scheduler: str | None = None, *,
+                  timeout: float | None = None) -> None:
+    """Refuse (OptionError) a worker count outside 1..MAX_WORKERS, and a Dask scheduler
+    address that is not `tcp://HOST:PORT` (or `HOST:PORT`), where nothing accepts a
+    connection, or where what answers is not a Dask scheduler (no answer to Dask's
+    handshake and identity request within `timeout` seconds): before any work starts or
+    anything is written. `timeout` None: SCHEDULER_TIMEOUT_S."""
     import socket
 
     from mvtex.util.errors import OptionError
@@ -37,15 +53,59 @@ def check_backend(workers: int | None = None, scheduler: str | None = None, *, t
         raise OptionError(f"workers must be an integer in 1..{MAX_WORKERS}, got {workers!r}")
     if scheduler is None:
         return
+    if not isinstance(scheduler, str):
+        raise OptionError(f"scheduler must be a Dask scheduler address tcp://HOST:PORT, got {type(scheduler).__name__}")
     match = re.fullmatch(r"(?:(?:tcp|tls)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9._-]+):(\d{1,5})/?", str(scheduler).strip())
     if not match or not 0 < int(match.group(2)) < 65536:
         raise OptionError(f"scheduler must be a Dask scheduler address tcp://HOST:PORT, got {scheduler!r}")
     host, port = match.group(1).strip("[]"), int(match.group(2))
+    timeout = SCHEDULER_TIMEOUT_S if timeout is None else float(timeout)
     try:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as err:
         raise OptionError(f"scheduler: nothing accepts a connection at {host}:{port} ({err.strerror or err}); "
                           "start one with `dask scheduler`") from None
+    if not str(scheduler).strip().startswith("tls://"):  # TLS needs the user's certificates: connect only
+        _check_dask_scheduler(f"tcp://{match.group(1)}:{port}", timeout)
+
+
+def _check_dask_scheduler(address: str, timeout: float) -> None:
+    """Refuse (OptionError) an address where no Dask scheduler answers Dask's handshake and an
+    identity request within `timeout` seconds (a port that accepts and stays silent, an HTTP
+    server, another protocol). Runs in a thread of its own: the caller may be inside an
+    event loop (a notebook)."""
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from mvtex.util.errors import OptionError
+
+    try:
+        from distributed.comm import connect
+    except ImportError as err:  # the original error, with the extra that provides it
+        raise ImportError(f"{err}; a Dask scheduler needs `pip install mvtex[dist]`") from err
+
+    async def identity():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    def ask():
+        return asyncio.run(asyncio.wait_for(identity(), timeout))
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            reply = pool.submit(ask).result()
+        except Exception as err:  # whatever answers there, it is not a scheduler: a timeout, garbage frames
+            detail = f"no answer to Dask's handshake within {timeout:g} s" if isinstance(err, TimeoutError) \
+                else f"its reply to Dask's handshake is not Dask's: {type(err).__name__}"
+            raise OptionError(f"scheduler: {address} accepts connections but is not a Dask scheduler ({detail})") \
+                from None
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        raise OptionError(f"scheduler: {address} is a Dask {reply.get('type') if isinstance(reply, dict) else '?'}, "
+                          "not a scheduler")
 
 
 def map_unordered(fn: Callable[..., Any], tasks: Sequence[tuple], *, workers: int = 1, scheduler: str | None = None,
@@ -64,10 +124,11 @@ def map_unordered(fn: Callable[..., Any], tasks: Sequence[tuple], *, workers: in
     tasks = list(tasks)
     if scheduler:
         yield from _dask(fn, tasks, scheduler, max_in_flight)
-    elif workers <= 1:
+    elif worker_count(workers) <= 1:
         for task in tasks:
             yield fn(*task)
     else:
+        workers = worker_count(workers)
         yield from _processes(fn, tasks, workers, max_in_flight or 4 * workers)
 
 
@@ -182,7 +243,9 @@ def _dask(fn, tasks: list, address: str, max_in_flight: int | None) -> Iterator[
     except ImportError as err:  # the original error, with the extra that provides it
         raise ImportError(f"{err}; a Dask scheduler needs `pip install mvtex[dist]`") from err
 
-    with Client(address) as client:
+    # A bounded handshake (check_backend checked the address; this bounds a scheduler that
+    # stops answering in between).
+    with Client(address, timeout=SCHEDULER_TIMEOUT_S) as client:
         limit = max_in_flight or 4 * max(1, sum(client.nthreads().values()))
         it = iter(tasks)
         # range first: zip would take (and drop) one task more from `it` when range runs out

@@ -42,7 +42,15 @@ def parse_weights(text: str) -> dict[str, float]:
 
 
 def check_weights(weights: Mapping[str, float], rig: Rig, source: str | os.PathLike | None = None) -> dict[str, float]:
-    """Weights of a view, validated: known cameras, finite, ≥ 0, summing to 1 (±1e-6)."""
+    """Weights of a view, validated: a mapping camera name -> number, known cameras, finite,
+    ≥ 0, summing to 1 (±1e-6)."""
+    import numbers
+
+    if not isinstance(weights, Mapping) or not weights:
+        raise OptionError(f"weights must map camera names to numbers, got {weights!r:.60}")
+    if not all(isinstance(k, str) for k in weights) or not all(
+            isinstance(w, numbers.Real) and not isinstance(w, bool) for w in weights.values()):
+        raise OptionError(f"weights must map camera names to numbers, got {dict(weights)!r:.80}")
     rig.select(list(weights), source)  # InputError naming unknown cameras
     values = np.array([float(w) for w in weights.values()], np.float64)
     if not np.all(np.isfinite(values)):
@@ -145,6 +153,11 @@ def interpolate_camera(rig: Rig, weights: Mapping[str, float], name: str) -> Cam
     """
     from scipy.spatial.transform import Rotation, Slerp
 
+    from mvtex.data.camera import check_camera_name
+    from mvtex.data.rig import as_rig
+
+    rig = as_rig(rig)[0]
+    check_camera_name(name)
     weights = check_weights(weights, rig)
     one = _single(weights)
     if one is not None:

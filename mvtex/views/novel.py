@@ -15,7 +15,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from mvtex.data.camera import Camera, check_camera_name
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_outside_body
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.parallel import ThreadState, check_backend
 from mvtex.views.cameras import check_weights, interpolate_camera
@@ -123,6 +123,23 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     Returns:
         A `NovelViews`; `.to_json()` is the JSON of `mvtex views --json`.
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import as_texcoords
+    from mvtex.util.checks import as_indices, as_path, check_instance
+
+    dataset = as_dataset(dataset)
+    rig, source = as_rig(rig)
+    rig_source = rig_source if rig_source is not None else source
+    texcoords = as_texcoords(texcoords)
+    out = as_path(out, "out")
+    poses = None if poses is None else as_indices(poses, "poses")
+    check_instance(options, ViewOptions, "options")
+    if isinstance(weights, (str, bytes, dict)) or not hasattr(weights, "__iter__"):
+        raise OptionError(f"weights must be a list of camera -> weight mappings, got {type(weights).__name__}")
+    if isinstance(names, (str, bytes)) or not hasattr(names, "__iter__"):
+        raise OptionError(f"names must be a list of view names, got {type(names).__name__}")
+    weights, names = list(weights), list(names)
     from tqdm import tqdm
 
     from mvtex.data.rig import save_rig
@@ -148,6 +165,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
                              f"(it has {', '.join(texcoords.cameras)})")
     cameras = [interpolate_camera(rig, w, name) for w, name in zip(weights, names)]
     poses = texcoords.poses if poses is None else [int(p) for p in poses]
+    check_outside_body(rig, dataset, poses, rig_source)
+    check_outside_body(Rig(tuple(cameras)), dataset, poses, "the novel views")
     for p in poses:
         texcoords.row(p)
     if poses:  # reading a row checks the camera's whole arrays: here, before any worker starts

@@ -35,7 +35,8 @@ from typing import Mapping
 import numpy as np
 
 from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, check_outside_body
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 
 BACKGROUND = (40, 40, 46)
@@ -60,6 +61,7 @@ class PreviewOptions:
     margin: int = 4
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if not (np.isfinite(self.ipd) and 0 <= self.ipd < 10):
             raise OptionError(f"ipd must be in [0, 10) m, got {self.ipd!r}")
 
@@ -233,6 +235,18 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     Returns:
         A `Preview`; `.to_json()` is preview.json (and `mvtex preview --json`).
     """
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+    from mvtex.data.texcoords import as_texcoords
+    from mvtex.util.checks import as_index, as_path, check_instance
+
+    dataset = as_dataset(dataset)
+    rig, source = as_rig(rig)
+    rig_source = rig_source if rig_source is not None else source
+    texcoords = as_texcoords(texcoords)
+    pose = as_index(pose, "pose")
+    out = as_path(out, "out")
+    check_instance(options, PreviewOptions, "options")
     from mvtex.render.pictures import grid_image, side_by_side
     from mvtex.util.files import save_png, write_json
     from mvtex.util.output import atomic_path, check_output
@@ -256,6 +270,8 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         raise InputError(texcoords.path, "method reconstruct needs texcoords of at least 2 rig cameras")
     viewpoint = interpolate_camera(rig, weights, "viewpoint")
     left, right = eye_cameras(viewpoint, options.ipd)
+    check_outside_body(rig, dataset, [pose], rig_source)
+    check_outside_body(Rig((left, right)), dataset, [pose], "the preview's eyes")
     cloth = np.asarray(dataset.inferred[pose], np.float64)
     for eye in (left, right):
         if not eye.sees(cloth):  # scores of two empty pictures would say "identical"

@@ -29,6 +29,7 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
+from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import read_row
 from mvtex.views.cameras import _single
@@ -56,6 +57,7 @@ class ViewOptions:
     uv_resolution: int = 1024
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.method not in METHODS:
             raise OptionError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
 
