@@ -7,6 +7,9 @@ eval, triangulate, render, views and preview read.
                      parent int32 (n',2)
     <camera>/displacement.npy  float32 (len(poses), n', 2): d = T_N - T_G
     <camera>/assigned.npy      bool (len(poses), n')
+    <camera>/uncertainty.npy   optional float32 (len(poses), n'): the predictive standard
+                               deviation of d per vertex (uv units), written by models that
+                               report one; readers that do not know it ignore it
 """
 
 from __future__ import annotations
@@ -109,6 +112,32 @@ class TexcoordSet:
     def assigned(self, camera: str, pose: int) -> np.ndarray:
         """(n',) bool: True where d came from the ray (a copy)."""
         return read_row(self._arrays(camera)[1], self.row(pose))
+
+    def _uncertainty(self, camera: str) -> np.ndarray | None:
+        key = ("uncertainty", camera)
+        if key not in self._cache:
+            self._arrays(camera)  # the camera exists and its displacements are sound
+            file = self.path / camera / "uncertainty.npy"
+            u = None
+            if file.is_file():
+                u = load_npy(file)
+                shape = (len(self.poses), len(self.uv))
+                if u.shape != shape or u.dtype.kind != "f":
+                    raise InputError(file, f"shape {u.shape} {u.dtype}, expected {shape} float32")
+                _check_uncertainty(u, file)
+            self._cache[key] = u
+        return self._cache[key]
+
+    def has_uncertainty(self, camera: str) -> bool:
+        """True when the set holds the camera's predictive uncertainty (`uncertainty`)."""
+        return self._uncertainty(camera) is not None
+
+    def uncertainty(self, camera: str, pose: int) -> np.ndarray | None:
+        """The predictive standard deviation of d per vertex, (n',) float32 in uv units (the
+        root of the expected squared length of d's error), or None when the set has none for
+        this camera (slid sets, models that report none)."""
+        u = self._uncertainty(camera)
+        return None if u is None else read_row(u, self.row(pose))
 
     def fingerprint(self, camera: str) -> str:
         """Content hash of one camera's displacement and assigned arrays (`io.fingerprint`,
@@ -221,6 +250,16 @@ def _check_displacements(d: np.ndarray, source: Path) -> None:
             row = int(np.argmax(norm > MAX_DISPLACEMENT))
             raise InputError(source, f"displacement of length {norm[row]:.4g} uv units at row {start + row} "
                              f"(more than {MAX_DISPLACEMENT}: not a texcoord perturbation)")
+
+
+def _check_uncertainty(u: np.ndarray, source: Path) -> None:
+    """Every value finite and >= 0, read in blocks."""
+    rows = max(1, (1 << 24) // max(1, u[0].nbytes)) if len(u) else 1
+    for start in range(0, len(u), rows):
+        block = read_rows(u, start, start + rows)
+        ok = np.isfinite(block).all(axis=1) & (block >= 0).all(axis=1)
+        if not ok.all():
+            raise InputError(source, f"negative, NaN or infinite uncertainty (row {start + int(np.argmin(ok))})")
 
 
 def _int_list(meta: dict, key: str, source: Path) -> list:
@@ -428,12 +467,15 @@ class PartialSet:
 
 def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray,
                    source: str, subdiv: int, poses: Sequence[int],
-                   displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray], **extra: Any) -> Path:
+                   displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray],
+                   uncertainty: dict[str, np.ndarray] | None = None, **extra: Any) -> Path:
     """Write a whole texcoord set atomically from in-memory arrays.
 
     Args:
         displacement: camera name -> (len(poses), n', 2) float32.
         assigned: camera name -> (len(poses), n') bool.
+        uncertainty: optional camera name -> (len(poses), n') float32 predictive standard
+            deviation of d (cameras without one write none).
     """
     path = Path(path)
     cameras = list(displacement)
@@ -445,4 +487,6 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
             (tmp / cam).mkdir()
             np.save(tmp / cam / "displacement.npy", np.asarray(displacement[cam], np.float32), allow_pickle=False)
             np.save(tmp / cam / "assigned.npy", np.asarray(assigned[cam], bool), allow_pickle=False)
+            if uncertainty is not None and cam in uncertainty:
+                np.save(tmp / cam / "uncertainty.npy", np.asarray(uncertainty[cam], np.float32), allow_pickle=False)
     return path
