@@ -11,12 +11,15 @@ with --dataset) is slid with `slide`'s defaults (override with --slide break_rat
 each rig, and each selected pose is triangulated with `triangulate`'s defaults (override
 with --recon). TSNN: a dataset of TSNN_POSES poses is slid on every pose, one `gp` model
 per camera of each TSNN rig is trained on its train split (minutes per camera), the test
-poses are predicted and triangulated, without and with `smooth`; TS on the same test
-poses is reported next to it. Everything is written under WORK and reused by a rerun.
+poses are predicted and triangulated: every point taken (without and with `smooth`),
+trusted by the cameras' agreement (the set's uncertainty ignored), and with the defaults
+(trusted by the models' predictive uncertainty); TS on the same test poses is reported
+next to it. Everything is written under WORK and reused by a rerun.
 
 Per (garment, rig, source): triangulated share, RMSE over the triangulated and over all
 vertices (inferred -> reconstructed, mean over poses), the ratio inferred / reconstructed
-RMSE on the triangulated vertices (median and worst pose), the mean reprojection error,
+RMSE on the triangulated vertices and over all vertices (median and worst pose), the
+mean reprojection error,
 and the located observations left out, summed over poses, by reason (plus rejected
 points by reason). Prints markdown tables; --json writes every number.
 """
@@ -77,6 +80,7 @@ def summarise(dataset, rig, texcoords, poses: list[int], options: ReconOptions, 
                for k in poses]
     ratio = np.array([r["rmse_triangulated_m"]["inferred"] / r["rmse_triangulated_m"]["reconstructed"]
                       for r in reports])
+    ratio_all = np.array([r["rmse_m"]["inferred"] / r["rmse_m"]["reconstructed"] for r in reports])
     mean = lambda f: float(np.mean([f(r) for r in reports]))  # noqa: E731
     return {
         "poses": list(map(int, poses)),
@@ -88,6 +92,8 @@ def summarise(dataset, rig, texcoords, poses: list[int], options: ReconOptions, 
                         "reconstructed": 1e3 * mean(lambda r: r["rmse_m"]["reconstructed"])},
         "ratio_triangulated": {"median": float(np.median(ratio)), "worst": float(ratio.min()),
                                "worst_pose": int(poses[int(np.argmin(ratio))]), "per_pose": ratio.tolist()},
+        "ratio_all": {"median": float(np.median(ratio_all)), "worst": float(ratio_all.min()),
+                      "worst_pose": int(poses[int(np.argmin(ratio_all))]), "per_pose": ratio_all.tolist()},
         "reprojection_px": mean(lambda r: r["mean_reprojection_error_px"]),
         "rejected_observations": {k: int(sum(r["rejected_observations"][k] for r in reports))
                                   for k in OBSERVATION_REASONS},
@@ -129,16 +135,20 @@ def run_tsnn(work: Path, garment: str, rig_name: str, num_poses: int, slide: Sli
     if not (pred / "texcoords.json").exists():
         predict(dataset, [base / "models" / c for c in rig.names], pred, poses=test, progress=False)
     pc = open_texcoords(pred, dataset.num_vertices)
+    untrusted = replace(options, shrink=0.0, use_uncertainty=False)
     return {"ts": summarise(dataset, rig, tc, test, options, ctx),
-            "tsnn": summarise(dataset, rig, pc, test, options, ctx),
-            "tsnn_smooth": summarise(dataset, rig, pc, test, replace(options, smooth=True), ctx)}
+            "tsnn_plain": summarise(dataset, rig, pc, test, untrusted, ctx),
+            "tsnn_smooth": summarise(dataset, rig, pc, test, replace(untrusted, smooth=True), ctx),
+            "tsnn_consistency": summarise(dataset, rig, pc, test, replace(options, use_uncertainty=False), ctx),
+            "tsnn": summarise(dataset, rig, pc, test, options, ctx)}
 
 
 def row(garment: str, rig: str, source: str, s: dict) -> str:
     r, t, a = s["ratio_triangulated"], s["rmse_triangulated_mm"], s["rmse_all_mm"]
+    q = s["ratio_all"]
     return (f"| {garment} | {rig} | {source} | {100 * s['triangulated_share']:.1f} % | {t['inferred']:.2f} → "
             f"{t['reconstructed']:.3f} | {a['inferred']:.2f} → {a['reconstructed']:.2f} | {r['median']:.1f}× / "
-            f"{r['worst']:.1f}× | {s['reprojection_px']:.3f} |")
+            f"{r['worst']:.1f}× | {q['median']:.2f}× / {q['worst']:.2f}× | {s['reprojection_px']:.3f} |")
 
 
 def rejection_row(garment: str, rig: str, source: str, s: dict) -> str:
@@ -150,7 +160,8 @@ def rejection_row(garment: str, rig: str, source: str, s: dict) -> str:
 
 def markdown(results: list[tuple[str, str, str, dict]]) -> str:
     head = ["| garment | rig | texcoords | triangulated | RMSE triangulated (mm) | RMSE all (mm) "
-            "| ratio triangulated, median / worst pose | reprojection (px) |", "|---|---|---|---|---|---|---|---|"]
+            "| ratio triangulated, median / worst pose | ratio all, median / worst pose | reprojection (px) |",
+            "|---|---|---|---|---|---|---|---|---|"]
     rej = ["| garment | rig | texcoords | used | " + " | ".join(OBSERVATION_REASONS) + " | points rejected |",
            "|---|---|---|---|" + "---|" * len(OBSERVATION_REASONS) + "---|"]
     for g, r, source, s in results:
@@ -199,8 +210,11 @@ def main(argv: list[str] | None = None) -> dict:
                 for rig_name in args.tsnn_rigs.split(","):
                     out = run_tsnn(args.work, garment, rig_name, args.tsnn_poses, slide, options, args.workers, given,
                                    ctx)
-                    for source, label in (("ts", f"TS ({args.tsnn_poses}-pose set)"), ("tsnn", "TSNN"),
-                                          ("tsnn_smooth", "TSNN, smooth")):
+                    for source, label in (("ts", f"TS ({args.tsnn_poses}-pose set)"),
+                                          ("tsnn_plain", "TSNN, every point taken"),
+                                          ("tsnn_smooth", "TSNN, every point taken, smooth"),
+                                          ("tsnn_consistency", "TSNN, trust from the cameras' agreement"),
+                                          ("tsnn", "TSNN, trust from the uncertainty (defaults)")):
                         results.append((garment, rig_name, label, out[source]))
                         print(row(*results[-1]), file=sys.stderr, flush=True)
     table = markdown(results)

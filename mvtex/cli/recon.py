@@ -32,6 +32,13 @@ def register(sub) -> None:
     p.add_argument("--consensus-scale", type=float, default=None, metavar="S",
                    help="grow the vote's threshold to S times the pose's median reprojection error (default: 4 "
                         "for predicted texcoords, 0 for slid ones)")
+    p.add_argument("--shrink", type=float, default=None, metavar="K",
+                   help="trust in each point: keep tau2/(tau2 + K sigma2) of its displacement, sigma its standard "
+                        "deviation, tau2 the pose's mean squared displacement; 0 takes every point (default: 0.2 "
+                        "for predicted texcoords, 0 for slid ones)")
+    p.add_argument("--use-uncertainty", action=argparse.BooleanOptionalAction, default=True,
+                   help="weigh observations and trust points by the texcoord set's uncertainty.npy where it has "
+                        "one (default on; off: by the cameras' disagreement)")
     p.add_argument("--fill-shape", choices=("rest", "inferred"), default="rest",
                    help="the shape the displacement of untriangulated vertices is extended on (default rest)")
     p.add_argument("--engine", choices=("mvtex", "pycolmap"), default="mvtex",
@@ -50,7 +57,8 @@ def cmd_triangulate(args):
     options = ReconOptions(smooth=args.smooth, max_reprojection_px=args.max_reprojection_px,
                            max_surface_distance_m=args.max_surface_distance, max_stretch=args.max_stretch,
                            consensus_px=args.consensus_px, consensus_scale=args.consensus_scale,
-                           fill_shape=args.fill_shape, engine=args.engine)
+                           fill_shape=args.fill_shape, engine=args.engine, shrink=args.shrink,
+                           use_uncertainty=args.use_uncertainty)
     dataset = load_dataset(args.dataset)
     rig, rig_path = load_rig(args.rig)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)

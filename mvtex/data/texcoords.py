@@ -7,6 +7,9 @@ eval, triangulate, render, views and preview read.
                      parent int32 (n',2)
     <camera>/displacement.npy  float32 (len(poses), n', 2): d = T_N - T_G
     <camera>/assigned.npy      bool (len(poses), n')
+    <camera>/uncertainty.npy   optional float32 (len(poses), n'): the predictive standard
+                               deviation of d per vertex (uv units), written by models that
+                               report one; readers that do not know it ignore it
 """
 
 from __future__ import annotations
@@ -109,6 +112,32 @@ class TexcoordSet:
     def assigned(self, camera: str, pose: int) -> np.ndarray:
         """(n',) bool: True where d came from the ray (a copy)."""
         return read_row(self._arrays(camera)[1], self.row(pose))
+
+    def _uncertainty(self, camera: str) -> np.ndarray | None:
+        key = ("uncertainty", camera)
+        if key not in self._cache:
+            self._arrays(camera)  # the camera exists and its displacements are sound
+            file = self.path / camera / "uncertainty.npy"
+            u = None
+            if file.is_file():
+                u = load_npy(file)
+                shape = (len(self.poses), len(self.uv))
+                if u.shape != shape or u.dtype.kind != "f":
+                    raise InputError(file, f"shape {u.shape} {u.dtype}, expected {shape} float32")
+                _check_uncertainty(u, file)
+            self._cache[key] = u
+        return self._cache[key]
+
+    def has_uncertainty(self, camera: str) -> bool:
+        """True when the set holds the camera's predictive uncertainty (`uncertainty`)."""
+        return self._uncertainty(camera) is not None
+
+    def uncertainty(self, camera: str, pose: int) -> np.ndarray | None:
+        """The predictive standard deviation of d per vertex, (n',) float32 in uv units (the
+        root of the expected squared length of d's error), or None when the set has none for
+        this camera (slid sets, models that report none)."""
+        u = self._uncertainty(camera)
+        return None if u is None else read_row(u, self.row(pose))
 
     def fingerprint(self, camera: str) -> str:
         """Content hash of one camera's displacement and assigned arrays (`io.fingerprint`,
@@ -233,6 +262,16 @@ def _check_parent(parent: np.ndarray, num_vertices: int, source) -> None:
     base = (parent[:, 0] == index) & (parent[:, 1] == index)
     if len(parent) and (parent.min() < 0 or not np.all(base | (parent.max(axis=1) < index))):
         raise InputError(source, "parent names a vertex that does not precede it")
+
+
+def _check_uncertainty(u: np.ndarray, source: Path) -> None:
+    """Every value finite and >= 0, read in blocks."""
+    rows = max(1, (1 << 24) // max(1, u[0].nbytes)) if len(u) else 1
+    for start in range(0, len(u), rows):
+        block = read_rows(u, start, start + rows)
+        ok = np.isfinite(block).all(axis=1) & (block >= 0).all(axis=1)
+        if not ok.all():
+            raise InputError(source, f"negative, NaN or infinite uncertainty (row {start + int(np.argmin(ok))})")
 
 
 def _int_list(meta: dict, key: str, source: Path) -> list:
@@ -447,7 +486,8 @@ class PartialSet:
 
 def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray,
                    source: str, subdiv: int, poses: Sequence[int],
-                   displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray], **extra: Any) -> Path:
+                   displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray],
+                   uncertainty: dict[str, np.ndarray] | None = None, **extra: Any) -> Path:
     """Write a whole texcoord set atomically from in-memory arrays.
 
     Everything is checked before anything is written, with the rules `open_texcoords`
@@ -458,12 +498,21 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
     Args:
         displacement: camera name -> (len(poses), n', 2) float32.
         assigned: camera name -> (len(poses), n') bool.
+        uncertainty: optional camera name -> (len(poses), n') float32 predictive standard
+            deviation of d (cameras without one write none); finite and >= 0.
 
     Raises:
         OptionError: an argument of the wrong type, shape or value, named.
     """
     cameras = check_texcoord_arrays(faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses,
                                     displacement=displacement, assigned=assigned)
+    if uncertainty is not None:
+        if not isinstance(uncertainty, dict) or not set(uncertainty) <= set(cameras):
+            raise OptionError("uncertainty must be a dict: camera name (of displacement) -> (len(poses), n') array")
+        for cam, u in uncertainty.items():
+            u = _array(u, f"uncertainty[{cam!r}]")
+            if u.shape != (len(poses), len(uv)) or u.dtype.kind not in "fiu" or not np.isfinite(u).all() or (u < 0).any():
+                raise OptionError(f"uncertainty[{cam!r}] must be finite numbers >= 0 with shape {(len(poses), len(uv))}")
     if not isinstance(path, (str, os.PathLike)):
         raise OptionError(f"path must be a folder path, got {type(path).__name__}")
     path = Path(path)
@@ -475,6 +524,8 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
             (tmp / cam).mkdir()
             np.save(tmp / cam / "displacement.npy", np.asarray(displacement[cam], np.float32), allow_pickle=False)
             np.save(tmp / cam / "assigned.npy", np.asarray(assigned[cam], bool), allow_pickle=False)
+            if uncertainty is not None and cam in uncertainty:
+                np.save(tmp / cam / "uncertainty.npy", np.asarray(uncertainty[cam], np.float32), allow_pickle=False)
     return path
 
 

@@ -198,6 +198,9 @@ class Hypotheses:
         pixel: (h,2) float64 OpenCV pixel of the located surface point in that camera.
         face: (h,) int64 the triangle of the texcoord set's mesh it was located in.
         bary: (h,3) float64 its barycentrics there (of T_N, and so of X_N).
+        sigma: (h,) float64 the standard deviation (m) of the located 3-D point that the
+            texcoords' predictive uncertainty implies (`located_sigma`), or None when the
+            texcoord set reports none.
     """
 
     vertex: np.ndarray
@@ -205,17 +208,54 @@ class Hypotheses:
     pixel: np.ndarray
     face: np.ndarray
     bary: np.ndarray
+    sigma: np.ndarray | None = None
 
     def subset(self, keep: np.ndarray) -> "Hypotheses":
         """The hypotheses selected by a (h,) bool mask or an index array."""
-        return Hypotheses(self.vertex[keep], self.camera[keep], self.pixel[keep], self.face[keep], self.bary[keep])
+        return Hypotheses(self.vertex[keep], self.camera[keep], self.pixel[keep], self.face[keep], self.bary[keep],
+                          None if self.sigma is None else self.sigma[keep])
+
+
+def located_sigma(positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, uncertainty: np.ndarray,
+                  face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """How far (m, a standard deviation) a located point may be off, given the texcoords'
+    per-vertex predictive standard deviation.
+
+    A point is located where T_N equals a material coordinate; an error e of T_N there
+    moves it by J e, J = dX/dT_N (3x2) the triangle's map from texture coordinates to
+    space. With an isotropic error of expected squared length σ² (σ interpolated
+    barycentrically from the triangle's corners), the point's expected squared shift is
+    σ² ‖J‖_F² / 2. A triangle whose T_N is degenerate gives infinity.
+
+    Args:
+        positions: (n',3) X_N; faces: (m',3); texcoords: (n',2) T_N of the camera.
+        uncertainty: (n',) the standard deviation of T_N (uv units).
+        face: (h,) triangles; bary: (h,3) barycentrics of the located points.
+
+    Returns:
+        (h,) float64.
+    """
+    f = faces[face]
+    X, T = positions[f], texcoords[f]
+    dX = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]], axis=2)  # (h,3,2)
+    dT = np.stack([T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]], axis=2)  # (h,2,2)
+    det = dT[:, 0, 0] * dT[:, 1, 1] - dT[:, 0, 1] * dT[:, 1, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.stack([np.stack([dT[:, 1, 1], -dT[:, 0, 1]], 1), np.stack([-dT[:, 1, 0], dT[:, 0, 0]], 1)], 1) / \
+            det[:, None, None]
+        J = np.einsum("hij,hjk->hik", dX, inv)
+        norm = np.sqrt(np.sum(J ** 2, axis=(1, 2)) / 2)
+    sigma_uv = np.einsum("hk,hk->h", bary, np.asarray(uncertainty, np.float64)[f])
+    out = sigma_uv * norm
+    return np.where(np.isfinite(out) & (det != 0), out, np.inf)
 
 
 def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.ndarray,
                        texcoords: dict[str, np.ndarray], cameras: Sequence[Camera], *, uv_resolution: int = 1024,
                        depth_tolerance: float = 0.005, assigned: dict[str, np.ndarray] | None = None,
                        require_assigned: bool = True, body: tuple[np.ndarray, np.ndarray] | None = None,
-                       progress: bool = False, ctx: GLContext | None = None) -> tuple[Hypotheses, dict[str, int]]:
+                       uncertainty: dict[str, np.ndarray] | None = None, progress: bool = False,
+                       ctx: GLContext | None = None) -> tuple[Hypotheses, dict[str, int]]:
     """Per camera, the surface points showing each gt vertex's material, where visible.
 
     Args:
@@ -231,6 +271,9 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
             unassigned corner.
         body: optional (positions (nb,3), faces (mb,3)) of the wearer's body in this pose:
             in the depth test of every camera, so that no hypothesis the body hides is kept.
+        uncertainty: optional camera name -> (n',) predictive standard deviation of that
+            camera's T_N (uv units), for every camera: the hypotheses then carry `sigma`
+            (`located_sigma`).
         progress: progress bar over cameras on stderr.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
@@ -249,7 +292,8 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         with GLContext() as own:
             return collect_hypotheses(gt_uv, inferred_positions, faces, texcoords, cameras, uv_resolution=uv_resolution,
                                       depth_tolerance=depth_tolerance, assigned=assigned,
-                                      require_assigned=require_assigned, body=body, progress=progress, ctx=own)
+                                      require_assigned=require_assigned, body=body, uncertainty=uncertainty,
+                                      progress=progress, ctx=own)
     X_N = np.asarray(inferred_positions, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     counts = {"hypotheses": 0, "unassigned": 0, "duplicate": 0, "occluded": 0, "hidden_by_body": 0}
@@ -258,7 +302,9 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         body_faces = np.asarray(body[1], dtype=np.int64)
         check_shape(body_positions, "body positions", ("nb", 3))
         check_shape(body_faces, "body faces", ("mb", 3))
-    hyp_v, hyp_c, hyp_px, hyp_f, hyp_b = [], [], [], [], []
+    if uncertainty is not None and any(cam.name not in uncertainty for cam in cameras):
+        uncertainty = None  # every camera's or none
+    hyp_v, hyp_c, hyp_px, hyp_f, hyp_b, hyp_s = [], [], [], [], [], []
     for c, cam in enumerate(tqdm(cameras, desc="locate", unit="camera", disable=not progress, leave=False)):
         T = np.asarray(texcoords[cam.name], dtype=np.float64)
         check_shape(T, f"texcoords[{cam.name!r}]", (len(X_N), 2))
@@ -285,5 +331,9 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         hyp_px.append(pixels[seen])
         hyp_f.append(fi[seen])
         hyp_b.append(bary[seen])
+        if uncertainty is not None:
+            u = np.asarray(uncertainty[cam.name], dtype=np.float64)
+            check_shape(u, f"uncertainty[{cam.name!r}]", (len(X_N),))
+            hyp_s.append(located_sigma(X_N, faces, T, u, fi[seen], bary[seen]))
     return Hypotheses(np.concatenate(hyp_v), np.concatenate(hyp_c), np.concatenate(hyp_px), np.concatenate(hyp_f),
-                      np.concatenate(hyp_b)), counts
+                      np.concatenate(hyp_b), np.concatenate(hyp_s) if uncertainty is not None else None), counts

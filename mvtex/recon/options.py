@@ -14,6 +14,9 @@ ENGINES = ("mvtex", "pycolmap")
 # consensus_scale of predicted texcoord sets (`ReconOptions.for_source`).
 PREDICTED_CONSENSUS_SCALE = 4.0
 
+# shrink of predicted texcoord sets (`ReconOptions.for_source`): see docs/reconstruction.md.
+PREDICTED_SHRINK = 0.2
+
 # Shapes the harmonic fill of `ReconOptions.fill_shape` can be solved on.
 FILL_SHAPES = ("rest", "inferred")
 
@@ -63,6 +66,19 @@ class ReconOptions:
         engine: who triangulates the tracks: "mvtex" (vectorised DLT + Gauss-Newton, the
             default: faster) or "pycolmap" (COLMAP's multi-view triangulation + points-only
             bundle adjustment); both reach the same least-squares points.
+        use_uncertainty: where the texcoord set reports its predictive uncertainty
+            (`<camera>/uncertainty.npy`), weight each observation by it in the
+            triangulation and derive each point's standard deviation from it (else from
+            the cameras' disagreement, `consistency_sigma_px`).
+        shrink: κ of the trust in each triangulated point: its displacement from the
+            inferred position is multiplied by τ² / (τ² + κ σ²), σ the point's standard
+            deviation and τ² the pose's mean squared displacement
+            (`mvtex.recon.triangulate.trust_factors`); a point that is not trusted keeps
+            the inferred position and passes no displacement to its neighbours (the
+            extension to untriangulated vertices starts from the kept displacements).
+            0: every point is taken as it is.
+            None (the default): by the texcoord set's source (`for_source`),
+            `PREDICTED_SHRINK` for predicted texcoords (source "tsnn"), 0 for the others.
     """
 
     max_reprojection_px: float = 2.0
@@ -81,6 +97,8 @@ class ReconOptions:
     error_scale_m: float = 0.01
     strain_scale: float = 0.1
     engine: str = "mvtex"
+    use_uncertainty: bool = True
+    shrink: float | None = None
 
     def __post_init__(self) -> None:
         check_field_types(self)
@@ -95,6 +113,8 @@ class ReconOptions:
             raise OptionError(f"max_stretch must be > 1 and finite, or None, got {self.max_stretch!r}")
         if self.consensus_scale is not None and not 0 <= self.consensus_scale < float("inf"):
             raise OptionError(f"consensus_scale must be ≥ 0 and finite, or None, got {self.consensus_scale!r}")
+        if self.shrink is not None and not 0 <= self.shrink < float("inf"):
+            raise OptionError(f"shrink must be ≥ 0 and finite, or None, got {self.shrink!r}")
         if self.fill_shape not in FILL_SHAPES:
             raise OptionError(f"fill_shape must be one of {', '.join(FILL_SHAPES)}, got {self.fill_shape!r}")
         for name, value, low, high in (("smooth_iterations", self.smooth_iterations, 0, 1000),
@@ -107,8 +127,13 @@ class ReconOptions:
             raise OptionError(f"engine must be one of {', '.join(ENGINES)}, got {self.engine!r}")
 
     def for_source(self, source: str) -> "ReconOptions":
-        """These options with consensus_scale decided for a texcoord set of this source
-        (`TexcoordSet.source`) where it is None: 4 for "tsnn", else 0."""
-        if self.consensus_scale is not None:
-            return self
-        return replace(self, consensus_scale=PREDICTED_CONSENSUS_SCALE if source == "tsnn" else 0.0)
+        """These options with consensus_scale and shrink decided for a texcoord set of this
+        source (`TexcoordSet.source`) where they are None: 4 and `PREDICTED_SHRINK` for
+        "tsnn", else 0."""
+        predicted = source == "tsnn"
+        out = self
+        if self.consensus_scale is None:
+            out = replace(out, consensus_scale=PREDICTED_CONSENSUS_SCALE if predicted else 0.0)
+        if self.shrink is None:
+            out = replace(out, shrink=PREDICTED_SHRINK if predicted else 0.0)
+        return out

@@ -74,10 +74,13 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
     T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}
     assigned = {c: texcoords.assigned(c, pose) for c in names}
+    uncertainty = {c: texcoords.uncertainty(c, pose) for c in names}
+    uncertainty = uncertainty if all(u is not None for u in uncertainty.values()) else None
     rest = None if dataset.rest is None else np.asarray(dataset.rest, np.float64)
     body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
     rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
-                      gt_faces=dataset.faces, assigned=assigned, rest=rest, body=body, progress=progress, ctx=ctx)
+                      gt_faces=dataset.faces, assigned=assigned, rest=rest, body=body, uncertainty=uncertainty,
+                      progress=progress, ctx=ctx)
     gt = np.asarray(dataset.gt[pose], np.float64)
     report = replace(reconstruction_report(rec, gt, dataset.faces, rest, pose, options), cameras=tuple(names),
                      texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)

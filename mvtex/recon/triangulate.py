@@ -36,6 +36,7 @@ output directory is `mvtex.recon.export`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, Any, Callable, Sequence
@@ -47,8 +48,9 @@ from mvtex.data.camera import Camera
 from mvtex.data.mesh import weld_groups, welded_adjacency
 from mvtex.data.rig import Rig
 from mvtex.recon.consensus import HypothesisLedger, Vote, screen_hypotheses, vote
-from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, observed, project_points, reprojection_errors,
-                                  surface_distance, triangulate_points, triangulation_angles)
+from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, camera_arrays, observed, project_points,
+                                  projection_jacobian, reprojection_errors, surface_distance, triangulate_points,
+                                  triangulation_angles)
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
 from mvtex.recon.options import ENGINES, ReconOptions
 from mvtex.util.checks import check_shape
@@ -60,6 +62,13 @@ if TYPE_CHECKING:
 __all__ = ["ENGINES", "ReconOptions", "Reconstruction", "Triangulator", "accept_points", "consensus_threshold",
            "pool_and_fill", "reconstruct", "reconstruct_from_hypotheses", "taubin_smooth", "track_triangulator",
            "triangulate_observations"]
+
+# Texcoords without a reported uncertainty: each observation's standard deviation is this
+# many times the pose's disagreement between the cameras (`consistency_sigma_px`). Errors
+# that the cameras share (a predictor wrong in the same way for every camera) do not show
+# as disagreement; the factor was chosen with `ReconOptions.shrink` on held-out poses of
+# both built-in garments (docs/reconstruction.md).
+CONSISTENCY_INFLATION = 12.0
 
 # A triangulation engine: (cameras, pixels (N,C,2), weights (N,C)) -> points (N,3), NaN where degenerate.
 Triangulator = Callable[[Sequence[Camera], np.ndarray, np.ndarray], np.ndarray]
@@ -85,6 +94,9 @@ class Reconstruction:
         stats: counts of the stages, the vote's threshold ("consensus_threshold_px") and
             the number of observations used ("used_observations").
         unsmoothed: (n,3) float64 points before smoothing, or None when not smoothed.
+        sigma: (n,) float64 the standard deviation (m) of each triangulated point that the
+            texcoords' predictive uncertainty implies (`point_sigma`), NaN where not
+            triangulated; None when the texcoords report no uncertainty.
     """
 
     points: np.ndarray
@@ -96,6 +108,7 @@ class Reconstruction:
     rejected_observations: dict[str, int] = field(default_factory=dict)
     stats: dict[str, Any] = field(default_factory=dict)
     unsmoothed: np.ndarray | None = None
+    sigma: np.ndarray | None = None
 
     @property
     def num_views(self) -> np.ndarray:
@@ -128,6 +141,100 @@ def consensus_threshold(hypotheses: Hypotheses, num_vertices: int, cameras: Sequ
     return float(max(options.consensus_px, options.consensus_scale * np.median(err)))
 
 
+def observation_sigma_px(hypotheses: Hypotheses, pixels: np.ndarray, points: np.ndarray,
+                         cameras: Sequence[Camera]) -> np.ndarray | None:
+    """The standard deviation (px) of each chosen observation (n,C) from its hypothesis'
+    3-D standard deviation (`Hypotheses.sigma`) seen at the depth of `points` (fx / z);
+    inf where none was chosen. None when the hypotheses carry no sigma."""
+    if hypotheses.sigma is None:
+        return None
+    n, C = pixels.shape[:2]
+    sigma = np.full((n, C), np.inf)
+    hv, hc = hypotheses.vertex, hypotheses.camera
+    same = np.all(pixels[hv, hc] == hypotheses.pixel, axis=1)
+    sigma[hv[same], hc[same]] = hypotheses.sigma[same]
+    K, R, t = camera_arrays(cameras)
+    z = np.einsum("cj,nj->nc", R[:, 2], np.nan_to_num(points)) + t[None, :, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = sigma * K[None, :, 0, 0] / z
+    return np.where(np.isfinite(px) & (z > 0), px, np.inf)
+
+
+def point_sigma(cameras: Sequence[Camera], points: np.ndarray, weights: np.ndarray, sigma_px: np.ndarray
+                ) -> np.ndarray:
+    """The standard deviation (m, root of the covariance's trace) of triangulated points
+    from independent observation errors of standard deviation sigma_px (n,C): the inverse
+    of the Fisher information Σ_c J_cᵀ J_c / σ_c² of the projections. NaN where the
+    point is not finite; inf where the observations do not fix it."""
+    K, R, t = camera_arrays(cameras)
+    X = np.nan_to_num(points)
+    y = np.einsum("cij,nj->nci", R, X) + t[None]
+    J = np.nan_to_num(projection_jacobian(K, R, y))  # (n,C,2,3)
+    with np.errstate(divide="ignore"):
+        w = np.where((weights > 0) & np.isfinite(sigma_px), 1.0 / np.maximum(sigma_px, 1e-300) ** 2, 0.0)
+    info = np.einsum("nc,ncki,nckj->nij", w, J, J)
+    out = np.full(len(X), np.inf)
+    ok = np.linalg.det(info) > 0
+    if ok.any():
+        cov = np.linalg.inv(info[ok])
+        out[ok] = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0))
+    out[~np.all(np.isfinite(points), axis=1)] = np.nan
+    return out
+
+
+def consistency_sigma_px(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndarray,
+                         weights: np.ndarray) -> float:
+    """The standard deviation (px, per image coordinate) of the observations of one pose,
+    from how well the cameras agree: the squared reprojection errors of the triangulated
+    points summed over the pose, over their degrees of freedom (2 per observation, less 3
+    per point). For texcoords without a reported uncertainty. NaN without a point seen
+    more than twice over."""
+    used = np.asarray(weights) > 0
+    views = used.sum(axis=1)
+    rows = np.flatnonzero((views >= 2) & np.all(np.isfinite(points), axis=1))
+    if not len(rows):
+        return math.nan
+    err = reprojection_errors(cameras, points[rows], pixels[rows])
+    err2 = np.where(used[rows], np.nan_to_num(err, nan=0.0) ** 2, 0.0).sum()
+    dof = float(np.sum(2 * views[rows] - 3))
+    return float(np.sqrt(err2 / dof)) if dof > 0 else math.nan
+
+
+def trust_factors(displacement: np.ndarray, sigma: np.ndarray, shrink: float,
+                  max_sigma: float = math.inf) -> np.ndarray:
+    """How much of each triangulated point's displacement to keep: τ² / (τ² + κ σ²).
+
+    The Wiener factor of a displacement δ = true + noise, the noise of variance κσ² (σ the
+    point's standard deviation), the true displacement of prior variance τ², taken for the
+    pose as the mean of ‖δ‖² over its points: a pose whose points move about as far as
+    their noise lets them keeps little of it, and a point far noisier than the pose's
+    displacement keeps almost none. (A prior per pose rather than ‖δ‖² per point: a noisy
+    point that happens to move far is not trusted for it.) A point with σ above max_sigma
+    (the reconstruction's `max_surface_distance_m`: it could be anywhere a point is
+    accepted) is not trusted at all, and not counted in τ².
+
+    Args:
+        displacement: (k,3) δ = triangulated - inferred; sigma: (k,) their standard
+            deviations (m); shrink: κ ≥ 0; max_sigma: the largest σ trusted (m).
+
+    Returns:
+        (k,) factors in [0,1]: 1 everywhere when κ is 0; 0 where σ is not finite or above
+        max_sigma.
+    """
+    d2 = np.sum(np.asarray(displacement, dtype=np.float64) ** 2, axis=1)
+    if not shrink:
+        return np.ones(len(d2))
+    sigma = np.asarray(sigma, dtype=np.float64)
+    s2 = float(shrink) * sigma ** 2
+    finite = np.isfinite(s2) & (sigma <= max_sigma)
+    if not finite.any():
+        return np.zeros(len(d2))
+    tau2 = float(np.mean(d2[finite]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = tau2 / (tau2 + s2)
+    return np.where(finite & np.isfinite(f), f, 0.0)
+
+
 def track_triangulator(options: ReconOptions = ReconOptions()) -> Triangulator:
     """The triangulation engine `options.engine` names, as a function of (cameras, pixels, weights).
 
@@ -143,8 +250,8 @@ def track_triangulator(options: ReconOptions = ReconOptions()) -> Triangulator:
 
 
 def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray,
-                             options: ReconOptions = ReconOptions(), triangulate: Triangulator | None = None
-                             ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+                             options: ReconOptions = ReconOptions(), triangulate: Triangulator | None = None,
+                             scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """Step 3: triangulate every point observed ≥ 2 times, robustly.
 
     While a point's worst observation exceeds options.max_reprojection_px and ≥ 3 remain,
@@ -157,6 +264,8 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
         pixels: (N,C,2) OpenCV pixels; weights: (N,C) 0/1 (from `mvtex.recon.consensus.vote`).
         options: max_reprojection_px (and the engine's options).
         triangulate: the engine (default: `track_triangulator(options)`).
+        scale: optional (N,C) positive factors of the observations' weights in the
+            least squares (1 / their standard deviation); which are used is `weights`'.
 
     Returns:
         points (N,3) float64 (NaN where fewer than 2 observations or degenerate), the
@@ -177,7 +286,8 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
     X = np.full((len(pixels), 3), np.nan)
     if not len(rows):
         return X, weights, counts
-    X[rows] = triangulate(cameras, pixels[rows], weights[rows])
+    scale = np.ones_like(weights) if scale is None else np.asarray(scale, dtype=np.float64)
+    X[rows] = triangulate(cameras, pixels[rows], weights[rows] * scale[rows])
     todo = rows
     for _ in range(len(cameras)):
         err = reprojection_errors(cameras, X[todo], pixels[todo])
@@ -189,7 +299,7 @@ def triangulate_observations(cameras: Sequence[Camera], pixels: np.ndarray, weig
         todo = todo[bad]
         weights[todo, worst[bad]] = 0.0
         counts["outlier_observations"] += int(bad.sum())
-        X[todo] = triangulate(cameras, pixels[todo], weights[todo])
+        X[todo] = triangulate(cameras, pixels[todo], weights[todo] * scale[todo])
     return X, weights, counts
 
 
@@ -243,8 +353,8 @@ def accept_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
 
 
 def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.ndarray, faces: np.ndarray,
-                  options: ReconOptions = ReconOptions(), rest: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray | None, dict[str, int]]:
+                  options: ReconOptions = ReconOptions(), rest: np.ndarray | None = None,
+                  trust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, dict[str, int]]:
     """Step 6: displacement on every gt vertex from the triangulated ones.
 
     Seam copies (split vertices at one position) are one physical point: their
@@ -259,6 +369,9 @@ def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.nda
         inferred: (n,3) X_N of the gt vertices; faces: (m,3) the gt mesh.
         options: fill_shape, smooth, smooth_iterations.
         rest: (n,3) the rest shape, or None.
+        trust: optional (n,) factors in [0,1] of the triangulated displacements
+            (`trust_factors`): a vertex of factor 0 keeps its inferred position, and is a
+            fixed zero of the extension, so it passes no displacement on either.
 
     Returns:
         positions (n,3) float64, the positions before smoothing (None when not smoothed),
@@ -268,6 +381,8 @@ def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.nda
     groups = weld_groups(inferred)
     disp = np.zeros((n, 3))
     disp[triangulated] = points[triangulated] - inferred[triangulated]
+    if trust is not None:
+        disp *= np.asarray(trust, dtype=np.float64)[:, None]
     sums = np.zeros((n, 3))
     cnt = np.zeros(n)
     np.add.at(sums, groups[triangulated], disp[triangulated])
@@ -322,7 +437,8 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
                 texcoords: dict[str, np.ndarray], rig: Rig, options: ReconOptions = ReconOptions(), *,
                 gt_faces: np.ndarray | None = None, assigned: dict[str, np.ndarray] | None = None,
                 rest: np.ndarray | None = None, body: tuple[np.ndarray, np.ndarray] | None = None,
-                progress: bool = False, ctx: GLContext | None = None) -> Reconstruction:
+                uncertainty: dict[str, np.ndarray] | None = None, progress: bool = False,
+                ctx: GLContext | None = None) -> Reconstruction:
     """Triangulate the gt vertices from per-camera texture coordinates of an inferred mesh.
 
     Runs steps 1-6 of the module docstring.
@@ -342,6 +458,10 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
         rest: optional (n,3) rest shape of the gt mesh (the fill's shape, options.fill_shape).
         body: optional (positions (nb,3), faces (mb,3)) of the wearer's body in this pose: no
             observation it hides from a camera is used.
+        uncertainty: optional camera name -> (n',) predictive standard deviation of that
+            camera's T_N (uv units; `mvtex.data.texcoords.TexcoordSet.uncertainty`), for
+            every camera or none: observations are weighted by it and points trusted by it
+            (options.use_uncertainty).
         progress: show a progress bar over cameras.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
@@ -404,6 +524,7 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     hypotheses, stats = collect_hypotheses(gt_uv, X_N, faces, texcoords, cameras, uv_resolution=options.uv_resolution,
                                            depth_tolerance=options.depth_tolerance, assigned=assigned,
                                            require_assigned=options.require_assigned, body=body,
+                                           uncertainty=uncertainty if options.use_uncertainty else None,
                                            progress=progress, ctx=ctx)
     return reconstruct_from_hypotheses(hypotheses, stats, n, X_N, faces, uv, {c: texcoords[c] for c in names},
                                        rig.select(names), options, gt_faces=gt_faces, rest=rest)
@@ -445,7 +566,14 @@ def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], n
         ledger.add(reason, voted.counts[reason])
     stats.update(ambiguous_vertices=voted.counts["ambiguous_vertices"], consensus_threshold_px=threshold)
     pixels = voted.pixels
-    X, weights, counts = triangulate_observations(cameras, pixels, voted.weights, options, triangulate)
+    sigma_px = observation_sigma_px(hypotheses, pixels, voted.points, cameras) if options.use_uncertainty else None
+    scale = None
+    if sigma_px is not None:  # weights 1/σ, relative to the vertex's best observation
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inverse = np.where(np.isfinite(sigma_px) & (sigma_px > 0), 1.0 / sigma_px, 0.0)
+            scale = np.where(voted.weights > 0, inverse / np.maximum(inverse.max(axis=1, keepdims=True), 1e-300), 1.0)
+        scale = np.where(scale > 0, scale, 1e-6)
+    X, weights, counts = triangulate_observations(cameras, pixels, voted.weights, options, triangulate, scale)
     ledger.add("reprojection", counts["outlier_observations"])
     views = np.zeros((n, len(cameras)), bool)
     views[hypotheses.vertex, hypotheses.camera] = True
@@ -455,7 +583,20 @@ def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], n
     ledger.add("point_rejected", int((weights > 0).sum() - observed.sum()))
     stats["used_observations"] = int(observed.sum())
     base = X_N[:n]
-    points, unsmoothed, counts = pool_and_fill(X, triangulated, base, gt_faces, options, rest)
+    sigma, trust = None, None
+    if options.shrink and sigma_px is None:  # no reported uncertainty: the cameras' disagreement
+        pooled = consistency_sigma_px(cameras, X, pixels, weights * triangulated[:, None])
+        stats["consistency_sigma_px"] = pooled
+        sigma_px = np.where(weights > 0, CONSISTENCY_INFLATION * pooled if math.isfinite(pooled) else np.inf, np.inf)
+    if sigma_px is not None:
+        sigma = np.full(n, np.nan)
+        sigma[triangulated] = point_sigma(cameras, X[triangulated], weights[triangulated], sigma_px[triangulated])
+    if options.shrink:
+        trust = np.zeros(n)
+        trust[triangulated] = trust_factors(X[triangulated] - base[triangulated], sigma[triangulated], options.shrink,
+                                            options.max_surface_distance_m)
+        stats["mean_trust"] = float(trust[triangulated].mean()) if triangulated.any() else 0.0
+    points, unsmoothed, counts = pool_and_fill(X, triangulated, base, gt_faces, options, rest, trust)
     stats.update(counts)
 
     obs = {name: np.where(observed[:, [c]], pixels[:, c], np.nan) for c, name in enumerate(names)}
@@ -465,4 +606,5 @@ def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], n
         per_vertex = np.where(triangulated, np.nansum(err, axis=1) / np.maximum(used.sum(axis=1), 1), np.nan)
     return Reconstruction(points=points, inferred=base, triangulated=triangulated, observations=obs,
                           reprojection_error=per_vertex, rejected=rejected,
-                          rejected_observations=dict(ledger.rejected), stats=stats, unsmoothed=unsmoothed)
+                          rejected_observations=dict(ledger.rejected), stats=stats, unsmoothed=unsmoothed,
+                          sigma=sigma)

@@ -150,14 +150,21 @@ class GPConfig:
 
 
 class PoseGP(nn.Module):
-    """Posterior mean of per-component GPs: pose (B,P) -> d (B,n',2), float32.
+    """Posterior mean of per-component GPs: pose (B,P) -> d (B,n',2), float32; and its
+    predictive standard deviation per vertex (`predictive_std`).
 
     Buffers (float64): pose_mean/pose_std (P,), inputs (K,P) standardised training poses,
     log_lengthscale (C,P), log_signal (C,), log_additive (C,), alpha (K,C), basis (C,2n'), mean (2n',);
-    output_scale (1.0, for the model directory's record).
+    output_scale (1.0, for the model directory's record); for the predictive variance,
+    log_noise (C,) the log noise std of each component and residual_var (2n',) the mean
+    square of what the C components leave of the training displacements (the PCA
+    truncation), both NaN in a model stored without them (it reports no uncertainty).
     """
 
     per_vertex = True  # predicts d at the vertices, not an atlas image
+
+    # Buffers a stored model may lack (one written before they existed): NaN then.
+    optional_buffers = ("log_noise", "residual_var")
 
     def __init__(self, config: GPConfig):
         super().__init__()
@@ -175,6 +182,57 @@ class PoseGP(nn.Module):
         self.register_buffer("basis", torch.zeros(c, 2 * n, **f64))
         self.register_buffer("mean", torch.zeros(2 * n, **f64))
         self.register_buffer("output_scale", torch.tensor(1.0))
+        self.register_buffer("log_noise", torch.full((c,), math.nan, **f64))
+        self.register_buffer("residual_var", torch.full((2 * n,), math.nan, **f64))
+        self._factors: tuple | None = None  # Cholesky factors of the training covariances, made on first use
+
+    @property
+    def has_uncertainty(self) -> bool:
+        """True when the model holds what `predictive_std` needs."""
+        return bool(torch.isfinite(self.log_noise).all() and torch.isfinite(self.residual_var).all())
+
+    def _cholesky(self) -> list[torch.Tensor]:
+        """Per component, the Cholesky factor of K_c(Θ,Θ) + σ_c² I (coefficient units)."""
+        key = tuple(float(t.sum()) for t in (self.inputs, self.log_lengthscale, self.log_signal,
+                                              self.log_additive, self.log_noise))
+        if self._factors is None or self._factors[0] != key:
+            factors = []
+            for c in range(self.config.components):
+                a = _kernel(self.inputs, self.inputs, self.log_lengthscale[c], self.log_signal[c], self.log_additive[c])
+                a.diagonal().add_(torch.exp(2 * self.log_noise[c]))
+                factors.append(torch.linalg.cholesky(a))
+            self._factors = (key, factors)
+        return self._factors[1]
+
+    def predictive_std(self, poses: torch.Tensor) -> torch.Tensor | None:
+        """Predictive standard deviation of d per vertex, (B,n') float64 in uv units: the
+        root of the expected squared length of d's error, sqrt(var_u + var_v).
+
+        Per component c, the GP's predictive variance of a new pose's coefficient,
+        k_c(θ,θ) - k_c(θ,Θ) (K_c + σ_c² I)⁻¹ k_c(Θ,θ) + σ_c² (the coefficients of the
+        training displacements are noisy observations, and so are a new pose's); a component
+        predicted as 0 (α_c = 0) has its prior variance k_c(θ,θ) + σ_c². The components are
+        independent, so var(d_j) = Σ_c var_c basis_cj², plus residual_var_j, what the
+        truncated components left of the training displacements. None when the model
+        holds no noise levels (`has_uncertainty`).
+        """
+        if not self.has_uncertainty:
+            return None
+        z = (poses.to(torch.float64) - self.pose_mean) / self.pose_std
+        c_count, p = self.config.components, self.config.pose_dim
+        noise = torch.exp(2 * self.log_noise)
+        prior = torch.exp(2 * self.log_signal) + p * torch.exp(2 * self.log_additive)  # k_c(θ,θ) (C,)
+        var = (prior + noise)[None, :].expand(len(z), -1).clone()  # (B,C)
+        if c_count:
+            k = kernel_matrix(z, self.inputs, self.log_lengthscale, self.log_signal, self.log_additive)  # (C,B,K)
+            predicted = (self.alpha != 0).any(0)
+            for c, chol in enumerate(self._cholesky()):
+                if bool(predicted[c]):
+                    v = torch.linalg.solve_triangular(chol, k[c].T, upper=False)  # (K,B)
+                    var[:, c] -= v.square().sum(0)
+            var = var.clamp_min(0.0)
+        per_coordinate = var @ self.basis.square() + self.residual_var  # (B,2n')
+        return per_coordinate.reshape(len(z), -1, 2).sum(-1).sqrt()
 
     def forward(self, poses: torch.Tensor) -> torch.Tensor:
         z = (poses.to(torch.float64) - self.pose_mean) / self.pose_std
@@ -494,6 +552,11 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iteratio
             model.log_signal.copy_(params[:, p] + log_scale)  # kernel in coefficient units...
             model.log_additive.copy_(params[:, p + 2] + log_scale)
             model.alpha.copy_((alpha / torch.from_numpy(scale)[:, None]).T)  # ...and α / scale: k α = scale k̃ α̃
+            noise = torch.exp(2 * params[:, p + 1]) + _NOISE_FLOOR  # the variance the posterior used
+            model.log_noise.copy_(0.5 * torch.log(noise) + log_scale)
+    with torch.no_grad():
+        residual = (y - mean_d) - coef @ basis
+        model.residual_var.copy_(torch.from_numpy(np.mean(residual ** 2, axis=0)))
     if progress is not None:
         progress(len(basis), len(basis))
     model.eval()

@@ -3,7 +3,8 @@
 The texcoord set's mesh is the one the networks were trained on, rebuilt from the dataset
 mesh and the models' subdivision level; every displacement is the network's image read at
 the vertex's T_G (bilinear) — or, for `gp`, predicted at the vertex directly — and `assigned`
-is all True (a prediction has no ray).
+is all True (a prediction has no ray). A model that reports its predictive uncertainty
+(`gp`) also writes `<camera>/uncertainty.npy`, the standard deviation of d per vertex.
 
 A one-camera model (`paper`, `gp`, or `unet` trained with a camera name) predicts its camera. A camera-conditioned model predicts the cameras of
 a rig, any camera (its view of the inferred mesh is an input), or without a rig the
@@ -150,19 +151,20 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     except (SafetensorError, OSError, ValueError, MemoryError) as err:
         raise InputError(weights, f"not a readable safetensors file ({err})") from None
     expected = network.state_dict()
-    missing = sorted(set(expected) - set(state))
+    optional = set(getattr(network, "optional_buffers", ()))  # a model stored before they existed
+    missing = sorted(set(expected) - set(state) - optional)
     unexpected = sorted(set(state) - set(expected))
     if missing or unexpected:
         raise InputError(weights, f"does not match the architecture in config.json "
                          f"(missing {missing[:3]}, unexpected {unexpected[:3]})")
-    bad = [k for k in expected if expected[k].shape != state[k].shape]
+    bad = [k for k in expected if k in state and expected[k].shape != state[k].shape]
     if bad:
         raise InputError(weights, f"tensor {bad[0]!r} has shape {tuple(state[bad[0]].shape)}, the architecture in "
                          f"config.json needs {tuple(expected[bad[0]].shape)}")
     if not all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point()):
         raise InputError(weights, "NaN or infinite weights")
     network = build_network(arch)
-    network.load_state_dict(state)
+    network.load_state_dict({**network.state_dict(), **state})  # optional buffers absent: their defaults
     network.eval()
     return LoadedModel(path=path, camera=camera, meta=meta, network=network, cameras=cameras)
 
@@ -227,6 +229,33 @@ def check_prediction(displacement: np.ndarray, model: LoadedModel, camera: str, 
             f"a displacement of length {length[row]:.4g} uv units (more than {MAX_DISPLACEMENT}, the whole atlas)"
         raise InputError(model.path / "model.safetensors", f"predicts {what} for camera {camera!r} at pose "
                          f"{int(poses[row])}: the model is broken; train it again")
+
+
+def predict_uncertainty(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, device: str = "cpu"
+                        ) -> np.ndarray | None:
+    """Per-vertex predictive standard deviation of a model's displacements, where the
+    model reports one (`gp` models; `mvtex.tsnn.gp.PoseGP.predictive_std`).
+
+    Args:
+        model: from `load_model`.
+        poses: (K,P) float pose vectors.
+        uv: (n',2) T_G of the vertices.
+
+    Returns:
+        (K,n') float32 in uv units (the root of the expected squared length of d's error),
+        or None for a model that reports no uncertainty.
+    """
+    import torch
+
+    net = model.network.to(device)
+    if not getattr(net, "per_vertex", False) or not getattr(net, "has_uncertainty", False):
+        return None
+    if len(uv) != net.config.num_vertices:
+        raise InputError(model.path / "config.json", f"predicts {net.config.num_vertices} vertices, "
+                         f"the mesh has {len(uv)}")
+    with torch.no_grad():
+        std = net.predictive_std(torch.from_numpy(np.array(poses, dtype=np.float64)).to(device))
+    return None if std is None else std.cpu().numpy().astype(np.float32)
 
 
 def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.ndarray | None]]:
@@ -333,10 +362,13 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
             record["rig"] = rig_record(rig.select(names))
         write_header(tmp, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
                      cameras=names, **record)
+        uncertain = {name for name, m, _ in jobs if getattr(m.network, "has_uncertainty", False)}
         for name in names:
             (tmp / name).mkdir()
             create_npy(tmp / name / "displacement.npy", np.float32, (len(poses), len(uv), 2))
             create_npy(tmp / name / "assigned.npy", np.bool_, (len(poses), len(uv)))
+            if name in uncertain:
+                create_npy(tmp / name / "uncertainty.npy", np.float32, (len(poses), len(uv)))
         for start in range(0, len(poses), _BLOCK):
             rows = poses[start:start + _BLOCK]
             index = range(start, start + len(rows))
@@ -355,5 +387,8 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                 check_prediction(d, m, name, rows)
                 write_npy_rows(tmp / name / "displacement.npy", index, d)
                 write_npy_rows(tmp / name / "assigned.npy", index, np.ones((len(rows), len(uv)), dtype=bool))
+                if name in uncertain:
+                    std = predict_uncertainty(m, x[start:start + len(rows)], uv, device=device)
+                    write_npy_rows(tmp / name / "uncertainty.npy", index, std)
                 bar.update(len(rows))
     return out

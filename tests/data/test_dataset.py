@@ -231,3 +231,29 @@ def test_texcoord_rows_are_read_through_the_file(tmp_path):
         return
     for name in ("displacement.npy", "assigned.npy"):
         assert _mapped_rss_kb((tmp_path / "tc" / "a" / name).resolve()) == 0
+
+
+def test_texcoord_uncertainty_is_optional_and_checked(tmp_path):
+    """`uncertainty.npy` is optional per camera: read back row by row where written, None
+    where not; a file of the wrong shape or with a negative or NaN value is refused,
+    naming the file."""
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
+    from mvtex.util.errors import InputError
+
+    rng = np.random.default_rng(3)
+    n, k = 30, 4
+    uv = rng.random((n, 2)).astype(np.float32)
+    d = {c: (rng.normal(size=(k, n, 2)) * 1e-3).astype(np.float32) for c in ("a", "b")}
+    asg = {c: np.ones((k, n), bool) for c in d}
+    std = rng.random((k, n)).astype(np.float32) * 1e-3
+    save_texcoords(tmp_path / "tc", faces=np.array([[0, 1, 2]]), uv=uv, parent=np.stack([np.arange(n)] * 2, 1),
+                   source="tsnn", subdiv=0, poses=[7, 3, 5, 1], displacement=d, assigned=asg,
+                   uncertainty={"a": std})
+    tc = open_texcoords(tmp_path / "tc", n)
+    np.testing.assert_array_equal(tc.uncertainty("a", 5), std[2])
+    assert tc.has_uncertainty("a") and not tc.has_uncertainty("b") and tc.uncertainty("b", 5) is None
+    for bad in (std[:, :-1], np.where(np.arange(n) == 3, -1.0, std).astype(np.float32),
+                np.where(np.arange(n) == 3, np.nan, std).astype(np.float32)):
+        np.save(tmp_path / "tc" / "a" / "uncertainty.npy", bad)
+        with pytest.raises(InputError, match="uncertainty.npy"):
+            open_texcoords(tmp_path / "tc", n).uncertainty("a", 5)

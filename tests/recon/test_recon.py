@@ -495,3 +495,86 @@ def test_no_observation_the_body_hides(gl):
     both = worn.triangulated & bare.triangulated
     assert both.sum() > 0.4 * len(uv)
     assert np.abs(worn.points[both] - gt[both]).max() < 1e-6
+
+
+# -- trust: a predictor's uncertainty, or the cameras' agreement ------------------------------
+
+def _sheet_in_front():
+    """Flat gt (z = 0), the inferred sheet 1 cm in front of it, and each camera's exact T_N
+    (closed form: the ray through an inferred vertex meets the plane z = 0)."""
+    size = 0.9
+    faces, uv, rest = grid_mesh(36, 30, size=size)
+    inferred = rest + np.array([0.0, 0.0, 0.01])
+    rig = three_camera_rig()
+    exact = {}
+    for cam in rig:
+        C = cam.center
+        s = C[2] / (C[2] - inferred[:, 2])
+        hit = C + s[:, None] * (inferred - C)
+        exact[cam.name] = (hit[:, :2] + size / 2) / size
+    return faces, uv, rest, inferred, rig, exact
+
+
+def _rmse(a, b):
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+def test_a_bad_predictor_with_its_uncertainty_falls_back_to_the_inferred_mesh(gl):
+    """Texcoords of a deliberately bad model (a smooth field 2-3 px wide, different per
+    camera, added to the exact T_N) that reports its uncertainty: the reconstruction keeps
+    the inferred mesh (all-vertex RMSE against gt within 3 % of the inferred mesh's, both
+    computed here from gt), where taking every point makes it far worse. The same
+    uncertainty machinery, given the exact T_N and a small uncertainty, still recovers gt."""
+    from mvtex.recon.triangulate import ReconOptions, reconstruct
+
+    faces, uv, rest, inferred, rig, exact = _sheet_in_front()
+    rng = np.random.default_rng(11)
+    bad, std = {}, {}
+    for name, T in exact.items():
+        k = rng.normal(size=(2, 2)) * 12
+        phase = rng.uniform(0, 2 * np.pi, 2)
+        field = np.stack([np.sin(uv @ k[0] + phase[0]), np.cos(uv @ k[1] + phase[1])], axis=1)
+        bad[name] = T + 0.02 * field
+        std[name] = np.full(len(uv), 0.02 * np.sqrt(2 / 2), np.float32)  # its RMS error length: 0.02
+    options = ReconOptions(shrink=0.7, consensus_scale=4)
+    inferred_rmse = _rmse(inferred, rest)
+    taken = reconstruct(uv, inferred, faces, uv, bad, rig, ReconOptions(shrink=0, consensus_scale=4))
+    trusted = reconstruct(uv, inferred, faces, uv, bad, rig, options, uncertainty=std)
+    assert taken.triangulated.mean() > 0.2  # the cameras do agree on points: the vote alone keeps them
+    assert _rmse(taken.points, rest) > 1.5 * inferred_rmse
+    assert trusted.sigma is not None and np.nanmedian(trusted.sigma) > 0.005
+    assert abs(_rmse(trusted.points, rest) / inferred_rmse - 1) < 0.03
+    good = reconstruct(uv, inferred, faces, uv, exact, rig, options,
+                       uncertainty={c: np.full(len(uv), 1e-5, np.float32) for c in exact})
+    assert _rmse(good.points, rest) < 0.02 * inferred_rmse
+
+
+def test_without_uncertainty_the_cameras_disagreement_decides(gl):
+    """No uncertainty: each observation's spread is the pose's disagreement between the
+    cameras (`consistency_sigma_px`, against its definition computed here: squared
+    reprojection errors over 2 per observation less 3 per point). Texcoords with
+    independent noise of several pixels per camera leave the inferred mesh (within 5 %),
+    exact ones are reconstructed."""
+    from mvtex.recon.geometry import reprojection_errors
+    from mvtex.recon.triangulate import ReconOptions, consistency_sigma_px, reconstruct
+
+    faces, uv, rest, inferred, rig, exact = _sheet_in_front()
+    rng = np.random.default_rng(12)
+    noisy = {name: T + rng.normal(scale=0.012, size=T.shape) for name, T in exact.items()}
+    options = ReconOptions(shrink=0.7, consensus_scale=4)
+    inferred_rmse = _rmse(inferred, rest)
+    taken = reconstruct(uv, inferred, faces, uv, noisy, rig, ReconOptions(shrink=0, consensus_scale=4))
+    trusted = reconstruct(uv, inferred, faces, uv, noisy, rig, options)
+    assert taken.triangulated.sum() > 50 and _rmse(taken.points, rest) > 1.2 * inferred_rmse
+    assert abs(_rmse(trusted.points, rest) / inferred_rmse - 1) < 0.05
+    exact_rec = reconstruct(uv, inferred, faces, uv, exact, rig, options)
+    assert _rmse(exact_rec.points, rest) < 0.02 * inferred_rmse
+
+    cams = list(rig)
+    X = rng.normal(scale=0.05, size=(40, 3))
+    pixels = np.stack([c.project(X)[0] for c in cams], axis=1) + rng.normal(scale=0.3, size=(40, 3, 2))
+    weights = np.ones((40, 3))
+    weights[:10, 2] = 0
+    err = reprojection_errors(cams, X, pixels)
+    expected = np.sqrt(np.sum(np.where(weights > 0, err, 0) ** 2) / (2 * weights.sum() - 3 * 40))
+    assert consistency_sigma_px(cams, X, pixels, weights) == pytest.approx(expected, rel=1e-12)

@@ -158,7 +158,7 @@ def test_model_directory_in_the_stored_format_loads_and_predicts(tmp_path):
     from safetensors.torch import save_file
 
     from mvtex.tsnn.modeldir import MODEL_FORMAT
-    from mvtex.tsnn.predict import load_model, predict_displacements
+    from mvtex.tsnn.predict import load_model, predict_displacements, predict_uncertainty
 
     k, p, c, n = 9, 4, 3, 5
     rng = np.random.default_rng(3)
@@ -183,3 +183,69 @@ def test_model_directory_in_the_stored_format_loads_and_predicts(tmp_path):
     assert got.dtype == np.float32 and got.shape == (6, n, 2)
     np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-7)
     assert math.isfinite(float(np.abs(got).max()))
+    # Stored without noise levels (written before they existed): no uncertainty to report.
+    assert predict_uncertainty(load_model(tmp_path), poses, np.zeros((n, 2), np.float32)) is None
+
+
+def test_predictive_std_is_the_closed_form_posterior_variance(problem):
+    """The per-vertex predictive standard deviation against the GP posterior variance
+    written out in NumPy from the fitted hyperparameters (k(θ,θ) - k(θ,Θ) A⁻¹ k(Θ,θ) + σ²
+    per component, A = K + σ² I; the prior variance for a component predicted as 0),
+    propagated through the basis, plus the truncation residual computed from an
+    independent SVD of the training displacements."""
+    from mvtex.tsnn.gp import fit_pose_gp
+
+    z, y, z_test, _ = problem
+    rng = np.random.default_rng(5)
+    n = 30
+    d = np.einsum("ck,cn->kn", y, rng.normal(size=(3, 2 * n)))
+    d += 0.05 * rng.normal(size=d.shape)  # spread over every direction: a truncation residual
+    d = (0.01 * d).reshape(60, n, 2)
+    model = fit_pose_gp(z * 2 + 1, d, components=4, iterations=30)
+    assert model.has_uncertainty
+    poses = z_test[:7] * 2 + 1
+    got = model.predictive_std(torch.from_numpy(poses)).numpy()
+
+    b = {k: v.numpy() for k, v in model.state_dict().items()}
+    zt = (poses - b["pose_mean"]) / b["pose_std"]
+    var = np.empty((len(poses), 4))
+    for c in range(4):
+        args = (b["log_lengthscale"][c], b["log_signal"][c], b["log_additive"][c])
+        noise = np.exp(2 * b["log_noise"][c])
+        prior = np.diag(numpy_kernel(zt, zt, *args)) + noise
+        if np.any(b["alpha"][:, c] != 0):
+            a = numpy_kernel(b["inputs"], b["inputs"], *args) + noise * np.eye(len(z))
+            ks = numpy_kernel(zt, b["inputs"], *args)
+            var[:, c] = prior - np.einsum("bk,kb->b", ks, np.linalg.solve(a, ks.T))
+        else:
+            var[:, c] = prior
+    flat = d.reshape(60, -1)
+    centred = flat - flat.mean(0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    residual = centred - centred @ vt[:4].T @ vt[:4]
+    per_coordinate = var @ vt[:4] ** 2 + np.mean(residual ** 2, 0)
+    expected = np.sqrt(per_coordinate.reshape(len(poses), n, 2).sum(-1))
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+    # The noise levels are the fit's, in coefficient units: a noise-free training pose is
+    # predicted within about the noise of its component.
+    assert np.all(got > 0) and np.all(np.sqrt(np.mean(residual ** 2, 0).reshape(n, 2).sum(-1)) < got)
+
+
+def test_predictive_std_is_calibrated_on_held_out_poses(problem):
+    """On held-out poses the squared error of the predicted displacement averages about
+    the predicted variance (a GP whose hyperparameters fit the data is calibrated): the
+    mean of error² / std² over held-out vertices lies within a factor 2 of 1."""
+    from mvtex.tsnn.gp import fit_pose_gp
+
+    z, y, _, _ = problem
+    rng = np.random.default_rng(6)
+    basis = rng.normal(size=(3, 40))
+    zz = rng.uniform(-2, 2, (140, 3))
+    coef = np.stack([f(zz) for f in TRUTHS]) + 0.05 * rng.normal(size=(3, 140))
+    d = (0.01 * (coef.T @ basis)).reshape(140, 20, 2)
+    model = fit_pose_gp(zz[:100], d[:100], components=3, iterations=40)
+    with torch.no_grad():
+        pred = model(torch.from_numpy(zz[100:])).numpy().astype(np.float64)
+    std = model.predictive_std(torch.from_numpy(zz[100:])).numpy()
+    err2 = ((pred - d[100:]) ** 2).sum(-1)
+    assert 0.5 < np.mean(err2) / np.mean(std ** 2) < 2.0

@@ -596,6 +596,11 @@ def test_predict_in_blocks_equals_one_pass(rig_data, tmp_path, monkeypatch):
         got = np.stack([out.displacement(cam, k) for k in poses])
         np.testing.assert_allclose(got, d, atol=1e-6, rtol=0)
         assert all(out.assigned(cam, k).all() for k in poses)
+    # gp reports its predictive uncertainty, block by block as in one pass; unet none.
+    std = P.predict_uncertainty(gp, x, out.uv)
+    assert std.shape == (len(poses), len(out.uv)) and np.all(std > 0)
+    np.testing.assert_allclose(np.stack([out.uncertainty("a", k) for k in poses]), std, rtol=1e-6)
+    assert out.has_uncertainty("a") and not out.has_uncertainty("b") and out.uncertainty("b", poses[0]) is None
 
 
 def test_gp_kernel_is_ard_plus_additive_squared_exponential():
