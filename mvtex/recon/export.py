@@ -54,7 +54,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
         inferred_mesh: (X_N' (n',3), faces' (m',3), {camera: T_N (n',2)}) for images/<camera>.png,
             or None (no images/).
         report: written as report.json.
-        options: error_scale_m and strain_scale colour the pictures.
+        options: error_scale_m colours the PLY.
         progress: progress bar over the images on stderr.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
         body: optional (positions (nb,3), faces (mb,3)) of the wearer, drawn in the pictures.
@@ -67,7 +67,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
     from mvtex.formats.colmap import point_reconstruction, track_tables
     from mvtex.formats.ply import write_ply
     from mvtex.render.context import context_or_new
-    from mvtex.render.pictures import comparison_picture, error_colors, texture_colors
+    from mvtex.render.pictures import comparison_picture, comparison_scales, error_colors, texture_colors
     from mvtex.render.shading import render_textured
     from mvtex.util.files import save_png, write_json
 
@@ -101,9 +101,11 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
         if gt is not None:
             views = np.array([np.isfinite(rec.observations[c][:, 0]).sum() for c in names])
             camera = rig[names[int(np.argmax(views))]]
+            scales = comparison_scales(faces, gt, rec.inferred, rec.points, rest)
             save_png(tmp / "comparison.png",
-                     comparison_picture(camera, faces, uv, gt, rec.inferred, rec.points, rest,
-                                        error_scale_m=options.error_scale_m, strain_scale=options.strain_scale,
+                     comparison_picture(camera, faces, uv, gt, rec.inferred, rec.points, rest, scales=scales,
                                         triangulated=rec.triangulated, ctx=ctx, body=body))
+            report = {**report, "comparison": {"camera": camera.name,
+                                               "scales": {k: v.to_json() for k, v in scales.items()}}}
         write_json(tmp / "report.json", report)
     return out
