@@ -280,7 +280,7 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
 def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):
     """OUT/reconstruction.glb: gt, reconstruction and inferred side by side, coloured as the
     reconstruction's comparison.png (gt: triangulated vertices green; the others: distance
-    to gt on the comparison's error scale, read from reconstruction/report.json). Returns
+    to gt on the comparison's error scale, read from reconstruction/comparison.json). Returns
     (path, frame for `model_view`, the error `ColorScale`)."""
     import trimesh
 
@@ -293,11 +293,11 @@ def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):
     inferred = np.asarray(dataset.inferred[pose], np.float64)
     scale = None
     try:
-        saved = read_json(ply.parent / "report.json").get("comparison", {}).get("scales", {}).get("error")
+        saved = read_json(ply.parent / "comparison.json").get("scales", {}).get("error")
         if isinstance(saved, dict):
             scale = ColorScale(float(saved["vmin"]), float(saved["vmax"]), bool(saved["log"]), str(saved["colormap"]),
                                str(saved["title"]), str(saved["unit"]), float(saved["factor"]))
-    except Exception:  # an older or foreign report.json: fit the scale again
+    except Exception:  # no comparison.json, or an unreadable one: fit the scale again
         scale = None
     if scale is None:
         scale = comparison_scales(dataset.faces, gt, inferred, rec, None)["error"]

@@ -4,7 +4,8 @@
     colmap/{cameras,images,points3D,rigs,frames}.bin
                                 one COLMAP image per camera, one 3-D point per triangulated vertex
     images/<camera>.png         the inferred mesh textured with that camera's T_N
-    comparison.png              gt / inferred / reconstruction (texture, strain, error)
+    comparison.png              gt / inferred / reconstruction (texture, shaded geometry, strain, error)
+    comparison.json             its camera and colour scales (`pictures.comparison_scales`)
     report.json                 `mvtex.recon.report.reconstruction_report`
 
 The directory is written under a temporary name and renamed when complete. Formats are
@@ -105,7 +106,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
             save_png(tmp / "comparison.png",
                      comparison_picture(camera, faces, uv, gt, rec.inferred, rec.points, rest, scales=scales,
                                         triangulated=rec.triangulated, ctx=ctx, body=body))
-            report = {**report, "comparison": {"camera": camera.name,
-                                               "scales": {k: v.to_json() for k, v in scales.items()}}}
+            write_json(tmp / "comparison.json", {"camera": camera.name,
+                                                 "scales": {k: v.to_json() for k, v in scales.items()}})
         write_json(tmp / "report.json", report)
     return out

@@ -296,7 +296,8 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(),
     block as they are made, so memory does not hold all poses, and the predictor fit reads
     the training shapes in blocks too (`fit_predictor`): peak memory does not grow with
     `num_poses`. The files are byte for byte those `mvtex.data.dataset.save_dataset` writes
-    for `synthesize(options)` (tests/synth/test_synth.py checks it).
+    for `synthesize(options)` (tests/synth/test_synth.py checks it). With `progress`, a bar
+    on stderr counts the shapes made.
 
     The statistics are also stored under "stats" in dataset.json, the garment under
     "garment".

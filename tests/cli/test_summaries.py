@@ -70,7 +70,8 @@ def test_triangulate_summary_leads_with_the_rmse(tmp_path, sheet_set, capsys):
     assert f"{tri['inferred'] * 1e3:.2f} mm -> {tri['reconstructed'] * 1e3:.2f} mm" in first
     assert f"{all_['inferred'] * 1e3:.2f} mm -> {all_['reconstructed'] * 1e3:.2f} mm" in first
     assert first.index("triangulated") < first.index("all vertices")
-    assert report["comparison"]["scales"]["error"]["unit"] == "mm"
+    scales = json.loads((tmp_path / "rec" / "comparison.json").read_text())["scales"]
+    assert scales["error"]["unit"] == "mm" and scales["error"]["log"] is True
 
 
 def test_bench_summary_is_text_and_json_only_with_json():
