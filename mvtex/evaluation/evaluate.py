@@ -343,8 +343,9 @@ def _heatmap_picture(image: ImageErrors, cam, source: str) -> np.ndarray:
         rows.append(side_by_side([full(image.mat_b, mat_scale, False), full(image.mat_t, mat_scale, False),
                                   colorbar(cam.height, mat_scale, width=110)],
                                  [f"inferred material {m_b * 1e3:.2f} mm", f"{source} material {m_t * 1e3:.2f} mm", ""]))
+    material = ", the material error (bottom row) is drawn" if image.mat_b is not None else ""
     entries = [(CHART_BOUNDARY_COLOR, "top row: the two meshes show different UV charts (pattern pieces) here; "
-                                      "the uv difference means nothing, the material error (bottom row) is drawn"),
+                                      f"the uv difference means nothing{material}"),
                (BODY_RGB, "the body is the nearest surface in either render"),
                (BACKGROUND, "background: no cloth in either render")]
     rows.append(legend(entries, rows[0].shape[1], scale=0.5))
