@@ -218,7 +218,7 @@ def colorbar(height: int, vmax: float | ColorScale = 0.04, width: int = 96, unit
     for t in sorted(ticks, reverse=True):
         x = float(scale.normalized(t / scale.factor))
         y = int(round(bottom - 1 - x * (bottom - top - 1)))
-        if last_y is not None and abs(y - last_y) < 12 and t != ticks[0]:
+        if last_y is not None and abs(y - last_y) < 16:
             continue
         canvas[y, 4 + bar_w:8 + bar_w] = 235
         text = _label_value(t) + ("+" if np.isclose(t, scale.vmax * scale.factor) else "")
