@@ -213,7 +213,7 @@ class BenchResult:
         s = self.sliding
         lines = [f"sliding: {rate(s.get('raster'))} (raster, 1 process), {rate(s.get('raycast'))} (Embree ray cast); "
                  f"raster / ray cast {self.speedup:.2f}x, measured side by side"]
-        if s.get("raster_workers"):
+        if s.get("raster_workers") and s["raster_workers"].get("jobs_per_s") is not None:
             lines.append(f"  {rate(s['raster_workers'])} on {s['raster_workers'].get('workers')} worker processes")
         if self.body:
             lines.append(f"  the body ({self.body.get('num_faces')} faces) costs {100 * self.body['overhead']:.0f} % "
