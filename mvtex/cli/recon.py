@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mvtex.cli.common import rig_spec, add_common, add_rig, emit, library_names, load_rig, output
+from mvtex.cli.common import add_common, add_rig, emit, library_names, load_rig, output, rig_spec
 
 
 def register(sub) -> None:
