@@ -208,6 +208,28 @@ class BenchResult:
     def to_json(self) -> dict:
         return asdict(self)
 
+    def summary(self) -> str:
+        """A readable summary, the sliding throughput first (`mvtex bench` without --json)."""
+        def rate(entry) -> str:
+            return "n/a" if not entry or entry.get("jobs_per_s") is None else f"{entry['jobs_per_s']:.1f} jobs/s"
+
+        s = self.sliding
+        lines = [f"sliding: {rate(s.get('raster'))} (raster, 1 process), {rate(s.get('raycast'))} (Embree ray cast); "
+                 f"raster / ray cast {self.speedup:.2f}x, measured side by side"]
+        if s.get("raster_workers") and s["raster_workers"].get("jobs_per_s") is not None:
+            lines.append(f"  {rate(s['raster_workers'])} on {s['raster_workers'].get('workers')} worker processes")
+        if self.body:
+            lines.append(f"  the body ({self.body.get('num_faces')} faces) costs {100 * self.body['overhead']:.0f} % "
+                         f"(without it {rate(self.body.get('raster_without_body'))})")
+        agree = self.agreement
+        lines.append(f"raster and ray cast agree: displacement {100 * agree.get('displacement', float('nan')):.2f} %, "
+                     f"assigned flags {100 * agree.get('assigned_flags', float('nan')):.2f} % of vertices")
+        lines.append(f"eval: {self.eval.get('images_per_s', float('nan')):.1f} images/s")
+        lines.append(f"timed: {self.jobs} (pose, camera) jobs ({self.poses} poses x {len(self.cameras)} cameras), "
+                     f"subdiv {self.subdiv}, {self.num_vertices} vertices, {self.image_size[0]}x{self.image_size[1]} "
+                     f"pixels; {self.machine.get('cpu_count', '?')} cores, {self.machine.get('gl_renderer', '?')}")
+        return "\n".join(lines)
+
 
 def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int = 1, repeats: int = 3,
               progress: bool = True, workers: int = 2, ctx: GLContext | None = None) -> BenchResult:

@@ -76,7 +76,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     t = _step("synthesizing the built-in garment", progress)
     data = out / "shirt"
     if not (data / "dataset.json").exists():
-        write_synth(data, SynthOptions(num_poses=options.num_poses, seed=options.seed))
+        write_synth(data, SynthOptions(num_poses=options.num_poses, seed=options.seed), progress=progress)
     dataset = load_dataset(data)
     timings["synth"] = time.perf_counter() - t
     test_pose = dataset.split["test"][0]

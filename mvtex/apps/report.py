@@ -50,11 +50,30 @@ def figure(src: str, caption: str, width: str = "100%") -> str:
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
-def model_view(glb: Path, caption: str) -> str:
+def png_data_uri(image: np.ndarray) -> str:
+    """An RGB uint8 image as a data URI (PNG), for pictures that exist only in the page."""
+    import cv2
+
+    ok, data = cv2.imencode(".png", np.ascontiguousarray(np.asarray(image, np.uint8)[..., ::-1]))
+    return "data:image/png;base64," + base64.b64encode(data.tobytes()).decode("ascii")
+
+
+def model_view(glb: Path, caption: str, *, frame: dict | None = None, legend_png: str | None = None) -> str:
+    """The 3-D view of a GLB. frame: {"target": (x, y, z), "radius": r, "fov_deg": f} (metres,
+    the GLB's axes): the camera looks at target from r away (else model-viewer frames the
+    whole scene). legend_png: a picture (URI) shown beside the view."""
     data = base64.b64encode(Path(glb).read_bytes()).decode("ascii")
-    return (f'<figure><model-viewer src="data:model/gltf-binary;base64,{data}" camera-controls '
-            f'shadow-intensity="0.6" exposure="1.1" camera-orbit="0deg 80deg auto" '
-            f'style="width:100%;height:420px;background:#202024" alt="{html.escape(caption)}"></model-viewer>'
+    framing = 'camera-orbit="0deg 80deg auto"'
+    if frame is not None:
+        x, y, z = frame["target"]
+        framing = (f'camera-target="{x:.4f}m {y:.4f}m {z:.4f}m" camera-orbit="0deg 85deg {frame["radius"]:.4f}m" '
+                   f'field-of-view="{frame["fov_deg"]:.1f}deg" min-camera-orbit="auto auto {frame["radius"] / 4:.4f}m"')
+    viewer = (f'<model-viewer src="data:model/gltf-binary;base64,{data}" camera-controls '
+              f'shadow-intensity="0.6" exposure="1.1" {framing} '
+              f'style="flex:1 1 auto;height:440px;background:#202024" alt="{html.escape(caption)}"></model-viewer>')
+    side = (f'<img src="{legend_png}" alt="colour scale of the 3-D view" style="height:440px;flex:0 0 auto">'
+            if legend_png else "")
+    return (f'<figure><div style="display:flex;gap:0">{viewer}{side}</div>'
             f'<figcaption>{html.escape(caption)} (drag to turn, scroll to zoom; the file: '
             f'<a href="{html.escape(glb.name)}">{html.escape(glb.name)}</a>)</figcaption></figure>')
 
@@ -171,7 +190,10 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
     d = summary["dataset"]
     sections.append(("Dataset and renders", table(["poses", "vertices", "test pose shown"],
                                                   [[d["num_poses"], d["num_vertices"], d["test_pose"]]]) +
-                     (figure("render/overview.png", "gt (top) and inferred (bottom) cloth from the stereo rig")
+                     (figure("render/overview.png", "gt and inferred cloth from the stereo rig: textured (rows 1-2), "
+                                                    "and the untextured geometry under a key light, zoomed on the "
+                                                    "garment (rows 3-4), where the folds gt has and the inferred "
+                                                    "mesh lacks show")
                       if (out / "render" / "overview.png").is_file() else "")))
 
     def ts_rows(items):
@@ -187,7 +209,7 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
               "uv error inferred e-3", "uv error texcoords e-3", "ratio", "uv error same chart, inferred e-3",
               "texcoords e-3", "ratio"]
     ts = summary.get("texture_sliding", {})
-    heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS; top uv error (blue 0, red >= 0.04), bottom material error (red >= 20 mm)")
+    heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS; top uv error, bottom material error, each row on the logarithmic scale of its colour bar; the legend names the other colours")
                                          for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
     sections.append(("Texture sliding from ground truth (material error in mm, uv error = the paper's SqrtMSE; per image, mean)", table(header, ts_rows(ts.items())) + heat))
 
@@ -201,12 +223,17 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
                    + table(["RMSE vs gt (mm)", "inferred", "reconstructed"], rows))
         ply = out / "reconstruction" / "reconstruction.ply"
         if ply.is_file():
-            glb = _reconstruction_glb(out, ply, dataset, int(rec["pose"]))
-            content += model_view(glb, "left to right: gt (grey), reconstruction, inferred — coloured by distance "
-                                       "to gt, blue 0 to red >= 10 mm")
+            glb, frame, scale = _reconstruction_glb(out, ply, dataset, int(rec["pose"]))
+            from mvtex.render.pictures import colorbar
+
+            content += model_view(glb, "left to right: gt (green: triangulated vertices, grey: not), reconstruction, "
+                                       "inferred, coloured by the distance to gt on the scale of comparison.png (the "
+                                       "bar beside the view)", frame=frame,
+                                  legend_png=png_data_uri(colorbar(440, scale, width=120)))
         if (out / "reconstruction" / "comparison.png").is_file():
-            content += figure("reconstruction/comparison.png", "gt / inferred / reconstruction: texture, strain, error",
-                              width="75%")
+            content += figure("reconstruction/comparison.png", "gt / inferred / reconstruction: texture; the geometry "
+                              "under a key light, and zoomed where gt's folds and the inferred mesh's differ most; "
+                              "strain; distance to gt (each with its colour bar; legend below)", width="90%")
         sections.append(("Reconstruction", content))
 
     if "tsnn" in summary:
@@ -255,21 +282,60 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
     return write_html(out / "report.html", text)
 
 
-def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int) -> Path:
+def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):
+    """OUT/reconstruction.glb: gt, reconstruction and inferred side by side, coloured as the
+    reconstruction's comparison.png (gt: triangulated vertices green; the others: distance
+    to gt on the comparison's error scale, read from reconstruction/comparison.json). Returns
+    (path, frame for `model_view`, the error `ColorScale`)."""
     import trimesh
 
-    from mvtex.render.pictures import error_colors
+    from mvtex.render.pictures import NOT_TRIANGULATED_RGB, TRIANGULATED_RGB, ColorScale, comparison_scales
+    from mvtex.util.files import read_json
 
-    rec = np.asarray(trimesh.load(ply, process=False).vertices, np.float64)
+    loaded = trimesh.load(ply, process=False)
+    rec = np.asarray(loaded.vertices, np.float64)
     gt = np.asarray(dataset.gt[pose], np.float64)
     inferred = np.asarray(dataset.inferred[pose], np.float64)
-    grey = np.full((len(gt), 3), 190, np.uint8)
-    meshes = [("gt", gt, dataset.faces, grey),
-              ("reconstruction", rec, dataset.faces, error_colors(np.linalg.norm(rec - gt, axis=1), 0.01)),
-              ("inferred", inferred, dataset.faces, error_colors(np.linalg.norm(inferred - gt, axis=1), 0.01))]
+    scale = None
+    try:
+        saved = read_json(ply.parent / "comparison.json").get("scales", {}).get("error")
+        if isinstance(saved, dict):
+            scale = ColorScale(float(saved["vmin"]), float(saved["vmax"]), bool(saved["log"]), str(saved["colormap"]),
+                               str(saved["title"]), str(saved["unit"]), float(saved["factor"]))
+    except Exception:  # no comparison.json, or an unreadable one: fit the scale again
+        scale = None
+    if scale is None:
+        scale = comparison_scales(dataset.faces, gt, inferred, rec, None)["error"]
+    try:
+        triangulated = np.asarray(loaded.metadata["_ply_raw"]["vertex"]["data"]["triangulated"], bool)
+    except (KeyError, TypeError, ValueError):
+        triangulated = np.zeros(len(gt), bool)
+    gt_colors = np.where(triangulated[:, None], np.array([TRIANGULATED_RGB]),
+                         np.array([NOT_TRIANGULATED_RGB])).astype(np.uint8)
+    meshes = [("gt", gt, dataset.faces, gt_colors),
+              ("reconstruction", rec, dataset.faces, scale.colors(np.linalg.norm(rec - gt, axis=1))),
+              ("inferred", inferred, dataset.faces, scale.colors(np.linalg.norm(inferred - gt, axis=1)))]
     body = None
     if dataset.body is not None:
         from mvtex.render.shading import BODY_RGB
 
         body = (dataset.body.pose(pose), dataset.body.faces, BODY_RGB)
-    return export_glb(out / "reconstruction.glb", meshes, body=body)
+    path = export_glb(out / "reconstruction.glb", meshes, body=body)
+    return path, garments_frame([m[1] for m in meshes]), scale
+
+
+def garments_frame(positions: Sequence[np.ndarray], *, spacing: float = 1.25, fov_deg: float = 30.0,
+                   aspect: float = 2.2) -> dict:
+    """Where `model_view`'s camera looks to frame the garments of `export_glb` (laid side by
+    side, each centred at its mean) and not the bodies around them: the target is the
+    garments' box centre, the distance fits their row in a view of `aspect` (width / height)
+    with a vertical field of view of `fov_deg`, with 10 % to spare."""
+    boxes = [(np.asarray(p).min(axis=0) - np.asarray(p).mean(axis=0), np.asarray(p).max(axis=0) - np.asarray(p).mean(axis=0))
+             for p in positions]
+    width = max(float(hi[0] - lo[0]) for lo, hi in boxes)
+    height = max(float(hi[1] - lo[1]) for lo, hi in boxes)
+    row = (len(positions) - 1) * spacing * width + width
+    centre_y = float(np.mean([(lo[1] + hi[1]) / 2 for lo, hi in boxes]))
+    half = np.radians(fov_deg) / 2
+    radius = 1.1 * max(height / 2 / np.tan(half), row / 2 / (aspect * np.tan(half)))
+    return {"target": (0.0, centre_y, 0.0), "radius": float(radius), "fov_deg": fov_deg}

@@ -33,14 +33,13 @@ def register(sub) -> None:
 def cmd_bench(args):
     from mvtex.apps.bench import run_bench
     from mvtex.data.dataset import load_dataset
-    from mvtex.util.files import dumps_strict
 
     dataset = load_dataset(args.dataset)
     _, rig_path = load_rig(args.rig)
     poses = dataset.select(args.poses)
     result = run_bench(dataset, rig_path, poses=poses, subdiv=args.subdiv, workers=args.workers,
                        progress=not args.quiet)
-    emit(args, result, dumps_strict(result.to_json(), indent=2))
+    emit(args, result, result.summary())
 
 
 def cmd_demo(args):

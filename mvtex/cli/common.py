@@ -51,9 +51,28 @@ def add_workers(p: argparse.ArgumentParser, default_help: str) -> None:
     g.add_argument("--scheduler", help="address of a Dask scheduler (tcp://host:8786) whose workers do the work")
 
 
-def add_rig(p: argparse.ArgumentParser, what: str = "the cameras") -> None:
-    p.add_argument("--rig", required=True,
-                   help=f"{what}: a rig YAML file or a built-in rig (stereo, square4, trapezoid12)")
+def add_rig(p: argparse.ArgumentParser, what: str = "the cameras", *, from_texcoords: bool = False) -> None:
+    """`--rig`; with `from_texcoords` it may be left out when `--texcoords` names a set that
+    records its rig (`rig_spec`)."""
+    default = "; default: the rig recorded in the --texcoords set (TC/rig.yaml)" if from_texcoords else ""
+    p.add_argument("--rig", required=not from_texcoords, default=None,
+                   help=f"{what}: a rig YAML file or a built-in rig (stereo, square4, trapezoid12){default}")
+
+
+def rig_spec(args) -> str:
+    """The rig to load: `--rig` when given, else the rig the `--texcoords` set records
+    (`mvtex.data.texcoords.recorded_rig`); neither is the usual missing-argument error."""
+    if args.rig is not None:
+        return args.rig
+    from mvtex.data.texcoords import recorded_rig
+
+    tc = getattr(args, "texcoords", None)
+    path = recorded_rig(tc) if tc is not None else None
+    if path is None:
+        why = f" ({tc} records no rig)" if tc is not None else ""
+        raise UsageError(f"mvtex {args.command}: error: the following arguments are required: --rig{why} "
+                         f"(see mvtex {args.command} --help)")
+    return str(path)
 
 
 def add_common(p: argparse.ArgumentParser, *, json: bool = True, quiet: bool = True, overwrite: bool = True) -> None:

@@ -15,6 +15,7 @@ from mvtex.cli.common import (
     output,
     positional_out,
     resolve_positional_out,
+    rig_spec,
 )
 
 
@@ -46,7 +47,7 @@ def register(sub) -> None:
 
     p = sub.add_parser("render", help="textured PNGs of gt and inferred per camera, raster dumps")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    add_rig(p)
+    add_rig(p, from_texcoords=True)
     p.add_argument("--pose", type=int, required=True, help="dataset pose index to render")
     p.add_argument("--out", type=Path, required=True, help="output directory (PNGs, render.json)")
     p.add_argument("--texcoords", type=Path, help="texcoord set: draw the inferred mesh with its texcoords")
@@ -62,7 +63,7 @@ def cmd_synth(args):
     resolve_positional_out(args)
     options = SynthOptions(num_poses=args.num_poses, seed=args.seed, garment=args.garment, body=args.body)
     with output(args, "synth"):
-        result = write_synth(args.out, options)
+        result = write_synth(args.out, options, progress=not args.quiet)
     emit(args, result, f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                            for k, v in result.stats.items()))
 
@@ -83,7 +84,7 @@ def cmd_render(args):
     from mvtex.render.pose import render_pose
 
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(args.rig)
+    rig, rig_path = load_rig(rig_spec(args))
     rig = rig.select(cameras(args.cameras), rig_path)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses) if args.texcoords else None
     dataset.check_poses([args.pose])

@@ -5,13 +5,13 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_rig, add_workers, emit, load_rig, output
+from mvtex.cli.common import add_common, add_rig, add_workers, emit, load_rig, output, rig_spec
 
 
 def register(sub) -> None:
     p = sub.add_parser("eval", help="material error (mm) and per-pixel uv error: baseline vs a texcoord set")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    add_rig(p, "the cameras (those of the texcoord set are evaluated)")
+    add_rig(p, "the cameras (those of the texcoord set are evaluated)", from_texcoords=True)
     p.add_argument("--texcoords", type=Path, required=True, help="texcoord set to evaluate")
     p.add_argument("--poses", help="pose SPEC (default: the texcoord set's poses)")
     p.add_argument("--heatmaps", type=Path, help="write error heatmaps (PNG per image) into this folder")
@@ -46,7 +46,7 @@ def cmd_eval(args):
     from mvtex.evaluation.evaluate import evaluate
 
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(args.rig)
+    rig, rig_path = load_rig(rig_spec(args))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
     rig = rig.select(tc.cameras, rig_path)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_rig, emit, library_names, load_rig, output
+from mvtex.cli.common import add_common, add_rig, emit, library_names, load_rig, output, rig_spec
 
 
 def register(sub) -> None:
     p = sub.add_parser("triangulate", help="multi-view reconstruction of one pose -> PLY + COLMAP model")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    add_rig(p, "the cameras of the texcoord set")
+    add_rig(p, "the cameras of the texcoord set", from_texcoords=True)
     p.add_argument("--texcoords", type=Path, required=True, help="texcoord set (from slide, predict or views)")
     p.add_argument("--pose", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
     p.add_argument("--out", type=Path, required=True, help="output directory (PLY, COLMAP model, pictures, report)")
@@ -60,12 +60,27 @@ def cmd_triangulate(args):
                            fill_shape=args.fill_shape, engine=args.engine, shrink=args.shrink,
                            use_uncertainty=args.use_uncertainty)
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(args.rig)
+    rig, rig_path = load_rig(rig_spec(args))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     dataset.check_poses([args.pose])
     rig = rig.select(tc.cameras, rig_path)
     with output(args, "triangulate"):
         result = triangulate_pose(dataset, rig, tc, args.pose, args.out, options, progress=not args.quiet)
-    emit(args, result, f"pose {result.pose}: {result.num_triangulated}/{result.num_vertices} vertices "
-         f"triangulated; RMSE inferred {result.rmse_m.inferred*1e3:.2f} mm -> reconstructed "
-         f"{result.rmse_m.reconstructed*1e3:.2f} mm; wrote {args.out}")
+    emit(args, result, triangulate_summary(result, args.out))
+
+
+def triangulate_summary(result, out) -> str:
+    """`mvtex triangulate`'s text: the RMSE against gt first, inferred -> reconstructed, on
+    the triangulated vertices and on all vertices."""
+    def pair(p) -> str:
+        if p.inferred is None or p.reconstructed is None:
+            return "n/a"
+        ratio = f" ({p.inferred / p.reconstructed:.1f}x)" if p.reconstructed else ""
+        return f"{p.inferred * 1e3:.2f} mm -> {p.reconstructed * 1e3:.2f} mm{ratio}"
+
+    reproj = result.mean_reprojection_error_px
+    return (f"RMSE vs gt, inferred -> reconstructed: triangulated vertices ({result.num_triangulated} of "
+            f"{result.num_vertices}) {pair(result.rmse_triangulated_m)}; all vertices {pair(result.rmse_m)}\n"
+            f"pose {result.pose}, mean reprojection error "
+            f"{'n/a' if reproj is None else f'{reproj:.3f} px'}; wrote {out} (reconstruction.ply, colmap/, "
+            "comparison.png)")

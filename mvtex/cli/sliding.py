@@ -81,7 +81,7 @@ def slide_options(args):
 
 def cmd_slide(args):
     from mvtex.data.dataset import load_dataset
-    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.dataset import slide_complete, slide_dataset
 
     options = slide_options(args)
     dataset = load_dataset(args.dataset)
@@ -89,7 +89,10 @@ def cmd_slide(args):
     rig = rig.select(cameras(args.cameras), rig_path)
     poses = dataset.select(args.poses)
     with output(args, "slide"):
+        complete = slide_complete(dataset, rig, args.out, poses=poses, options=options, cameras=rig.names)
         out = slide_dataset(dataset, rig_path, args.out, poses=poses, options=options, cameras=rig.names,
-                            workers=args.workers, scheduler=args.scheduler, progress=not args.quiet)
-    emit(args, {"out": str(out), "poses": len(poses), "cameras": rig.names, "options": options.to_json()},
-         f"wrote {out}")
+                            workers=args.workers, scheduler=args.scheduler, progress=False if complete else not args.quiet)
+    text = (f"{out} is complete ({len(poses)} poses x {len(rig)} cameras, the same options and inputs): nothing to do"
+            if complete else f"wrote {out}")
+    emit(args, {"out": str(out), "poses": len(poses), "cameras": rig.names, "options": options.to_json(),
+                "complete_before": complete}, text)

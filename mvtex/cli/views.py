@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, load_rig, output
+from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, load_rig, output, rig_spec
 
 
 def register(sub) -> None:
     p = sub.add_parser("views", help="texcoords of novel views between array cameras -> texcoord set + rig.yaml")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    add_rig(p, "the array's cameras")
+    add_rig(p, "the array's cameras", from_texcoords=True)
     p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set (from slide or predict)")
     p.add_argument("--out", type=Path, required=True, help="texcoord set to write (with OUT/rig.yaml, the views)")
     p.add_argument("--poses", help="pose SPEC (default: the texcoord set's poses)")
@@ -31,7 +31,7 @@ def register(sub) -> None:
 
     p = sub.add_parser("preview", help="stereo AR preview: left/right eye renders, anaglyph, SSIM/PSNR vs gt")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    add_rig(p, "the array's cameras")
+    add_rig(p, "the array's cameras", from_texcoords=True)
     p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set")
     p.add_argument("--pose", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
     p.add_argument("--out", type=Path, required=True,
@@ -61,7 +61,7 @@ def cmd_views(args):
         raise OptionError("plot needs the views of between or grid")
     options = ViewOptions(method=args.method)
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(args.rig)
+    rig, rig_path = load_rig(rig_spec(args))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
     import contextlib
@@ -90,7 +90,7 @@ def cmd_preview(args):
     options = PreviewOptions(ipd=args.ipd, method=args.method, path=args.path)
     weights = parse_weights(args.weights) if args.weights else None
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(args.rig)
+    rig, rig_path = load_rig(rig_spec(args))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     with output(args, "preview"):
         result = stereo_preview(dataset, rig, tc, args.pose, args.out, weights=weights, options=options,

@@ -46,7 +46,7 @@ CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 RESERVED_NAMES = frozenset({
     "mesh.npz", "texcoords.json", "rig.yaml", "render.json", "overview.png", "dataset.json", "split.json",
     "gt.npy", "inferred.npy", "poses.npy", "config.json", "model.safetensors", "report.json", "summary.json",
-    "reconstruction.ply", "comparison.png", "colmap", "images", "heatmaps",
+    "reconstruction.ply", "comparison.png", "comparison.json", "colmap", "images", "heatmaps",
 })
 
 

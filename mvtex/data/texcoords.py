@@ -219,6 +219,16 @@ def _mesh_fingerprint_0_1(faces: np.ndarray, uv: np.ndarray) -> str:
     return h.hexdigest()[:16]
 
 
+RIG_FILE = "rig.yaml"  # the cameras a texcoord set was made for, in the set (slide, predict with a rig, views)
+
+
+def recorded_rig(texcoords: str | os.PathLike) -> Path | None:
+    """The rig file a texcoord set records (``TC/rig.yaml``: written by `slide`, by `views`
+    and by `predict` given a rig), or None when it records none."""
+    path = Path(texcoords) / RIG_FILE
+    return path if path.is_file() else None
+
+
 def rig_record(rig) -> dict:
     """What a texcoord set records of the cameras it was made for: name -> width, height,
     K, R, t (`TexcoordSet.check_rig` compares a rig with it)."""

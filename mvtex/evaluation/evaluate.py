@@ -344,40 +344,51 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
 
 
 def _heatmap_picture(image: ImageErrors, cam, source: str) -> np.ndarray:
-    """Baseline and texcoords heatmaps side by side (magenta: different charts, grey: the
-    body), and the material error below them when the dataset has a rest shape."""
-    from mvtex.render.pictures import colorbar, heatmap, side_by_side
+    """Baseline and texcoords heatmaps side by side, each row on one colour scale fitted to
+    its two images (`fit_scale`: top at the 99th percentile, logarithmic) with its colour
+    bar; the material error below them when the dataset has a rest shape; a legend of the
+    other colours (magenta: the two meshes show different UV charts, where a uv difference
+    means nothing; grey: the body)."""
+    from mvtex.render.pictures import BACKGROUND, colorbar, fit_scale, heatmap, legend, side_by_side, stack
     from mvtex.render.shading import BODY_RGB
 
     raster = image.raster
     r0, r1, c0, c1 = raster.box
     shape = (cam.height, cam.width)
 
-    def full(values, vmax, scale=1.0):
+    def full(values, scale, charts: bool):
         box = np.full((r1 - r0) * (c1 - c0), np.nan, np.float32)
-        box[image.pixels] = values * scale
+        box[image.pixels] = values
         err = raster.full(box.reshape(r1 - r0, c1 - c0), shape, np.nan)
-        picture = heatmap(err, vmax)
-        for where, color in ((image.body_pixels, BODY_RGB), (image.pixels[image.other_chart], CHART_BOUNDARY_COLOR)):
-            if where is None:
-                continue
+        picture = heatmap(err, scale)
+        marks = [(image.body_pixels, BODY_RGB)]
+        if charts:
+            marks.append((image.pixels[image.other_chart], CHART_BOUNDARY_COLOR))
+        for where, color in marks:
             mark = np.zeros((r1 - r0) * (c1 - c0), bool)
             mark[where] = True
             picture[raster.full(mark.reshape(r1 - r0, c1 - c0), shape, False)] = color
         return picture
 
     (s_b, s_t), (same_b, same_t), (m_b, m_t) = image.sqrt_mse, image.sqrt_mse_same_chart, image.material_rmse_m
-    picture = side_by_side([full(image.e_b, HEATMAP_MAX), full(image.e_t, HEATMAP_MAX),
-                            colorbar(cam.height, HEATMAP_MAX, unit="uv")],
-                           [f"inferred {s_b * 1e3:.2f}e-3, same chart {same_b * 1e3:.2f}e-3",
-                            f"{source} {s_t * 1e3:.2f}e-3, same chart {same_t * 1e3:.2f}e-3", ""])
+    same = ~image.other_chart
+    uv_scale = fit_scale([image.e_b[same], image.e_t[same]], title="uv error, same-chart pixels", unit="uv units")
+    rows = [side_by_side([full(image.e_b, uv_scale, True), full(image.e_t, uv_scale, True),
+                          colorbar(cam.height, uv_scale, width=110)],
+                         [f"inferred {s_b * 1e3:.2f}e-3, same chart {same_b * 1e3:.2f}e-3",
+                          f"{source} {s_t * 1e3:.2f}e-3, same chart {same_t * 1e3:.2f}e-3", ""])]
     if image.mat_b is not None:
-        row = side_by_side([full(image.mat_b, MATERIAL_HEATMAP_MAX_MM, 1e3), full(image.mat_t, MATERIAL_HEATMAP_MAX_MM, 1e3),
-                            colorbar(cam.height, MATERIAL_HEATMAP_MAX_MM, unit="mm")],
-                           [f"inferred material {m_b * 1e3:.2f} mm", f"{source} material {m_t * 1e3:.2f} mm",
-                            ""])
-        picture = np.concatenate([picture, np.full((4, picture.shape[1], 3), 255, np.uint8), row])
-    return picture
+        mat_scale = fit_scale([image.mat_b, image.mat_t], title="material error", unit="mm", factor=1e3)
+        rows.append(side_by_side([full(image.mat_b, mat_scale, False), full(image.mat_t, mat_scale, False),
+                                  colorbar(cam.height, mat_scale, width=110)],
+                                 [f"inferred material {m_b * 1e3:.2f} mm", f"{source} material {m_t * 1e3:.2f} mm", ""]))
+    material = ", the material error (bottom row) is drawn" if image.mat_b is not None else ""
+    entries = [(CHART_BOUNDARY_COLOR, "top row: the two meshes show different UV charts (pattern pieces) here; "
+                                      f"the uv difference means nothing{material}"),
+               (BODY_RGB, "the body is the nearest surface in either render"),
+               (BACKGROUND, "background: no cloth in either render")]
+    rows.append(legend(entries, rows[0].shape[1], scale=0.5))
+    return stack(rows)
 
 
 def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:

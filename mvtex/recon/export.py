@@ -4,7 +4,8 @@
     colmap/{cameras,images,points3D,rigs,frames}.bin
                                 one COLMAP image per camera, one 3-D point per triangulated vertex
     images/<camera>.png         the inferred mesh textured with that camera's T_N
-    comparison.png              gt / inferred / reconstruction (texture, strain, error)
+    comparison.png              gt / inferred / reconstruction (texture, shaded geometry, strain, error)
+    comparison.json             its camera and colour scales (`pictures.comparison_scales`)
     report.json                 `mvtex.recon.report.reconstruction_report`
 
 The directory is written under a temporary name and renamed when complete. Formats are
@@ -54,7 +55,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
         inferred_mesh: (X_N' (n',3), faces' (m',3), {camera: T_N (n',2)}) for images/<camera>.png,
             or None (no images/).
         report: written as report.json.
-        options: error_scale_m and strain_scale colour the pictures.
+        options: error_scale_m colours the PLY.
         progress: progress bar over the images on stderr.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
         body: optional (positions (nb,3), faces (mb,3)) of the wearer, drawn in the pictures.
@@ -67,7 +68,7 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
     from mvtex.formats.colmap import point_reconstruction, track_tables
     from mvtex.formats.ply import write_ply
     from mvtex.render.context import context_or_new
-    from mvtex.render.pictures import comparison_picture, error_colors, texture_colors
+    from mvtex.render.pictures import comparison_picture, comparison_scales, error_colors, texture_colors
     from mvtex.render.shading import render_textured
     from mvtex.util.files import save_png, write_json
 
@@ -101,9 +102,11 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
         if gt is not None:
             views = np.array([np.isfinite(rec.observations[c][:, 0]).sum() for c in names])
             camera = rig[names[int(np.argmax(views))]]
+            scales = comparison_scales(faces, gt, rec.inferred, rec.points, rest)
             save_png(tmp / "comparison.png",
-                     comparison_picture(camera, faces, uv, gt, rec.inferred, rec.points, rest,
-                                        error_scale_m=options.error_scale_m, strain_scale=options.strain_scale,
+                     comparison_picture(camera, faces, uv, gt, rec.inferred, rec.points, rest, scales=scales,
                                         triangulated=rec.triangulated, ctx=ctx, body=body))
+            write_json(tmp / "comparison.json", {"camera": camera.name,
+                                                 "scales": {k: v.to_json() for k, v in scales.items()}})
         write_json(tmp / "report.json", report)
     return out

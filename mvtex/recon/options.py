@@ -61,8 +61,10 @@ class ReconOptions:
         max_combinations: at most this many hypothesis pairs are tried per vertex.
         refine_iterations: Gauss-Newton steps after the DLT (engine "mvtex", and the vote
             of both engines).
-        error_scale_m: error heatmaps run from blue (0) to red (≥ this).
-        strain_scale: strain pictures run from blue (-this, compression) to red (+this).
+        error_scale_m: the PLY's vertex colours run from blue (0) to red (≥ this);
+            comparison.png fits its colour scales to the data (`comparison_scales`).
+        strain_scale: kept for scripts that set it; comparison.png fits its strain scale to
+            the data.
         engine: who triangulates the tracks: "mvtex" (vectorised DLT + Gauss-Newton, the
             default: faster) or "pycolmap" (COLMAP's multi-view triangulation + points-only
             bundle adjustment); both reach the same least-squares points.

@@ -2,6 +2,9 @@
 
 Output layout (DESIGN §4):
     OUT/<camera>/gt.png, OUT/<camera>/inferred.png     textured renders
+    OUT/<camera>/gt_shaded.png, inferred_shaded.png     untextured geometry under a key light
+                                                        (folds show as light and shade)
+    OUT/<camera>/shaded_zoom.png                        gt | inferred shaded, zoomed on the garment
     OUT/<camera>/gt_raster.npz, inferred_raster.npz     with raster=True: tri_id, bary, depth, uv
                                                         (and body, for a dataset with a body)
     OUT/overview.png                                    all cameras, gt above inferred
@@ -82,7 +85,7 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
     out = as_path(out, "out")
     from mvtex.render import raster as gl
     from mvtex.render.context import GLContext
-    from mvtex.render.shading import render_textured
+    from mvtex.render.shading import garment_box, render_shaded, render_textured, scaled_camera
 
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
@@ -100,13 +103,16 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
                                rig_path=rig_path, progress=progress, ctx=own)
     from tqdm import tqdm
 
+    from mvtex.render.pictures import side_by_side
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files, tiles = [], []
     body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
     for cam in tqdm(list(rig), desc=f"render pose {pose}", unit="camera", disable=not progress):
         views = pose_views(dataset, pose, cam.name, texcoord_set)
-        row = []
+        row, zooms = [], []
+        zoom_cam = scaled_camera(cam, garment_box(views["gt"].positions, cam), cam.width, cam.height)
         for what, view in views.items():
             r = gl.rasterize(ctx, view.positions, view.faces, cam, occluder=body)
             check_sees_mesh(r, cam, rig_path, pose, what)
@@ -114,6 +120,9 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
             save_png(out / cam.name / f"{what}.png", image)
             files.append(f"{cam.name}/{what}.png")
             row.append(image)
+            save_png(out / cam.name / f"{what}_shaded.png", render_shaded(ctx, view.positions, view.faces, cam, body=body))
+            files.append(f"{cam.name}/{what}_shaded.png")
+            zooms.append(render_shaded(ctx, view.positions, view.faces, zoom_cam, body=body))
             if raster:
                 uv = gl.interpolate(view.texcoords, r, view.faces)
                 arrays = dict(tri_id=r.tri_id, bary=r.bary, depth=r.depth, uv=uv)
@@ -123,11 +132,14 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
                     with open(tmp, "wb") as f:
                         np.savez_compressed(f, **arrays)
                 files.append(f"{cam.name}/{what}_raster.npz")
-        tiles.append(row)
+        save_png(out / cam.name / "shaded_zoom.png", side_by_side(zooms, list(views)))
+        files.append(f"{cam.name}/shaded_zoom.png")
+        tiles.append(row + zooms)
     from mvtex.render.pictures import grid_image
 
-    save_png(out / "overview.png", grid_image([[t[0] for t in tiles], [t[1] for t in tiles]],
-                                              col_labels=rig.names, row_labels=["gt", "inferred"]))
+    save_png(out / "overview.png", grid_image([[t[i] for t in tiles] for i in range(4)], col_labels=rig.names,
+                                              row_labels=["gt", "inferred", "gt geometry, zoom",
+                                                          "inferred geometry, zoom"]))
     files.append("overview.png")
     summary = {"pose": int(pose), "cameras": rig.names, "dataset": str(dataset.path),
                "texcoords": None if texcoord_set is None else str(texcoord_set.path), "raster": bool(raster),

@@ -161,3 +161,141 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
     if s > 1:
         img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(img)
+
+
+CLOTH_RGB = (150, 178, 214)  # the cloth's colour in untextured (`render_shaded`) pictures
+
+# Key light of `render_shaded`, in camera coordinates (x right, y down, z forward): from the
+# upper left, about 50 degrees off the viewing direction, so that folds cast light and shade.
+KEY_LIGHT = (-0.55, -0.6, -0.58)
+SHADED_AMBIENT = 0.18
+SHADED_DIFFUSE = 0.82
+
+
+def key_light() -> np.ndarray:
+    """(3,) unit vector toward `render_shaded`'s key light, in camera coordinates."""
+    light = np.asarray(KEY_LIGHT, np.float64)
+    return light / np.linalg.norm(light)
+
+
+def scaled_camera(camera: Camera, box: tuple[float, float, float, float], width: int, height: int) -> Camera:
+    """The camera whose image is the pixel box (u0, v0, u1, v1) of `camera` (pixel edges,
+    OpenCV pixel centres at integers: the full image is (-0.5, -0.5, W-0.5, H-0.5)),
+    resampled to width x height: a zoom rendered at full resolution instead of an
+    enlarged crop."""
+    u0, v0, u1, v1 = (float(b) for b in box)
+    if not (u1 > u0 and v1 > v0):
+        raise ValueError(f"empty box {box}")
+    sx, sy = width / (u1 - u0), height / (v1 - v0)
+    K = np.asarray(camera.K, np.float64)
+    # New pixel centre u' satisfies u' + 0.5 = sx (u - u0), for u the old pixel coordinate.
+    K2 = np.array([[K[0, 0] * sx, K[0, 1] * sx, (K[0, 2] - u0) * sx - 0.5],
+                   [0.0, K[1, 1] * sy, (K[1, 2] - v0) * sy - 0.5],
+                   [0.0, 0.0, 1.0]])
+    return Camera(camera.name, int(width), int(height), K=K2, R=camera.R, t=camera.t)
+
+
+def _supersampled(camera: Camera, s: int) -> Camera:
+    return scaled_camera(camera, (-0.5, -0.5, camera.width - 0.5, camera.height - 0.5), camera.width * s,
+                         camera.height * s)
+
+
+def render_shaded(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, camera: Camera, *,
+                  normals: str | np.ndarray = "vertex", body: tuple[np.ndarray, np.ndarray] | None = None,
+                  cloth_rgb: tuple[int, int, int] = CLOTH_RGB, background: tuple[int, int, int] = (40, 40, 46),
+                  supersample: int = 2) -> np.ndarray:
+    """The mesh's geometry, untextured, lit by a key light at an angle: folds and wrinkles
+    show as light and shade, whatever the texture does.
+
+    Each pixel is ``albedo * (SHADED_AMBIENT + SHADED_DIFFUSE * max(0, n . l))`` with ``l``
+    `key_light()` and ``n`` the surface normal in camera coordinates, turned toward the
+    camera (both sides lit); albedo is `cloth_rgb` on the mesh and `BODY_RGB` on the body.
+
+    Args:
+        ctx: the GL context.
+        positions: (n,3) world positions. faces: (m,3).
+        camera: pinhole camera with zero distortion.
+        normals: "vertex" (smooth: area-weighted vertex normals, seam copies welded),
+            "face" (flat: each triangle's own normal), or an (n,3) array of vertex normals.
+        body: (positions (nb,3), faces (mb,3)) of the wearer, drawn in `BODY_RGB` (smooth).
+        supersample: render at this factor and downsample (anti-aliasing).
+
+    Returns:
+        (H,W,3) uint8 RGB image, OpenCV row order.
+    """
+    import cv2
+    import moderngl
+
+    from mvtex.data.mesh import face_normals, vertex_normals, weld_groups
+
+    camera.require_pinhole()
+    positions = np.asarray(positions, np.float64)
+    faces = np.asarray(faces, np.int64)
+    if isinstance(normals, str) and normals == "face":
+        # One normal per corner: de-index the mesh (three vertices per face).
+        fn = face_normals(positions, faces)
+        positions, normals_v = positions[faces.reshape(-1)], np.repeat(fn, 3, axis=0)
+        faces = np.arange(len(positions), dtype=np.int64).reshape(-1, 3)
+    elif isinstance(normals, str) and normals == "vertex":
+        normals_v = vertex_normals(positions, faces, weld_groups(positions))
+    elif isinstance(normals, str):
+        raise ValueError(f"normals must be 'vertex', 'face' or an (n,3) array, got {normals!r}")
+    else:
+        normals_v = np.asarray(normals, np.float64)
+        if normals_v.shape != positions.shape:
+            raise ValueError(f"normals must have the positions' shape {positions.shape}, got {normals_v.shape}")
+    if body is not None:
+        body_positions = np.asarray(body[0], np.float64)
+        normals_v = np.concatenate([normals_v, vertex_normals(body_positions, body[1], weld_groups(body_positions))])
+    positions, faces, matte = _with_body(positions, faces, body)
+    cam = camera.to_camera(positions)
+    near, far = depth_range(cam)
+    s = max(1, int(supersample))
+    big = _supersampled(camera, s)
+    clip = clip_from_camera(big, near, far)
+    data = np.hstack([cam, normals_v @ camera.R.T, matte[:, None]]).astype("f4")
+    gl = ctx.mgl
+    with gl:
+        prog = ctx._program("shaded.vert.glsl", "shaded.frag.glsl")
+        prog["clip_from_cam"].write(clip.T.astype("f4").tobytes())
+        prog["light_dir"].value = tuple(float(x) for x in key_light())
+        prog["ambient"].value = SHADED_AMBIENT
+        prog["diffuse"].value = SHADED_DIFFUSE
+        prog["cloth_color"].value = tuple(c / 255 for c in cloth_rgb)
+        prog["matte_color"].value = tuple(c / 255 for c in BODY_RGB)
+        vbo = gl.buffer(data.tobytes())
+        ibo = gl.buffer(np.asarray(faces, dtype=np.int32).tobytes())
+        vao = gl.vertex_array(prog, [(vbo, "3f 3f 1f", "in_cam", "in_normal", "in_matte")],
+                              index_buffer=ibo, index_element_size=4)
+        fbo = ctx._target("color", big.width, big.height)
+        fbo.use()
+        fbo.clear(*(np.asarray(background, np.float64) / 255), 1.0, depth=1.0)
+        gl.disable(moderngl.CULL_FACE)
+        gl.enable(moderngl.DEPTH_TEST)
+        vao.render(moderngl.TRIANGLES)
+        img = np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(big.height, big.width, 3)
+        for obj in (vao, vbo, ibo):
+            obj.release()
+    if s > 1:
+        img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img)
+
+
+def garment_box(positions: np.ndarray, camera: Camera, *, margin: float = 0.06,
+                aspect: float | None = 1.0) -> tuple[float, float, float, float]:
+    """The pixel box (u0, v0, u1, v1) around a mesh's projection (vertices in front of the
+    camera), widened by `margin` of its size on each side and, with `aspect` (width /
+    height), grown to that aspect around its centre. Pixel edges, as `scaled_camera`."""
+    uv, depth = camera.project(np.asarray(positions, np.float64))
+    uv = uv[depth > 0]
+    if len(uv) == 0:
+        return (-0.5, -0.5, camera.width - 0.5, camera.height - 0.5)
+    lo, hi = uv.min(axis=0) - 0.5, uv.max(axis=0) + 0.5
+    size = hi - lo
+    lo, hi = lo - margin * size, hi + margin * size
+    if aspect is not None:
+        centre, size = (lo + hi) / 2, hi - lo
+        w = max(size[0], size[1] * aspect)
+        h = w / aspect
+        lo, hi = centre - (w / 2, h / 2), centre + (w / 2, h / 2)
+    return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))

@@ -102,7 +102,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     Results stream into memory-mapped .npy files in ``<out>.partial/``; a per-camera done
     mask (``done.npy``) is saved after the data of every chunk is flushed, so an
-    interrupted run continues where it stopped when called again with the same arguments.
+    interrupted run continues where it stopped when called again with the same arguments,
+    and a finished one returns at once (`slide_complete`). The set records its cameras in
+    ``rig.yaml``.
     Called with different options, poses, cameras, rig, dataset (path or content) or
     reference shape, it discards the partial result (saying so on stderr) and starts over.
     When every job is done the directory is renamed to `out` (an older `out` is renamed
@@ -132,10 +134,10 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     """
     from tqdm import tqdm
 
-    from mvtex.data.dataset import as_dataset, reference_shape, reference_shape_source
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
-    from mvtex.util.fingerprint import fingerprint, fingerprint_record
+    from mvtex.data.dataset import as_dataset, reference_shape
+    from mvtex.data.rig import as_rig, save_rig
+    from mvtex.data.texcoords import RIG_FILE, PartialSet
+    from mvtex.util.fingerprint import fingerprint_record
 
     from mvtex.util.checks import as_path, check_instance
 
@@ -150,14 +152,13 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
                what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
     check_outside_body(rig, ds, poses, rig_path)
     out = Path(out)
+    record = _slide_record(ds, rig, options)
+    if _complete(out, record, poses, rig.names, options.subdiv):
+        if progress:
+            print(f"{out}: complete, made with these options from these inputs; nothing to do", file=sys.stderr)
+        return out
     reference = reference_shape(ds)
     topo = build_topology(ds.faces, ds.uv, reference, options.subdiv)
-    record = {
-        "options": options.to_json(),
-        "dataset": dataset_record(ds),  # content, not only the path: arrays replaced in place must not be mixed
-        "reference": {"shape": reference_shape_source(ds), "fingerprint": fingerprint(reference)},
-        "rig": rig_record(rig),
-    }
     partial = PartialSet(out, "slide", "ts", faces=topo.faces, uv=topo.uv, parent=topo.subdivision.parent, source="ts",
                          subdiv=options.subdiv, poses=poses, cameras=rig.names, record=record)
     tasks = []
@@ -196,4 +197,64 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         _WORKER.set(None, None)
         if own_ctx is not None:
             own_ctx.release()
+    save_rig(rig, partial.path / RIG_FILE)  # the set records its cameras: --rig defaults to them
     return partial.finish()
+
+
+def slide_complete(dataset, rig, out: str | os.PathLike, *, poses: list[int], options: SlideOptions,
+                   cameras: list[str] | None = None) -> bool:
+    """Whether `out` already holds the finished result of `slide_dataset` with these
+    arguments (same poses, cameras, options, rig and dataset content): calling it again
+    returns at once."""
+    from mvtex.data.dataset import as_dataset
+    from mvtex.data.rig import as_rig
+
+    ds = as_dataset(dataset)
+    rig, rig_path = as_rig(rig)
+    rig = rig.select(cameras, source=rig_path)
+    poses = ds.check_poses(poses)
+    return _complete(Path(out), _slide_record(ds, rig, options), poses, rig.names, options.subdiv)
+
+
+def _slide_record(ds, rig, options: SlideOptions) -> dict:
+    """What texcoords.json records of a slide run besides its header (as the file holds it)."""
+    import json
+
+    from mvtex.data.dataset import reference_shape, reference_shape_source
+    from mvtex.data.texcoords import dataset_record, rig_record
+    from mvtex.util.files import dumps_strict
+    from mvtex.util.fingerprint import fingerprint
+
+    record = {
+        "options": options.to_json(),
+        "dataset": dataset_record(ds),  # content, not only the path: arrays replaced in place must not be mixed
+        "reference": {"shape": reference_shape_source(ds), "fingerprint": fingerprint(reference_shape(ds))},
+        "rig": rig_record(rig),
+    }
+    return json.loads(dumps_strict(record))
+
+
+def _complete(out: Path, record: dict, poses: list[int], cameras: list[str], subdiv: int) -> bool:
+    """Whether `out` is a finished slide set of this run: texcoords.json with the same
+    poses, cameras, subdivision and record, and every camera's arrays in their shapes."""
+    from mvtex.data.texcoords import FORMAT
+    from mvtex.util.errors import InputError
+    from mvtex.util.files import load_npy, read_json
+
+    if not (out / "texcoords.json").is_file() or (out.with_name(out.name + ".partial")).exists():
+        return False
+    try:
+        meta = read_json(out / "texcoords.json")
+        if not (isinstance(meta, dict) and meta.get("format") == FORMAT and meta.get("source") == "ts"
+                and meta.get("poses") == [int(p) for p in poses] and meta.get("cameras") == list(cameras)
+                and meta.get("subdiv") == subdiv and all(meta.get(k) == v for k, v in record.items())):
+            return False
+        for cam in cameras:
+            d = load_npy(out / cam / "displacement.npy")
+            a = load_npy(out / cam / "assigned.npy")
+            if d.shape[:1] != (len(poses),) or a.shape != d.shape[:2] or d.shape[2:] != (2,):
+                return False
+            del d, a
+    except (InputError, OSError, ValueError, KeyError):
+        return False
+    return True

@@ -119,16 +119,24 @@ class _Rows:
         return np.asarray(self.base[self.index[key]])
 
 
-def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
+def _generate(options: SynthOptions, gt_out, inferred_out, body_out, progress: bool = False) -> tuple:
     """Fill gt_out, inferred_out ((K, n, 3) float32) and body_out ((K, nb, 3) float32, or
     None without a body), in memory or `_RowFile`, pose by pose and block by block, and
     compute the statistics. The shapes are computed per pose (or per row of a block), so
     they do not depend on the block size; the statistics' means are sums of per-pose sums
     (equal to a one-pass mean up to rounding).
 
+    With `progress`, a bar on stderr counts the gt shapes, then the inferred ones.
+
     Returns:
         (garment, poses, split, stats) as in `synthesize`.
     """
+    import sys
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=2 * options.num_poses, desc=f"synth {options.garment}", unit="shape", disable=not progress,
+               file=sys.stderr)
     garment = _garment(options.garment)
     poses = garment.sample_poses(options.num_poses, options.seed)
     _, first = np.unique(garment.rest, axis=0, return_index=True)  # one vertex per distinct point
@@ -149,6 +157,7 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
         depths.append(max(d for d, _, _ in info))
         wavelengths += [w for d, w, _ in info if d >= 5e-3]
         peaks.append(max(p for _, _, p in info))
+        bar.update(1)
     split = default_split(options.num_poses, options.seed)
     train = np.asarray(split["train"], dtype=np.int64)
     predictor = fit_predictor(_Rows(gt_out, train), poses[train], options.pca_components, options.ridge)
@@ -164,6 +173,7 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
         block = slice(lo, min(lo + _CHUNK, options.num_poses))
         inferred = predictor.predict(poses[block])
         inferred_out[block] = inferred
+        bar.update(block.stop - block.start)
         gt = np.asarray(gt_out[block])
         strain_gt[block] = np.abs(edge_strain(gt, garment.rest, edge_list)).sum(axis=1)
         strain_inferred[block] = np.abs(edge_strain(inferred, garment.rest, edge_list)).sum(axis=1)
@@ -200,6 +210,7 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
             "inferred_inside_body_fraction": float(inside.mean()),
             "inferred_inside_body_depth_m": float(deepest.max()),
         })
+    bar.close()
     return garment, poses, split, stats
 
 
@@ -283,13 +294,15 @@ class _RowFile:
         return out
 
 
-def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> SynthResult:
+def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(), *,
+                progress: bool = False) -> SynthResult:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
     streaming: the shapes (and the body) go to gt.npy / inferred.npy / body.npy block by
     block as they are made, so memory does not hold all poses, and the predictor fit reads
     the training shapes in blocks too (`fit_predictor`): peak memory does not grow with
     `num_poses`. The files are byte for byte those `mvtex.data.dataset.save_dataset` writes
-    for `synthesize(options)` (tests/synth/test_synth.py checks it).
+    for `synthesize(options)` (tests/synth/test_synth.py checks it). With `progress`, a bar
+    on stderr counts the shapes made.
 
     The statistics are also stored under "stats" in dataset.json, the garment under
     "garment".
@@ -315,7 +328,7 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
         tmp.mkdir()
         gt, inferred = _RowFile(tmp / "gt.npy", shape), _RowFile(tmp / "inferred.npy", shape)
         body = _RowFile(tmp / "body.npy", (options.num_poses, len(garment.body_rest), 3)) if options.body else None
-        garment, poses, split, stats = _generate(options, gt, inferred, body)
+        garment, poses, split, stats = _generate(options, gt, inferred, body, progress=progress)
         body_faces = np.asarray(garment.body_faces, np.int32) if options.body else None
         meta = metadata(options.garment, shape[0], shape[1], poses.shape[1], body_faces, body,
                         garment=options.garment, stats=stats)

@@ -21,7 +21,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.data.camera import check_camera_name
-from mvtex.data.texcoords import MAX_DISPLACEMENT, dataset_record, rig_record, write_header
+from mvtex.data.rig import save_rig
+from mvtex.data.texcoords import MAX_DISPLACEMENT, RIG_FILE, dataset_record, rig_record, write_header
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
@@ -360,6 +361,7 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
         record = {"dataset": dataset_record(dataset), "models": {name: str(m.path) for name, m, _ in jobs}}
         if rig is not None:
             record["rig"] = rig_record(rig.select(names))
+            save_rig(rig.select(names), tmp / RIG_FILE)  # the set records its cameras: --rig defaults to them
         write_header(tmp, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
                      cameras=names, **record)
         uncertain = {name for name, m, _ in jobs if getattr(m.network, "has_uncertainty", False)}

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -574,10 +575,14 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, dev
     split["train"] = [split["train"][i] for i in evenly_spaced(len(split["train"]), MAX_TRAIN)]
     data = {k: _Data(dataset, texcoords, [camera], split[k], options.weight_assigned, "cpu") for k in split}
     train = data["train"]
-    bar = tqdm(desc=f"train {camera} (gp)", unit="component", disable=not progress)
+    # The bar counts L-BFGS steps of the components' likelihood fits (all fitted together).
+    bar = tqdm(desc=f"train {camera} (gp, {options.components} components)", unit="step", disable=not progress,
+               file=sys.stderr)
 
     def advance(done: int, total: int) -> None:
-        bar.total = total
+        if bar.total != total:
+            bar.total = total
+            bar.refresh()
         bar.update(done - bar.n)
 
     model = fit_pose_gp(train.x.numpy(), train.d_numpy, components=options.components, progress=advance,

@@ -54,8 +54,9 @@ def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
 
 
 def _views_of_poses(synth: "ViewSynthesizer", cameras: Sequence[Camera], weights: Sequence[Mapping[str, float]],
-                    poses: Sequence[int]) -> tuple[dict, dict]:
-    """Every view of `poses`: ({name: (p,n',2) float32}, {name: (p,n') bool})."""
+                    poses: Sequence[int], tick=None) -> tuple[dict, dict]:
+    """Every view of `poses`: ({name: (p,n',2) float32}, {name: (p,n') bool}); `tick()`
+    (when given) after each view, for a progress bar that moves inside a block."""
     n_sub = len(synth.texcoords.uv)
     disp = {c.name: np.empty((len(poses), n_sub, 2), np.float32) for c in cameras}
     asg = {c.name: np.empty((len(poses), n_sub), bool) for c in cameras}
@@ -63,6 +64,8 @@ def _views_of_poses(synth: "ViewSynthesizer", cameras: Sequence[Camera], weights
         state = synth.prepare(pose)
         for cam, w in zip(cameras, weights):
             disp[cam.name][row], asg[cam.name][row] = synth.view(state, cam, w)
+            if tick is not None:
+                tick()
     return disp, asg
 
 
@@ -186,11 +189,12 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
                              source=f"views-{options.method}", subdiv=texcoords.subdiv, poses=poses,
                              cameras=list(names), record=record)
 
-        def write(start: int, disp: dict, asg: dict) -> None:
+        def write(start: int, disp: dict, asg: dict, counted: bool = False) -> None:
             rows = range(start, start + len(next(iter(asg.values()))))
             for name in names:
                 partial.write(name, rows, disp[name], asg[name])
-            bar.update(len(rows) * len(names))
+            if not counted:
+                bar.update(len(rows) * len(names))
 
         size = _WRITE_BLOCK
         if workers > 1 or scheduler:  # blocks small enough that every worker gets several
@@ -200,8 +204,9 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
         bar = tqdm(total=len(poses) * len(names), initial=int(done.sum()) * len(names),
                    desc=f"views ({options.method})", unit="view", disable=not progress, file=sys.stderr)
         if workers <= 1 and not scheduler:
-            for start in starts:
-                write(start, *_views_of_poses(synth, cameras, weights, poses[start:start + size]))
+            for start in starts:  # the bar moves view by view
+                write(start, *_views_of_poses(synth, cameras, weights, poses[start:start + size],
+                                              tick=lambda: bar.update(1)), counted=True)
         else:
             from mvtex.util.parallel import map_unordered
 

@@ -162,11 +162,13 @@ def test_material_error_is_scale_times_uv_error_on_flat_sheet(gl, tiny_dataset, 
             assert getattr(part.material_rmse_m, key).std == pytest.approx(SHEET_SIZE * getattr(part.sqrt_mse, key).std,
                                                                         rel=1e-3, abs=1e-8)
         assert part.ratio_material == pytest.approx(part.ratio, rel=1e-4)
-    # The heatmaps gain a second row (material error in mm) under the uv row.
+    # The heatmaps gain a second row (material error in mm) under the uv row, then the legend.
     from imageio.v3 import imread
 
     picture = imread(heat / "pose_00000_a.png")
-    assert picture.shape[0] == 2 * list(front_rig)[0].height + 4
+    h = list(front_rig)[0].height
+    assert picture.shape[0] > 2 * h + 2 * 4
+    assert (picture[h:h + 4] == 255).all() and (picture[2 * h + 4:2 * h + 8] == 255).all()  # the gaps between rows
 
 
 def test_material_error_matches_ray_cast_and_brute_force_uv_lookup(gl, front_rig):

@@ -198,20 +198,20 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
     real = mvtex.views.novel._views_of_poses
     blocks = []
 
-    def stop_after_one(synth, cameras, weights, poses):
+    def stop_after_one(synth, cameras, weights, poses, tick=None):
         if blocks:
             raise KeyboardInterrupt
         blocks.append(list(poses))
-        return real(synth, cameras, weights, poses)
+        return real(synth, cameras, weights, poses, tick=tick)
 
     monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", stop_after_one)
     out = tmp_path / "v"
     assert run(capsys, *argv, "--out", out)[0] == 130  # as Ctrl-C
     assert not out.exists() and (tmp_path / "v.partial" / "view_000" / "done.npy").is_file()
 
-    def count(synth, cameras, weights, poses):
+    def count(synth, cameras, weights, poses, tick=None):
         blocks.append(list(poses))
-        return real(synth, cameras, weights, poses)
+        return real(synth, cameras, weights, poses, tick=tick)
 
     # As if killed while saving the done mask: its hidden temporary copy is left behind.
     (tmp_path / "v.partial" / "view_000" / ".done.npy.k1ll3d.tmp").mkdir()
