@@ -43,8 +43,8 @@ from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
-from mvtex.evaluation.material import MATERIAL_HEATMAP_MAX_MM, MaterialMap
-from mvtex.evaluation.uv import CHART_BOUNDARY_COLOR, HEATMAP_MAX
+from mvtex.evaluation.material import MaterialMap
+from mvtex.evaluation.uv import CHART_BOUNDARY_COLOR
 
 
 @dataclass(frozen=True)
