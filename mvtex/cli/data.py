@@ -62,7 +62,7 @@ def cmd_synth(args):
     resolve_positional_out(args)
     options = SynthOptions(num_poses=args.num_poses, seed=args.seed, garment=args.garment, body=args.body)
     with output(args, "synth"):
-        result = write_synth(args.out, options)
+        result = write_synth(args.out, options, progress=not args.quiet)
     emit(args, result, f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                            for k, v in result.stats.items()))
 

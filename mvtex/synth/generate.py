@@ -117,7 +117,7 @@ class _Rows:
         return np.asarray(self.base[self.index[key]])
 
 
-def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
+def _generate(options: SynthOptions, gt_out, inferred_out, body_out, progress: bool = False) -> tuple:
     """Fill gt_out, inferred_out ((K, n, 3) float32) and body_out ((K, nb, 3) float32, or
     None without a body), in memory or `_RowFile`, pose by pose and block by block, and
     compute the statistics. The shapes are computed per pose (or per row of a block), so
@@ -127,6 +127,9 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
     Returns:
         (garment, poses, split, stats) as in `synthesize`.
     """
+    from tqdm import tqdm
+
+    bar = tqdm(total=2 * options.num_poses, desc="synth", unit="step", disable=not progress)
     garment = _garment(options.garment)
     poses = garment.sample_poses(options.num_poses, options.seed)
     _, first = np.unique(garment.rest, axis=0, return_index=True)  # one vertex per distinct point
@@ -147,6 +150,7 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
         depths.append(max(d for d, _, _ in info))
         wavelengths += [w for d, w, _ in info if d >= 5e-3]
         peaks.append(max(p for _, _, p in info))
+        bar.update(1)
     split = default_split(options.num_poses, options.seed)
     train = np.asarray(split["train"], dtype=np.int64)
     predictor = fit_predictor(_Rows(gt_out, train), poses[train], options.pca_components, options.ridge)
@@ -172,6 +176,8 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out) -> tuple:
             for row, k in enumerate(range(block.start, block.stop)):
                 signed = distance(inferred[row][first], bodies[row])
                 inside[k], deepest[k] = np.mean(signed < 0.0), max(0.0, -float(signed.min()))
+        bar.update(block.stop - block.start)
+    bar.close()
 
     def rmse(part: list[int]) -> float:
         # As `mesh.rms_distance` over the poses of one split.
@@ -278,7 +284,7 @@ class _RowFile:
         return out
 
 
-def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> SynthResult:
+def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(), progress: bool = False) -> SynthResult:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
     streaming: the shapes (and the body) go to gt.npy / inferred.npy / body.npy block by
     block as they are made, so memory does not hold all poses, and the predictor fit reads
@@ -288,6 +294,10 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
 
     The statistics are also stored under "stats" in dataset.json, the garment under
     "garment".
+
+    Args:
+        progress: a progress bar on stderr (each pose counted twice: its shapes, then its
+            inferred shape).
 
     Returns:
         A `SynthResult`; its `stats` are those of `synthesize`.
@@ -306,7 +316,7 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions())
         tmp.mkdir()
         gt, inferred = _RowFile(tmp / "gt.npy", shape), _RowFile(tmp / "inferred.npy", shape)
         body = _RowFile(tmp / "body.npy", (options.num_poses, len(garment.body_rest), 3)) if options.body else None
-        garment, poses, split, stats = _generate(options, gt, inferred, body)
+        garment, poses, split, stats = _generate(options, gt, inferred, body, progress)
         body_faces = np.asarray(garment.body_faces, np.int32) if options.body else None
         meta = metadata(options.garment, shape[0], shape[1], poses.shape[1], body_faces, body,
                         garment=options.garment, stats=stats)
