@@ -3,11 +3,14 @@
     python benchmarks/tsnn_paper_scale.py WORK [--num-poses 8000] [--garment shirt] [--rig square4]
            [--cameras tl] [--sizes 250,500,1000,2000,4000,6400] [--methods gp,mlp]
            [--test-poses 200] [--workers 2] [--plot docs/tsnn_paper_scale.png] [--report-only]
+           [--merge OTHER_WORK ...]
 
 The pipeline a user runs, step by step, each step resumable (a rerun skips what is done):
 
-    1. mvtex synth --out WORK/data --num-poses N --garment G        (skipped if WORK/data exists)
-    2. mvtex slide WORK/data --rig RIG --cameras CAMS --out WORK/ts --workers W   (resumes by itself)
+    1. mvtex synth --out WORK/data --num-poses N --garment G        (skipped if WORK/data exists;
+       WORK/data may be a link to an existing dataset, WORK/ts to its texcoord set)
+    2. mvtex slide WORK/data --rig RIG --cameras CAMS --out WORK/ts --workers W   (an interrupted
+       slide resumes; skipped once WORK/ts is finished, since slide would start a finished set over)
     3. per method and size: `mvtex.train` of each camera on the first SIZE training poses of the
        split (`train_poses`), `mvtex.predict` of the test poses, `mvtex.evaluate` (the material
        error) on the same test images; results cached in WORK/results.json after each one.
@@ -44,8 +47,9 @@ def prepare(work: Path, args) -> None:
     if not (work / "data" / "dataset.json").is_file():
         run([*mvtex, "synth", "--out", str(work / "data"), "--num-poses", str(args.num_poses),
              "--garment", args.garment])
-    run([*mvtex, "slide", str(work / "data"), "--rig", args.rig, "--cameras", args.cameras, "--out",
-         str(work / "ts"), "--workers", str(args.workers)])
+    if not (work / "ts" / "texcoords.json").is_file():  # a finished set is not slid again
+        run([*mvtex, "slide", str(work / "data"), "--rig", args.rig, "--cameras", args.cameras, "--out",
+             str(work / "ts"), "--workers", str(args.workers)])
 
 
 def score(dataset, rig: str, tc_path: Path, poses: list[int], cameras: list[str]) -> dict:
@@ -71,6 +75,9 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--plot", type=Path)
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--merge", type=Path, nargs="*", default=[],
+                    help="other WORK directories of the same dataset (runs split over processes): their results "
+                    "join this one's in the report")
     args = ap.parse_args()
     work = args.work
     work.mkdir(parents=True, exist_ok=True)
@@ -123,6 +130,10 @@ def main() -> None:
                 save()
                 print(f"{method} {key}: {row}", file=sys.stderr, flush=True)
 
+    for other in args.merge:
+        for method, rows in json.loads((other / "results.json").read_text()).items():
+            for size, row in rows.items():
+                results.setdefault(method, {}).setdefault(size, row)
     ts = results.get("ts", {}).get("0")
     print(f"| training poses | method | material error (mm) | material ratio | same-chart ratio | fit time |")
     print("|---|---|---|---|---|---|")

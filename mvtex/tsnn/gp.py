@@ -446,7 +446,8 @@ def evenly_spaced(k: int, count: int) -> np.ndarray:
     return np.arange(k) if count >= k else np.unique(np.linspace(0, k - 1, count).round().astype(int))
 
 
-def pose_pca(poses: np.ndarray, d, components: int, basis_poses: int = MAX_TRAIN):
+def pose_pca(poses: np.ndarray, d, components: int, basis_poses: int = MAX_TRAIN,
+             progress: Callable[[int, int], None] | None = None):
     """The principal components of d that a `PoseGP` models, and the pose standardisation.
 
     Args:
@@ -456,6 +457,7 @@ def pose_pca(poses: np.ndarray, d, components: int, basis_poses: int = MAX_TRAIN
         components: most principal components.
         basis_poses: the components are those of at most this many evenly spaced poses;
             every pose's coefficients are projections on them (read `_PCA_CHUNK` at a time).
+        progress: called with (chunks read, chunks) as the poses are read.
 
     Returns (x (K,P), mean_x, std_x, mean_d (2n',), basis (C,2n') with orthonormal rows,
     coef (K,C)); C is at most `components` and K' - 1 (K' = min(K, basis_poses)), without
@@ -468,7 +470,13 @@ def pose_pca(poses: np.ndarray, d, components: int, basis_poses: int = MAX_TRAIN
     mean_x, std_x = x.mean(0), x.std(0)
     std_x = np.where(std_x > 1e-12, std_x, 1.0)
     rows = evenly_spaced(k, basis_poses)
-    y = np.asarray(d[rows], dtype=np.float64).reshape(len(rows), -1)
+    chunks = [rows[i:i + _PCA_CHUNK] for i in range(0, len(rows), _PCA_CHUNK)]
+    total = len(chunks) + (0 if len(rows) == k else -(-k // _PCA_CHUNK))
+    y = np.empty((len(rows), int(np.prod(np.shape(d)[1:]))))
+    for i, chunk in enumerate(chunks):
+        y[i * _PCA_CHUNK:i * _PCA_CHUNK + len(chunk)] = np.asarray(d[chunk], dtype=np.float64).reshape(len(chunk), -1)
+        if progress is not None:
+            progress(i + 1, total)
     mean_d = y.mean(0)
     centred = y - mean_d
     del y
@@ -485,6 +493,8 @@ def pose_pca(poses: np.ndarray, d, components: int, basis_poses: int = MAX_TRAIN
         for i0 in range(0, k, _PCA_CHUNK):
             chunk = np.arange(i0, min(i0 + _PCA_CHUNK, k))
             coef[chunk] = (np.asarray(d[chunk], dtype=np.float64).reshape(len(chunk), -1) - mean_d) @ basis.T
+            if progress is not None:
+                progress(len(chunks) + i0 // _PCA_CHUNK + 1, total)
     return x, mean_x, std_x, mean_d, basis, coef
 
 
@@ -542,8 +552,8 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
         iterations: most L-BFGS iterations per component. 40: on the built-in shirt (480
             training poses, camera left) the test poses' displacement error is within 0.01 %
             of that with 60 iterations, and the fit takes a third less time.
-        progress: called with (steps done, steps) as the fit goes: the L-BFGS steps of
-            every component (a stopped component counts as all its steps), then one step per
+        progress: called with (steps done, steps) as the fit goes: the chunks of
+            `_PCA_CHUNK` training poses read (`pose_pca`), the L-BFGS steps of every component (a stopped component counts as all its steps), then one step per
             component for the posterior (two above `inducing` training poses: the
             leave-one-out test on the hyperparameters' poses, then the inducing posterior).
         device: where the likelihoods are evaluated; the model comes back on the CPU.
@@ -553,7 +563,14 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
     """
     if not 1 <= inducing <= MAX_TRAIN:
         raise ValueError(f"inducing must be in 1..{MAX_TRAIN}, got {inducing}")
-    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
+    read = [0]
+
+    def reading(done: int, total: int) -> None:
+        read[0] = total
+        if progress is not None:
+            progress(done, total)
+
+    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components, progress=reading)
     k, p = x.shape
     exact = k <= inducing
     expansion = np.arange(k) if exact else evenly_spaced(k, inducing)
@@ -575,7 +592,7 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
         # evaluation); the posterior conditions on all of them.
         hyper = torch.from_numpy(evenly_spaced(k, HYPER_POSES)).to(device)
         starts = _STARTS if len(hyper) <= MULTI_START_POSES else (_START,)
-        steps = len(basis) * len(starts) * iterations
+        steps = read[0] + len(basis) * len(starts) * iterations
         total = steps + len(basis) * (1 if exact else 2)
         finished = [0]
         lock = threading.Lock()
@@ -590,7 +607,8 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
                 report(steps + finished[0], total)
 
         with torch.no_grad(), _workers(device) as pool:
-            params = _fit_hyperparameters(zt[hyper], yt[:, hyper], iterations, pool, starts, report)
+            params = _fit_hyperparameters(zt[hyper], yt[:, hyper], iterations, pool, starts,
+                                          lambda done, _: report(read[0] + done, total))
             if exact:
                 alpha = _posterior(zt, yt, params, pool, rows_done).cpu()
             else:

@@ -169,7 +169,8 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
         hidden, members: see `MLPConfig`.
         seed: seeds the initialisation and the batch order of every member.
         lr: AdamW learning rate (cosine decay to 5 % over the fit); weight_decay: AdamW's.
-        progress: called with (epochs done, epochs) after every epoch.
+        progress: called with (steps done, steps): the chunks of training poses read
+            (`mvtex.tsnn.gp.pose_pca`), then one step per epoch.
         threads: torch threads of the fit. The steps are small: on a shared 2-core machine
             two threads ran a fit 7 times slower than one (per-operation barriers).
         steps: optimiser steps (None: `STEPS`); at least one epoch, at most `MAX_EPOCHS`.
@@ -180,7 +181,14 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
     """
     from mvtex.tsnn.gp import pose_pca
 
-    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
+    read = [0]
+
+    def reading(done: int, total: int) -> None:
+        read[0] = total
+        if progress is not None:
+            progress(done, total)
+
+    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components, progress=reading)
     k, p = x.shape
     if k < 2:
         raise ValueError(f"an mlp needs at least 2 training poses, got {k}")
@@ -245,7 +253,7 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
             history["train"].append(total / per_epoch * scale ** 2)
             history["val"].append(float(val.mean()) * scale ** 2)
             if progress is not None:
-                progress(epoch, epochs)
+                progress(read[0] + epoch, read[0] + epochs)
     finally:
         torch.set_num_threads(previous)
     with torch.no_grad():

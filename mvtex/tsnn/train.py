@@ -16,6 +16,9 @@ principal components of the camera's d as Gaussian processes of the pose
 of every texel from the sample's camera, which is what lets it serve cameras it never saw.
 `paper` is the paper's pose -> fully connected -> transposed convolutions decoder (one
 camera only).
+`mlp` (one camera) predicts the same principal components as `gp` with an ensemble of
+small MLPs of the pose (`mvtex.tsnn.mlp`): O(K) per epoch, and its members' spread is a
+predictive uncertainty.
 
 A model directory holds:
 
@@ -64,12 +67,13 @@ class TrainOptions:
 
     Attributes:
         arch: "gp" (Gaussian processes of the pose on the principal components of d; one
+            camera), "mlp" (an ensemble of MLPs of the pose on the same components; one
             camera), "unet" (geometry images of X_N + pose, a U-Net; the only one that
             conditions on the camera) or "paper" (pose only; one camera). None: "gp" for
             one camera, "unet" for all cameras. On the built-in garment's test poses `gp` is
             the most accurate at every size measured, 120 to 960 training poses (README,
             benchmarks/tsnn_learning_curve.py).
-        components: principal components of d that `gp` models (each its own GP).
+        components: principal components of d that `gp` (each its own GP) and `mlp` model.
         widths: channels per U-Net level (None: (8, 16, 32, 64)).
         epochs: most passes over the training poses.
         resolution: atlas image size R; None: 64 on CPU, 512 on CUDA. d is smooth over the
@@ -83,7 +87,8 @@ class TrainOptions:
         patience: stop after this many epochs without a better validation loss.
         weight_assigned: loss weight of vertices whose d came from the ray (unassigned,
             extrapolated vertices weigh 1); above 1 favours what the camera sees.
-        width: channels of the first decoder stage of `paper` (None: 256 on CPU and CUDA).
+        width: channels of the first decoder stage of `paper` (None: 256 on CPU and CUDA);
+            hidden units of each layer of an `mlp` member (None: 128).
         min_width: fewest channels of any decoder stage (None: 8 on CPU, 16 on CUDA).
         lr_min_factor: the learning rate decays along a cosine from lr to lr * this factor
             over `epochs` (1.0: constant).
@@ -610,7 +615,7 @@ def _train_mlp(dataset, texcoords, camera: str, split, options: TrainOptions, pr
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
     val = _Data(dataset, texcoords, [camera], split["val"], options.weight_assigned, "cpu")
-    bar = tqdm(desc=f"train {camera} (mlp, {len(train_poses)} poses)", unit="epoch", disable=not progress)
+    bar = tqdm(desc=f"train {camera} (mlp, {len(train_poses)} poses)", unit="step", disable=not progress)
 
     def advance(done: int, total: int) -> None:
         bar.total = total
