@@ -163,19 +163,26 @@ def plot(results: dict, path: Path, title: str) -> None:
         if method == "ts":
             continue
         sizes = sorted(int(k) for k in rows)
-        ax.plot(sizes, [rows[str(s)]["ratio_material"] for s in sizes], "o-", label=LABELS.get(method, method))
-        bx.plot(sizes, [rows[str(s)]["fit_seconds"] for s in sizes], "o-", label=LABELS.get(method, method))
+        label = LABELS.get(method, method).replace("`", "")
+        ax.plot(sizes, [rows[str(s)]["ratio_material"] for s in sizes], "o-", label=label)
+        bx.plot(sizes, [rows[str(s)]["fit_seconds"] for s in sizes], "o-", label=label)
     if "ts" in results:
         ax.axhline(results["ts"]["0"]["ratio_material"], color="gray", linestyle="--", label=LABELS["ts"])
     ax.axhline(4.0, color="red", linestyle=":", label="ratio 4")
+    from matplotlib.ticker import NullFormatter
+
+    ticks = sorted({int(k) for m, rows in results.items() if m != "ts" for k in rows})
     for a in (ax, bx):
         a.set_xscale("log")
+        a.set_xticks(ticks, [str(t) for t in ticks])
+        a.xaxis.set_minor_formatter(NullFormatter())
         a.set_xlabel("training poses")
         a.grid(True, which="both", alpha=0.3)
         a.legend(fontsize=8)
     ax.set_ylabel("material error ratio (test poses)")
+    ax.set_ylim(bottom=1.0)
     bx.set_ylabel("fit time (s, one camera, shared 2-core CPU)")
-    bx.set_yscale("log")
+    bx.set_ylim(bottom=0)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, format="png")
