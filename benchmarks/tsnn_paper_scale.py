@@ -19,7 +19,8 @@ Scored on every `len(test) / TEST` -th test pose (--test-poses, default 200 of t
 poses of an 8,000-pose dataset) and the given cameras; TS (the training target, what a
 perfect model would predict) is scored on the same images. Prints a Markdown table: the
 material error and its ratio, the same-chart ratio, and the fit time (wall clock of the
-training call, this machine, whatever else runs on it) per method and training-set size;
+training call, this machine, whatever else runs on it, with the 1-minute load average at the
+end of the row) per method and training-set size;
 --plot draws ratio and fit time against the training poses.
 """
 
@@ -147,7 +148,8 @@ def main() -> None:
             r = rows.get(str(size)) if method != "ts" else None
             if r:
                 print(f"| {size} | {LABELS.get(method, method)} | {r['material_mm']['texcoords']:.2f} | "
-                      f"{r['ratio_material']:.2f} | {r['ratio_same_chart']:.2f} | {r['fit_seconds']:.0f} s |")
+                      f"{r['ratio_material']:.2f} | {r['ratio_same_chart']:.2f} | {r['fit_seconds']:.0f} s "
+                      f"(load {r.get('load', float('nan')):.0f}) |")
     if args.plot:
         plot(results, args.plot, f"{args.garment}, {args.rig} camera(s) {args.cameras}")
 
