@@ -104,9 +104,9 @@ def fit_pose_gp(poses, d, components=32, iterations=60, progress=None, device="c
 
     from mvtex.tsnn.gp import GPConfig, PoseGP, pose_pca
 
-    x, y, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
+    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
     k, p = x.shape
-    model = PoseGP(GPConfig(pose_dim=p, num_vertices=y.shape[1] // 2, num_train=k, components=len(basis)))
+    model = PoseGP(GPConfig(pose_dim=p, num_vertices=len(mean_d) // 2, num_train=k, components=len(basis)))
     z = torch.from_numpy((x - mean_x) / std_x)
     hyper = None if k <= HYPER_POSES else _evenly_spaced(k, HYPER_POSES)
     with torch.no_grad():

@@ -18,9 +18,10 @@ def register(sub) -> None:
     p.add_argument("--rig", help="rig of the texcoord set's cameras, needed without --cameras (a rig YAML or a "
                    "built-in rig name; default TEXCOORDS/rig.yaml)")
     p.add_argument("--out", type=Path, required=True, help="model directory to write")
-    p.add_argument("--arch", choices=("gp", "unet", "paper"),
+    p.add_argument("--arch", choices=("gp", "mlp", "unet", "paper"),
                    help="gp: Gaussian processes of the pose on the principal components of d, per camera (default "
-                   "with --cameras); unet: geometry images of the inferred mesh + pose, any camera (default without "
+                   "with --cameras); mlp: an ensemble of MLPs from the pose to the principal components of d, per camera; "
+                   "unet: geometry images of the inferred mesh + pose, any camera (default without "
                    "--cameras); paper: the paper's pose-only decoder, per camera")
     p.add_argument("--components", type=int, help="principal components of d that gp models (default 32)")
     p.add_argument("--epochs", type=int, help="most training epochs of unet and paper (default 60)")

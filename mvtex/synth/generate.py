@@ -184,6 +184,8 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out, progress: b
             for row, k in enumerate(range(block.start, block.stop)):
                 signed = distance(inferred[row][first], bodies[row])
                 inside[k], deepest[k] = np.mean(signed < 0.0), max(0.0, -float(signed.min()))
+        bar.update(block.stop - block.start)
+    bar.close()
 
     def rmse(part: list[int]) -> float:
         # As `mesh.rms_distance` over the poses of one split.
@@ -306,6 +308,10 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(),
 
     The statistics are also stored under "stats" in dataset.json, the garment under
     "garment".
+
+    Args:
+        progress: a progress bar on stderr (each pose counted twice: its shapes, then its
+            inferred shape).
 
     Returns:
         A `SynthResult`; its `stats` are those of `synthesize`.

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Callable
 
@@ -63,6 +64,18 @@ import torch
 from torch import nn
 
 MAX_TRAIN = 2000  # training poses an exact GP is fitted on (O(K^3) time, O(K^2) memory)
+
+
+# Above MAX_TRAIN training poses the posterior mean is that of the subset-of-regressors
+# approximation on INDUCING_POSES evenly spaced training poses (O(K M^2) time, O(K M) memory
+# per component): every training pose informs the prediction, and the model keeps the same
+# form (a kernel expansion on M poses).
+INDUCING_POSES = MAX_TRAIN
+
+
+# Training poses of at most this many are read at once when the principal components of d
+# are projected (float64 rows of 2n' values).
+_PCA_CHUNK = 256
 
 
 MAX_COMPONENTS = 256
@@ -116,7 +129,8 @@ class GPConfig:
     Attributes:
         pose_dim: P, length of the pose vector.
         num_vertices: n', vertices the displacements are predicted at.
-        num_train: K, training poses the GP conditions on.
+        num_train: K, poses the posterior mean is expanded on: the training poses (at most
+            `MAX_TRAIN`), or the inducing poses of a fit on more training poses.
         components: C, principal components of d modelled (each by its own GP).
     """
 
@@ -444,7 +458,7 @@ def _start(c: int, p: int, device, start: tuple[float, float, float] = _START) -
 
 def _fit_hyperparameters(z: torch.Tensor, y: torch.Tensor, iterations: int, pool=None,
                          starts: tuple[tuple[float, float, float], ...] = (_START,),
-                         callback: Callable[[int, int], None] | None = None) -> torch.Tensor:
+                         progress: Callable[[int, int], None] | None = None) -> torch.Tensor:
     """Hyperparameter rows (C,P+3) [log ℓ, log s, log σ, log t] of C GPs on poses z (K,P)
     with unit-variance targets y (C,K), by maximum marginal likelihood, all at once (on the
     threads of `pool`, or of its own `_workers`); from each of `starts`, the best kept."""
@@ -455,7 +469,7 @@ def _fit_hyperparameters(z: torch.Tensor, y: torch.Tensor, iterations: int, pool
     x0 = torch.cat([_start(c, p, z.device, start) for start in starts])
     with _workers(z.device) if pool is None else contextlib.nullcontext(pool) as threads:
         result = minimise(_objective(z, y.repeat(len(starts), 1), threads), x0, iterations, lo, hi,
-                          callback=callback)
+                          progress=progress)
     f = torch.where(torch.isfinite(result.f), result.f, torch.inf).reshape(len(starts), c)
     if not bool(torch.isfinite(f).any(0).all()):
         raise ValueError("no Gaussian-process fit: the covariance is singular at the start")
@@ -463,9 +477,10 @@ def _fit_hyperparameters(z: torch.Tensor, y: torch.Tensor, iterations: int, pool
     return result.x.reshape(len(starts), c, -1)[best, torch.arange(c, device=best.device)]
 
 
-def _posterior(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, pool=None) -> torch.Tensor:
+def _posterior(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, pool=None,
+               done: Callable[[int], None] | None = None) -> torch.Tensor:
     """α = A⁻¹y (C,K) of C GPs on every pose; 0 for a component whose leave-one-out error
-    is no better than predicting 0."""
+    is no better than predicting 0. `done(rows)` is called as each part of the rows is done."""
     lo, hi = _bounds(z.shape[1], z.device)
     q = torch.maximum(torch.minimum(params, hi), lo)
 
@@ -476,6 +491,8 @@ def _posterior(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, pool=None
         inverse = torch.cholesky_inverse(chol)
         a = (inverse @ y[part, :, None])[:, :, 0]
         useless = ~(loo_residuals(inverse, y[part]).square().mean(1) < y[part].square().mean(1))
+        if done is not None:
+            done(part.stop - part.start)
         return torch.where(useless[:, None], torch.zeros_like(a), a)
 
     with _workers(z.device) if pool is None else contextlib.nullcontext(pool) as threads:
@@ -487,57 +504,156 @@ def evenly_spaced(k: int, count: int) -> np.ndarray:
     return np.arange(k) if count >= k else np.unique(np.linspace(0, k - 1, count).round().astype(int))
 
 
-def pose_pca(poses: np.ndarray, d: np.ndarray, components: int):
+def pose_pca(poses: np.ndarray, d, components: int, basis_poses: int = MAX_TRAIN,
+             progress: Callable[[int, int], None] | None = None):
     """The principal components of d that a `PoseGP` models, and the pose standardisation.
 
-    Returns (x (K,P), y (K,2n'), mean_x, std_x, mean_d, basis (C,2n') with orthonormal
-    rows, coef (K,C)); C is at most `components` and K - 1, without null directions.
+    Args:
+        poses: (K,P) pose vectors.
+        d: (K,n',2) displacements: an array, or anything that `d[rows]` (rows: an int64
+            index array) reads rows of, so a large training set is never held whole.
+        components: most principal components.
+        basis_poses: the components are those of at most this many evenly spaced poses;
+            every pose's coefficients are projections on them (read `_PCA_CHUNK` at a time).
+        progress: called with (chunks read, chunks) as the poses are read.
+
+    Returns (x (K,P), mean_x, std_x, mean_d (2n',), basis (C,2n') with orthonormal rows,
+    coef (K,C)); C is at most `components` and K' - 1 (K' = min(K, basis_poses)), without
+    null directions.
     """
     x = np.asarray(poses, dtype=np.float64)
-    y = np.asarray(d, dtype=np.float64).reshape(len(d), -1)
     k = len(x)
-    if x.ndim != 2 or len(y) != k or k < 1:
+    if x.ndim != 2 or len(d) != k or k < 1 or len(np.shape(d)) != 3:
         raise ValueError(f"expected poses (K,P) and d (K,n',2) with K >= 1, got {x.shape} and {np.shape(d)}")
     mean_x, std_x = x.mean(0), x.std(0)
     std_x = np.where(std_x > 1e-12, std_x, 1.0)
+    rows = evenly_spaced(k, basis_poses)
+    chunks = [rows[i:i + _PCA_CHUNK] for i in range(0, len(rows), _PCA_CHUNK)]
+    total = len(chunks) + (0 if len(rows) == k else -(-k // _PCA_CHUNK))
+    y = np.empty((len(rows), int(np.prod(np.shape(d)[1:]))))
+    for i, chunk in enumerate(chunks):
+        y[i * _PCA_CHUNK:i * _PCA_CHUNK + len(chunk)] = np.asarray(d[chunk], dtype=np.float64).reshape(len(chunk), -1)
+        if progress is not None:
+            progress(i + 1, total)
     mean_d = y.mean(0)
     centred = y - mean_d
-    # PCA through the (K,K) Gram matrix: K is small, 2n' is not.
+    del y
+    # PCA through the (K',K') Gram matrix: K' is small, 2n' is not.
     eigval, eigvec = np.linalg.eigh(centred @ centred.T)
-    order = np.argsort(eigval)[::-1][: max(0, min(components, k - 1))]
+    order = np.argsort(eigval)[::-1][: max(0, min(components, len(rows) - 1))]
     order = order[eigval[order] > 1e-12 * max(float(eigval.max(initial=0.0)), 1e-300)]
     basis = (eigvec[:, order].T @ centred) / np.sqrt(eigval[order])[:, None]
-    return x, y, mean_x, std_x, mean_d, basis, centred @ basis.T
+    if len(rows) == k:
+        coef = centred @ basis.T
+    else:
+        del centred
+        coef = np.empty((k, len(basis)))
+        for i0 in range(0, k, _PCA_CHUNK):
+            chunk = np.arange(i0, min(i0 + _PCA_CHUNK, k))
+            coef[chunk] = (np.asarray(d[chunk], dtype=np.float64).reshape(len(chunk), -1) - mean_d) @ basis.T
+            if progress is not None:
+                progress(len(chunks) + i0 // _PCA_CHUNK + 1, total)
+    return x, mean_x, std_x, mean_d, basis, coef
 
 
-def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iterations: int = 40,
-                progress: Callable[[int, int], None] | None = None, device: str | torch.device = "cpu") -> PoseGP:
+def _residual_var(d, mean_d: np.ndarray, basis: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """Per coordinate (2n',), the mean square over the training poses of what the principal
+    components leave of d (the PCA truncation residual), read `_PCA_CHUNK` poses at a time."""
+    k = len(coef)
+    total = np.zeros(len(mean_d))
+    for i0 in range(0, k, _PCA_CHUNK):
+        chunk = np.arange(i0, min(i0 + _PCA_CHUNK, k))
+        rows = np.asarray(d[chunk], dtype=np.float64).reshape(len(chunk), -1) - mean_d
+        total += ((rows - coef[chunk] @ basis) ** 2).sum(0)
+    return total / max(k, 1)
+
+
+def _inducing_alpha(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, inducing: torch.Tensor,
+                    pool=None, done: Callable[[int], None] | None = None) -> torch.Tensor:
+    """Subset-of-regressors posterior mean weights (C,M) of C GPs on all K poses z (K,P),
+    expanded on the M poses z[inducing]: α = (σ² K_mm + K_mk K_km)⁻¹ K_mk y (Rasmussen &
+    Williams, eq. 8.14), computed stably as L⁻ᵀ (σ²I + AAᵀ)⁻¹ A y with K_mm = LLᵀ and
+    A = L⁻¹ K_mk. The prediction k(θ, Z_m) α is then the exact GP's when M = K.
+    `done(rows)` is called as each part of the rows is done."""
+    lo, hi = _bounds(z.shape[1], z.device)
+    q = torch.maximum(torch.minimum(params, hi), lo)
+    p = z.shape[1]
+    zm = z[inducing]
+    m = len(zm)
+
+    def part_alpha(part: slice) -> torch.Tensor:
+        rows = q[part]
+        kmm = kernel_matrix(zm, zm, rows[:, :p], rows[:, p], rows[:, p + 2])
+        eye = torch.eye(m, dtype=z.dtype, device=z.device)
+        jitter = 1e-8 * kmm.diagonal(dim1=1, dim2=2).mean(1)
+        for _ in range(6):
+            chol, info = torch.linalg.cholesky_ex(kmm + jitter[:, None, None] * eye)
+            if not bool((info != 0).any()):
+                break
+            jitter = jitter * 100
+        else:
+            raise ValueError("no Gaussian-process fit: the covariance of the inducing poses is singular")
+        del kmm
+        a = torch.linalg.solve_triangular(chol, kernel_matrix(zm, z, rows[:, :p], rows[:, p], rows[:, p + 2]),
+                                          upper=False)  # (R,M,K)
+        noise = torch.exp(2 * rows[:, p + 1]) + _NOISE_FLOOR
+        b = a @ a.transpose(1, 2) + noise[:, None, None] * eye
+        c = torch.cholesky_solve((a @ y[part, :, None]), torch.linalg.cholesky(b))
+        if done is not None:
+            done(part.stop - part.start)
+        return torch.linalg.solve_triangular(chol.transpose(1, 2), c, upper=True)[:, :, 0]
+
+    size = max(1, min(_PART_ROWS, _PART_ELEMENTS // (m * len(z))))
+    parts = [slice(i, min(i + size, len(y))) for i in range(0, len(y), size)]
+    with _workers(z.device) if pool is None else contextlib.nullcontext(pool) as threads:
+        return torch.cat(_map(threads, part_alpha, parts))
+
+
+def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40,
+                progress: Callable[[int, int], None] | None = None, device: str | torch.device = "cpu",
+                inducing: int = INDUCING_POSES) -> PoseGP:
     """Fit a `PoseGP` to training displacements.
 
     Args:
-        poses: (K,P) training pose vectors; K at most `MAX_TRAIN` (the caller subsamples).
-        d: (K,n',2) their displacements.
+        poses: (K,P) training pose vectors.
+        d: (K,n',2) their displacements, an array or anything `d[rows]` reads rows of
+            (`pose_pca`).
         components: principal components modelled (fewer when K - 1 is smaller).
         iterations: most L-BFGS iterations per component. 40: on the built-in shirt (480
             training poses, camera left) the test poses' displacement error is within 0.01 %
             of that with 60 iterations, and the fit takes a third less time.
-        progress: called with (work done, work) as the fit proceeds: the L-BFGS steps of
-            every component's likelihood fit (`lbfgs.minimise`'s callback), then one for
-            the posterior; (work, work) when the fit is done.
+        progress: called with (steps done, steps) as the fit goes: the chunks of
+            `_PCA_CHUNK` training poses read (`pose_pca`), the L-BFGS steps of every component (a stopped component counts as all its steps), then one step per
+            component for the posterior (two above `inducing` training poses: the
+            leave-one-out test on the hyperparameters' poses, then the inducing posterior).
         device: where the likelihoods are evaluated; the model comes back on the CPU.
+        inducing: above this many training poses (at most `MAX_TRAIN`), the posterior mean
+            is the subset-of-regressors one on this many evenly spaced training poses;
+            up to it, the exact one on every training pose.
     """
-    x, y, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
+    if not 1 <= inducing <= MAX_TRAIN:
+        raise ValueError(f"inducing must be in 1..{MAX_TRAIN}, got {inducing}")
+    read = [0]
+
+    def reading(done: int, total: int) -> None:
+        read[0] = total
+        if progress is not None:
+            progress(done, total)
+
+    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components, progress=reading)
     k, p = x.shape
-    config = GPConfig(pose_dim=p, num_vertices=y.shape[1] // 2, num_train=k, components=len(basis))
-    model = PoseGP(config)
+    exact = k <= inducing
+    expansion = np.arange(k) if exact else evenly_spaced(k, inducing)
     z = (x - mean_x) / std_x
+    config = GPConfig(pose_dim=p, num_vertices=len(mean_d) // 2, num_train=len(expansion), components=len(basis))
+    model = PoseGP(config)
     with torch.no_grad():
         model.pose_mean.copy_(torch.from_numpy(mean_x))
         model.pose_std.copy_(torch.from_numpy(std_x))
-        model.inputs.copy_(torch.from_numpy(z))
+        model.inputs.copy_(torch.from_numpy(z[expansion]))
         model.basis.copy_(torch.from_numpy(basis))
         model.mean.copy_(torch.from_numpy(mean_d))
-    work = 1  # progress units: L-BFGS row steps of the likelihood fits, and the posterior
+        model.residual_var.copy_(torch.from_numpy(_residual_var(d, mean_d, basis, coef)))
     if len(basis):
         scale = coef.std(0)
         scale = np.where(scale > 0, scale, 1.0)  # each GP fits unit-variance targets
@@ -546,16 +662,32 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iteratio
         # Hyperparameters from at most HYPER_POSES evenly spaced poses (O(K^3) per likelihood
         # evaluation); the posterior conditions on all of them.
         hyper = torch.from_numpy(evenly_spaced(k, HYPER_POSES)).to(device)
+        starts = _STARTS if len(hyper) <= MULTI_START_POSES else (_START,)
+        steps = read[0] + len(basis) * len(starts) * iterations
+        total = steps + len(basis) * (1 if exact else 2)
+        finished = [0]
+        lock = threading.Lock()
+
+        def report(done: int, _: int) -> None:
+            if progress is not None:
+                progress(done, total)
+
+        def rows_done(rows: int) -> None:  # from the worker threads
+            with lock:
+                finished[0] += rows
+                report(steps + finished[0], total)
+
         with torch.no_grad(), _workers(device) as pool:
-            starts = _STARTS if len(hyper) <= MULTI_START_POSES else (_START,)
-            work = len(starts) * len(basis) * max(iterations, 0) + 1
-
-            def steps(done: int, total: int) -> None:
-                if progress is not None:
-                    progress(min(done, work - 1), work)
-
-            params = _fit_hyperparameters(zt[hyper], yt[:, hyper], iterations, pool, starts, callback=steps)
-            alpha = _posterior(zt, yt, params, pool).cpu()
+            params = _fit_hyperparameters(zt[hyper], yt[:, hyper], iterations, pool, starts,
+                                          lambda done, _: report(read[0] + done, total))
+            if exact:
+                alpha = _posterior(zt, yt, params, pool, rows_done).cpu()
+            else:
+                # A component is kept if its leave-one-out error on the hyperparameters' poses
+                # beats predicting 0 (the exact test, as below MAX_TRAIN).
+                useful = _posterior(zt[hyper], yt[:, hyper], params, pool, rows_done).abs().sum(1) > 0
+                alpha = _inducing_alpha(zt, yt, params, torch.from_numpy(expansion).to(device), pool, rows_done)
+                alpha = torch.where(useful[:, None], alpha, torch.zeros_like(alpha)).cpu()
             lo, hi = _bounds(p, "cpu")
             params = torch.maximum(torch.minimum(params.cpu(), hi), lo)
             log_scale = torch.from_numpy(np.log(scale))
@@ -565,10 +697,8 @@ def fit_pose_gp(poses: np.ndarray, d: np.ndarray, components: int = 32, iteratio
             model.alpha.copy_((alpha / torch.from_numpy(scale)[:, None]).T)  # ...and α / scale: k α = scale k̃ α̃
             noise = torch.exp(2 * params[:, p + 1]) + _NOISE_FLOOR  # the variance the posterior used
             model.log_noise.copy_(0.5 * torch.log(noise) + log_scale)
-    with torch.no_grad():
-        residual = (y - mean_d) - coef @ basis
-        model.residual_var.copy_(torch.from_numpy(np.mean(residual ** 2, axis=0)))
-    if progress is not None:
-        progress(work, work)
+        report(total, total)
+    elif progress is not None:
+        progress(0, 0)
     model.eval()
     return model

@@ -63,7 +63,7 @@ def _direction(g: torch.Tensor, s: torch.Tensor, y: torch.Tensor, rho: torch.Ten
 def minimise(objective: Objective, x0: torch.Tensor, iterations: int, lower: torch.Tensor | None = None,
              upper: torch.Tensor | None = None, history: int = 20, tolerance_grad: float = 1e-7,
              tolerance_change: float = 1e-10, max_backtracks: int = 20,
-             callback: Callable[[int, int], None] | None = None) -> Result:
+             progress: Callable[[int, int], None] | None = None) -> Result:
     """Minimise B independent objectives with one L-BFGS each, evaluated together.
 
     Bounds are kept by projection: a coordinate at a bound whose gradient points outwards
@@ -82,9 +82,9 @@ def minimise(objective: Objective, x0: torch.Tensor, iterations: int, lower: tor
         iterations: most accepted steps per row.
         lower, upper: (n,) bounds (±inf for none); None: unbounded.
         history: L-BFGS memory (pairs of steps and gradient changes kept).
-        callback: called after each round of trial points with (work done, work) in row
-            steps: accepted steps of the running rows plus `iterations` for each finished
-            row, out of B * iterations (for a progress bar; never decreases).
+        progress: called after every round of trial points with (steps done, B *
+            iterations), where a row that has stopped counts as all its steps done; it
+            reaches B * iterations when every row has stopped.
 
     Returns:
         `Result`.
@@ -111,12 +111,13 @@ def minimise(objective: Objective, x0: torch.Tensor, iterations: int, lower: tor
     d = -free(x, g)
     active = torch.isfinite(f) & (d.abs().amax(1) > tolerance_grad) & (iterations > 0)
     t = torch.clamp(1.0 / d.abs().sum(1).clamp_min(1e-300), max=1.0)  # first step: a unit change at most
-    total = b * max(int(iterations), 0)
 
     def report() -> None:
-        if callback is not None:
-            callback(int(torch.where(active, done, torch.full_like(done, iterations)).sum()), total)
+        if progress is not None:
+            steps = torch.where(active, done, torch.full_like(done, iterations))
+            progress(int(steps.clamp_max(iterations).sum()), b * iterations)
 
+    report()
     while bool(active.any()):
         report()
         idx = active.nonzero()[:, 0]
@@ -140,6 +141,7 @@ def minimise(objective: Objective, x0: torch.Tensor, iterations: int, lower: tor
             active[r[(backtracks[r] > max_backtracks) | ~(decrease[~accept] < 0)]] = False
         a = idx[accept]
         if not len(a):
+            report()
             continue
         step = step[accept]
         change = g_trial[accept] - g[a]
@@ -163,5 +165,5 @@ def minimise(objective: Objective, x0: torch.Tensor, iterations: int, lower: tor
             d[uphill] = -free(x[uphill], g[uphill])
         t[a] = torch.where(rho[a, -1] > 0, torch.ones_like(t[a]),
                            torch.clamp(1.0 / d[a].abs().sum(1).clamp_min(1e-300), max=1.0))
-    report()
+        report()
     return Result(x=x, f=f, iterations=done, evaluations=evaluations)

@@ -332,4 +332,8 @@ def build_network(arch: dict[str, Any]) -> nn.Module:
         from mvtex.tsnn.gp import GPConfig, PoseGP
 
         return PoseGP(GPConfig.from_dict(arch))
-    raise ValueError(f"unknown arch {kind!r} (paper, unet or gp)")
+    if kind == "mlp":
+        from mvtex.tsnn.mlp import MLPConfig, PoseMLP
+
+        return PoseMLP(MLPConfig.from_dict(arch))
+    raise ValueError(f"unknown arch {kind!r} (paper, unet, gp or mlp)")

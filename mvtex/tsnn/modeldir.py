@@ -176,4 +176,5 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
         else:
             _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
                        f"TSNN {meta['architecture']['arch']} {meta['camera'] or 'all cameras'} "
-                       f"({meta['architecture']['resolution']}², best epoch {meta['best_epoch']})")
+                       + (f"({meta['architecture']['resolution']}², " if "resolution" in meta["architecture"] else "(")
+                       + f"best epoch {meta['best_epoch']})")

@@ -16,6 +16,9 @@ principal components of the camera's d as Gaussian processes of the pose
 of every texel from the sample's camera, which is what lets it serve cameras it never saw.
 `paper` is the paper's pose -> fully connected -> transposed convolutions decoder (one
 camera only).
+`mlp` (one camera) predicts the same principal components as `gp` with an ensemble of
+small MLPs of the pose (`mvtex.tsnn.mlp`): O(K) per epoch, and its members' spread is a
+predictive uncertainty.
 
 A model directory holds:
 
@@ -47,7 +50,7 @@ from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _writ
 from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 
-ARCHS = ("gp", "unet", "paper")
+ARCHS = ("gp", "mlp", "unet", "paper")
 
 
 MAX_RESOLUTION = 2048  # atlas image size: 2·R² floats per pose and per batch item
@@ -66,12 +69,13 @@ class TrainOptions:
 
     Attributes:
         arch: "gp" (Gaussian processes of the pose on the principal components of d; one
+            camera), "mlp" (an ensemble of MLPs of the pose on the same components; one
             camera), "unet" (geometry images of X_N + pose, a U-Net; the only one that
             conditions on the camera) or "paper" (pose only; one camera). None: "gp" for
             one camera, "unet" for all cameras. On the built-in garment's test poses `gp` is
             the most accurate at every size measured, 120 to 960 training poses (README,
             benchmarks/tsnn_learning_curve.py).
-        components: principal components of d that `gp` models (each its own GP).
+        components: principal components of d that `gp` (each its own GP) and `mlp` model.
         widths: channels per U-Net level (None: (8, 16, 32, 64)).
         epochs: most passes over the training poses.
         resolution: atlas image size R; None: 64 on CPU, 512 on CUDA. d is smooth over the
@@ -85,7 +89,8 @@ class TrainOptions:
         patience: stop after this many epochs without a better validation loss.
         weight_assigned: loss weight of vertices whose d came from the ray (unassigned,
             extrapolated vertices weigh 1); above 1 favours what the camera sees.
-        width: channels of the first decoder stage of `paper` (None: 256 on CPU and CUDA).
+        width: channels of the first decoder stage of `paper` (None: 256 on CPU and CUDA);
+            hidden units of each layer of an `mlp` member (None: 128).
         min_width: fewest channels of any decoder stage (None: 8 on CPU, 16 on CUDA).
         lr_min_factor: the learning rate decays along a cosine from lr to lr * this factor
             over `epochs` (1.0: constant).
@@ -96,6 +101,8 @@ class TrainOptions:
         dropout: dropout probability on the pose embedding (the first stage's input; 0: off).
         deterministic: use deterministic algorithms (always on CPU; on CUDA the bilinear
             sampling backward has no deterministic kernel, so it is off there by default).
+        members: networks of an `mlp` ensemble (its hidden layers have `width` units, its
+            outputs are `components` principal components of d).
     """
 
     arch: str | None = None
@@ -117,6 +124,7 @@ class TrainOptions:
     weight_decay: float = 0.0
     pose_noise: float = 0.0
     dropout: float = 0.0
+    members: int = 5
 
     def __post_init__(self) -> None:
         check_field_types(self)
@@ -142,7 +150,7 @@ class TrainOptions:
                        resolution=given(self.resolution, (512 if self.arch == "paper" else 256) if gpu else 64),
                        widths=tuple(self.widths) if self.widths else (8, 16, 32, 64),
                        batch_size=given(self.batch_size, 16 if self.arch == "paper" else 8),
-                       width=given(self.width, 256),
+                       width=given(self.width, 128 if self.arch == "mlp" else 256),
                        min_width=given(self.min_width, 16 if gpu else 8),
                        deterministic=(not gpu) if self.deterministic is None else self.deterministic)
 
@@ -163,6 +171,8 @@ class TrainOptions:
                 raise OptionError(f"{name} must be at least 1, got {getattr(self, name)}")
         if not self.lr > 0 or not 0 < self.lr_min_factor <= 1 or not self.weight_assigned > 0 or self.weight_decay < 0:
             raise OptionError("lr and weight_assigned must be positive, weight_decay >= 0, lr_min_factor in (0, 1]")
+        if not 1 <= self.members <= 32:
+            raise OptionError(f"members must be in 1..32, got {self.members}")
         if self.pose_noise < 0 or not 0 <= self.dropout < 1:
             raise OptionError("pose_noise must be >= 0 and dropout in [0, 1)")
 
@@ -368,7 +378,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
                              f"(it has {', '.join(texcoords.cameras)})")
         cameras = [camera]
     else:
-        if options.arch in ("paper", "gp"):
+        if options.arch in ("paper", "gp", "mlp"):
             raise OptionError(f"arch {options.arch} maps the pose alone: train it per camera (give a camera name)")
         if rig is None:
             raise OptionError("rig: a network for every camera needs the rig the texcoord set was made with")
@@ -400,6 +410,8 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             torch.manual_seed(options.seed)
             if options.arch == "gp":
                 result = _train_gp(dataset, texcoords, cameras[0], split, options, device, progress)
+            elif options.arch == "mlp":
+                result = _train_mlp(dataset, texcoords, cameras[0], split, options, progress)
             else:
                 result = _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options, device,
                                 progress)
@@ -563,20 +575,37 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
     return model.cpu(), config, history, best[1], losses
 
 
+class _Rows:
+    """One camera's displacements of some poses, read `d[rows]` at a time from the texcoord
+    set: (len(rows), n', 2) float32. Lets `gp` fit thousands of training poses without
+    holding their d whole."""
+
+    def __init__(self, texcoords, camera: str, poses: list[int]):
+        self.texcoords, self.camera, self.poses = texcoords, camera, poses
+        self.shape = (len(poses), len(texcoords.uv), 2)
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def __getitem__(self, rows) -> np.ndarray:
+        out = np.stack([self.texcoords.displacement(self.camera, self.poses[int(r)]) for r in np.atleast_1d(rows)])
+        if not np.all(np.isfinite(out)):
+            raise InputError(self.texcoords.path / self.camera / "displacement.npy", "NaN or infinite displacements")
+        return out
+
+
 def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, device, progress):
     """`gp`: fit the Gaussian processes of one camera (float64, on `device`; the model comes
-    back on the CPU); `_train`'s results."""
+    back on the CPU); `_train`'s results. Every training pose is used (above `MAX_TRAIN`
+    by the inducing-pose posterior); the training losses are those of at most `MAX_TRAIN`
+    evenly spaced training poses."""
     from tqdm import tqdm
 
     from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced, fit_pose_gp
 
-    split = dict(split)
-    # An exact GP is O(K^3): at most MAX_TRAIN evenly spaced training poses.
-    split["train"] = [split["train"][i] for i in evenly_spaced(len(split["train"]), MAX_TRAIN)]
-    data = {k: _Data(dataset, texcoords, [camera], split[k], options.weight_assigned, "cpu") for k in split}
-    train = data["train"]
-    # The bar counts L-BFGS steps of the components' likelihood fits (all fitted together).
-    bar = tqdm(desc=f"train {camera} (gp, {options.components} components)", unit="step", disable=not progress,
+    train_poses = split["train"]
+    pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
+    bar = tqdm(desc=f"train {camera} (gp, {len(train_poses)} poses)", unit="step", disable=not progress,
                file=sys.stderr)
 
     def advance(done: int, total: int) -> None:
@@ -585,12 +614,48 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, dev
             bar.refresh()
         bar.update(done - bar.n)
 
-    model = fit_pose_gp(train.x.numpy(), train.d_numpy, components=options.components, progress=advance,
-                        device=device)
+    model = fit_pose_gp(pose_vectors, _Rows(texcoords, camera, train_poses), components=options.components,
+                        progress=advance, device=device)
     bar.close()
+    scored = dict(split, train=[train_poses[i] for i in evenly_spaced(len(train_poses), MAX_TRAIN)])
+    data = {k: _Data(dataset, texcoords, [camera], scored[k], options.weight_assigned, "cpu") for k in scored}
 
     def vertices(data: _Data, idx):
         return model(data.x[idx])
 
     losses = {k: _evaluate(vertices, v, 256) for k, v in data.items() if len(v)}
     return model, model.config, {"train": [], "val": []}, 0, losses
+
+
+def _train_mlp(dataset, texcoords, camera: str, split, options: TrainOptions, progress):
+    """`mlp`: fit an ensemble of MLPs on the principal components of one camera's d (on the
+    CPU, float32), each member's epoch chosen on the validation poses; `_train`'s results.
+    The training losses are those of at most `MAX_TRAIN` evenly spaced training poses."""
+    from tqdm import tqdm
+
+    from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced
+    from mvtex.tsnn.mlp import fit_pose_mlp
+
+    train_poses = split["train"]
+    pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
+    val = _Data(dataset, texcoords, [camera], split["val"], options.weight_assigned, "cpu")
+    bar = tqdm(desc=f"train {camera} (mlp, {len(train_poses)} poses)", unit="step", disable=not progress)
+
+    def advance(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    model, history = fit_pose_mlp(pose_vectors, _Rows(texcoords, camera, train_poses), val.x.numpy(), val.d_numpy,
+                                  components=options.components, hidden=options.width, members=options.members,
+                                  seed=options.seed, lr=options.lr, progress=advance)
+    bar.close()
+    scored = dict(split, train=[train_poses[i] for i in evenly_spaced(len(train_poses), MAX_TRAIN)])
+    data = {k: (val if k == "val" else _Data(dataset, texcoords, [camera], scored[k], options.weight_assigned, "cpu"))
+            for k in scored}
+
+    def vertices(data: _Data, idx):
+        return model(data.x[idx])
+
+    losses = {k: _evaluate(vertices, v, 256) for k, v in data.items() if len(v)}
+    best = history.pop("best_epoch")
+    return model, model.config, history, max(best), losses

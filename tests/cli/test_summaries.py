@@ -94,7 +94,7 @@ def test_progress_reaches_stderr_and_quiet_silences_it(tmp_path, capsys):
     assert code == 0 and "synth skirt" not in err
 
 
-def test_lbfgs_callback_counts_steps_to_the_end():
+def test_lbfgs_progress_counts_steps_to_the_end():
     torch = pytest.importorskip("torch")
     from mvtex.tsnn.lbfgs import minimise
 
@@ -105,6 +105,6 @@ def test_lbfgs_callback_counts_steps_to_the_end():
         return (diff ** 2).sum(1), 2 * diff
 
     calls = []
-    minimise(objective, torch.zeros(3, 2, dtype=torch.float64), 10, callback=lambda d, t: calls.append((d, t)))
+    minimise(objective, torch.zeros(3, 2, dtype=torch.float64), 10, progress=lambda d, t: calls.append((d, t)))
     done = [d for d, _ in calls]
     assert done == sorted(done) and calls[-1] == (30, 30) and len(calls) > 1

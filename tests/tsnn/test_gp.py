@@ -249,3 +249,57 @@ def test_predictive_std_is_calibrated_on_held_out_poses(problem):
     std = model.predictive_std(torch.from_numpy(zz[100:])).numpy()
     err2 = ((pred - d[100:]) ** 2).sum(-1)
     assert 0.5 < np.mean(err2) / np.mean(std ** 2) < 2.0
+
+
+def test_inducing_posterior_against_the_closed_form_and_the_exact_gp():
+    """The subset-of-regressors weights against NumPy's solve of (σ²K_mm + K_mk K_km) α =
+    K_mk y (R&W eq. 8.14) with the kernel written out; with every pose inducing, its
+    prediction is the exact GP's posterior mean k(θ,Θ)(K + σ²I)⁻¹y."""
+    import mvtex.tsnn.gp as G
+
+    rng = np.random.default_rng(3)
+    z, y = rng.normal(size=(50, 3)), rng.normal(size=(2, 50))
+    params = np.array([[0.2, 0.4, 0.1, 0.0, math.log(0.3), -1.0], [0.5, 0.0, 0.3, -0.2, math.log(0.5), -2.0]])
+    inducing = np.arange(0, 50, 3)
+    alpha = G._inducing_alpha(torch.from_numpy(z), torch.from_numpy(y), torch.from_numpy(params),
+                              torch.from_numpy(inducing)).numpy()
+    z_test = rng.normal(size=(20, 3))
+    for c, row in enumerate(params):
+        noise = np.exp(2 * row[4]) + 1e-6
+        kmk = numpy_kernel(z[inducing], z, row[:3], row[3], row[5])
+        kmm = numpy_kernel(z[inducing], z[inducing], row[:3], row[3], row[5])
+        expected = np.linalg.solve(noise * kmm + kmk @ kmk.T, kmk @ y[c])
+        k_test = numpy_kernel(z_test, z[inducing], row[:3], row[3], row[5])
+        np.testing.assert_allclose(k_test @ alpha[c], k_test @ expected, rtol=0, atol=1e-5)
+    every = G._inducing_alpha(torch.from_numpy(z), torch.from_numpy(y), torch.from_numpy(params),
+                              torch.arange(50)).numpy()
+    for c, row in enumerate(params):
+        a = numpy_kernel(z, z, row[:3], row[3], row[5]) + (np.exp(2 * row[4]) + 1e-6) * np.eye(50)
+        k_test = numpy_kernel(z_test, z, row[:3], row[3], row[5])
+        np.testing.assert_allclose(k_test @ every[c], k_test @ np.linalg.solve(a, y[c]), rtol=0, atol=1e-5)
+
+
+def test_fit_above_the_exact_limit_uses_every_pose_and_reports_progress():
+    """With fewer inducing poses than training poses the model is a kernel expansion on the
+    evenly spaced inducing poses, closer to the noise-free truth on held-out poses than the
+    exact GP fitted on those poses alone; the progress callback moves and ends at its total."""
+    import mvtex.tsnn.gp as G
+
+    rng = np.random.default_rng(4)
+    big = rng.uniform(-2, 2, (240, 3))
+    targets = np.stack([f(big) for f in TRUTHS]) + 0.01 * rng.normal(size=(3, 240))
+    d = np.stack([targets.T, 0.5 * targets.T], -1)  # (K, n'=3, 2): each vertex one truth
+    calls = []
+    model = G.fit_pose_gp(big, d, components=3, iterations=15, inducing=60,
+                          progress=lambda done, total: calls.append((done, total)))
+    assert model.config.num_train == 60
+    np.testing.assert_allclose(model.inputs.numpy(), ((big - big.mean(0)) / big.std(0))[G.evenly_spaced(240, 60)])
+    assert len(calls) > 3 and calls[-1][0] == calls[-1][1] > 0
+    assert all(b[0] >= a[0] for a, b in zip(calls, calls[1:]))
+    subset = G.fit_pose_gp(big[G.evenly_spaced(240, 60)], d[G.evenly_spaced(240, 60)], components=3, iterations=15)
+    test_poses = rng.uniform(-1.8, 1.8, (200, 3))
+    true_d = np.stack([np.stack([f(test_poses) for f in TRUTHS]).T, 0.5 * np.stack([f(test_poses) for f in TRUTHS]).T], -1)
+    with torch.no_grad():
+        err_all = float(((model(torch.from_numpy(test_poses)).numpy() - true_d) ** 2).mean())
+        err_subset = float(((subset(torch.from_numpy(test_poses)).numpy() - true_d) ** 2).mean())
+    assert err_all < 0.8 * err_subset

@@ -665,3 +665,29 @@ def test_several_camera_train_keeps_finished_models_on_a_rerun(rig_data, tmp_pat
     del d
     assert main([*base, "--components", "3"]) == 0
     assert json.loads(capsys.readouterr().out)["kept"] == ["c"]
+
+
+def test_mlp_learns_the_field_through_train_and_predict(field_data, tmp_path, monkeypatch):
+    """`--arch mlp` through `train` and `predict`: held-out poses against the closed-form
+    field, a loss plot, config.json's architecture, and every member's chosen epoch within
+    the epochs run."""
+    import mvtex.tsnn.mlp as M
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.tsnn.predict import load_model, predict, predict_displacements
+    from mvtex.tsnn.train import TrainOptions, train_camera
+
+    monkeypatch.setattr(M, "STEPS", 600)
+    dataset, tc, _ = field_data
+    result = train_camera(dataset, tc, "cam", tmp_path / "m", TrainOptions(arch="mlp", components=8, members=3),
+                          progress=False)
+    config = json.loads((tmp_path / "m" / "config.json").read_text())
+    assert result.arch == "mlp" and config["architecture"]["arch"] == "mlp"
+    assert config["architecture"]["members"] == 3 and (tmp_path / "m" / "loss.png").stat().st_size > 1000
+    assert 1 <= config["best_epoch"] <= config["epochs_run"]
+    test = dataset.split["test"]
+    pred = predict_displacements(load_model(tmp_path / "m"), dataset.poses[test], tc.uv)
+    truth = np.stack([displacement_field(dataset.poses[p], tc.uv) for p in test])
+    mean_train = np.mean([tc.displacement("cam", p) for p in dataset.split["train"]], 0)
+    assert np.mean(np.sum((pred - truth) ** 2, -1)) < 0.3 * np.mean(np.sum((truth - mean_train) ** 2, -1))
+    out = predict(dataset, [tmp_path / "m"], tmp_path / "pred", poses=test, progress=False)
+    assert np.array_equal(open_texcoords(out, dataset.num_vertices).displacement("cam", test[0]), pred[0])
