@@ -33,7 +33,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 LABELS = {"gp": "`gp`", "mlp": "`mlp` (5 members)", "ts": "TS + 1 (the target)"}
 
@@ -136,7 +135,7 @@ def main() -> None:
             for size, row in rows.items():
                 results.setdefault(method, {}).setdefault(size, row)
     ts = results.get("ts", {}).get("0")
-    print(f"| training poses | method | material error (mm) | material ratio | same-chart ratio | fit time |")
+    print("| training poses | method | material error (mm) | material ratio | same-chart ratio | fit time |")
     print("|---|---|---|---|---|---|")
     if ts:
         print(f"| | inferred (baseline) | {ts['material_mm']['inferred']:.2f} | 1 | 1 | |")
