@@ -173,7 +173,6 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out, progress: b
         block = slice(lo, min(lo + _CHUNK, options.num_poses))
         inferred = predictor.predict(poses[block])
         inferred_out[block] = inferred
-        bar.update(block.stop - block.start)
         gt = np.asarray(gt_out[block])
         strain_gt[block] = np.abs(edge_strain(gt, garment.rest, edge_list)).sum(axis=1)
         strain_inferred[block] = np.abs(edge_strain(inferred, garment.rest, edge_list)).sum(axis=1)
@@ -185,7 +184,6 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out, progress: b
                 signed = distance(inferred[row][first], bodies[row])
                 inside[k], deepest[k] = np.mean(signed < 0.0), max(0.0, -float(signed.min()))
         bar.update(block.stop - block.start)
-    bar.close()
 
     def rmse(part: list[int]) -> float:
         # As `mesh.rms_distance` over the poses of one split.
