@@ -61,14 +61,15 @@ class Rig:
         return Rig(tuple(self[n] for n in names))
 
 
-def save_rig(rig: Rig, path: str | os.PathLike) -> None:
-    """Write a rig as OpenCV FileStorage YAML (atomically)."""
+def save_rig(rig: Rig, path: str | os.PathLike, *, overwrite: bool = False) -> None:
+    """Write a rig as OpenCV FileStorage YAML (atomically), under the writer policy of
+    `mvtex.util.output.claim_file`: an existing file is replaced only with `overwrite`."""
     import cv2
 
-    from mvtex.util.output import atomic_path
+    from mvtex.util.output import atomic_path, claim_file
 
     path = Path(path)
-    with atomic_path(path) as tmp:
+    with claim_file(path, "save_rig", overwrite=overwrite), atomic_path(path) as tmp:
         # FileStorage picks the format from the extension: keep ".yaml" on the temporary.
         tmp_yaml = tmp.with_name(tmp.name + ".yaml")
         fs = cv2.FileStorage(str(tmp_yaml), cv2.FILE_STORAGE_WRITE)

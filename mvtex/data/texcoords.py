@@ -22,7 +22,7 @@ import numpy as np
 from mvtex.data.mesh import apply_extension, extension_matrix
 from mvtex.util.errors import InputError
 from mvtex.util.files import load_npy, load_npz, read_header, read_row, read_rows
-from mvtex.util.output import atomic_path
+from mvtex.util.output import atomic_path, writer
 
 FORMAT = "mvtex-texcoords"
 
@@ -426,10 +426,14 @@ class PartialSet:
         return self.out
 
 
+@writer("save_texcoords", out="path", inputs=lambda a: (a["displacement"], a["assigned"]))
 def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray,
                    source: str, subdiv: int, poses: Sequence[int],
-                   displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray], **extra: Any) -> Path:
-    """Write a whole texcoord set atomically from in-memory arrays.
+                   displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray], overwrite: bool = False,
+                   **extra: Any) -> Path:
+    """Write a whole texcoord set atomically from in-memory arrays, under the writer policy
+    (`mvtex.util.output`): an existing folder is replaced only when mvtex wrote all it holds
+    (another command's output only with `overwrite`), never an input.
 
     Args:
         displacement: camera name -> (len(poses), n', 2) float32.

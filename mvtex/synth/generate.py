@@ -28,6 +28,7 @@ from mvtex.data.dataset import default_split
 from mvtex.data.mesh import edge_strain, edges
 from mvtex.synth.predictor import _CHUNK, fit_predictor
 from mvtex.util.errors import OptionError
+from mvtex.util.output import writer
 
 GARMENTS = ("shirt", "skirt")
 
@@ -278,7 +279,9 @@ class _RowFile:
         return out
 
 
-def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions()) -> SynthResult:
+@writer("synth", out="path")
+def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(), *,
+                overwrite: bool = False) -> SynthResult:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
     streaming: the shapes (and the body) go to gt.npy / inferred.npy / body.npy block by
     block as they are made, so memory does not hold all poses, and the predictor fit reads

@@ -44,6 +44,7 @@ import numpy as np
 from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _write_model, mesh_fingerprint,
                                  rebuild_mesh)
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.output import writer
 
 ARCHS = ("gp", "unet", "paper")
 
@@ -307,9 +308,10 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
     return fingerprint_record(record)
 
 
+@writer("train", inputs=lambda a: (a["dataset"], a["texcoords"]))
 def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
           options: TrainOptions = TrainOptions(), train_poses: Sequence[int] | None = None,
-          cameras: Sequence[str] | None = None, progress: bool = True) -> TrainResult:
+          cameras: Sequence[str] | None = None, progress: bool = True, overwrite: bool = False) -> TrainResult:
     """Train a texture sliding network and write a model directory.
 
     Args:
@@ -326,6 +328,8 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         cameras: with `camera` None, train on these cameras of the set only (held-out
             camera experiments); None: all of them.
         progress: show a progress bar with the losses on stderr.
+        overwrite: replace another command's output at `out` (never files mvtex did not
+            write, never an input: the writer policy of `mvtex.util.output`).
 
     Returns:
         A JSON-serialisable summary: camera, cameras, arch, out, device, epochs_run,

@@ -21,8 +21,8 @@ from helpers import bad_input, fake_model, one_line_error, run, square
 from mvtex.cli import main
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig, save_rig
-from mvtex.util.errors import InputError
-from mvtex.util.output import MARKER, claim_output, replace_path
+from mvtex.util.errors import InputError, OutputError
+from mvtex.util.output import MARKER, _write_marker, claim_output, replace_path
 
 MVTEX = [sys.executable, "-m", "mvtex"]
 
@@ -73,11 +73,15 @@ def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_
     assert tree(out) == {"keep.txt": b"x"}
 
 
-def test_own_output_is_replaced_and_overwrite_replaces_a_foreign_one(tmp_path, capsys):
+def test_own_output_is_replaced_and_overwrite_never_deletes_a_users_file(tmp_path, capsys):
     out = foreign(tmp_path)
     code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 10, "--overwrite", "--json")
+    one_line_error(code, err, out, "keep.txt")
+    assert tree(out) == {"keep.txt": b"x"}
+    (out / "keep.txt").unlink()  # an empty folder is free
+    code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 10, "--json")
     assert code == 0, err
-    assert not (out / "keep.txt").exists() and json.loads((out / MARKER).read_text())["command"] == "synth"
+    assert json.loads((out / MARKER).read_text())["command"] == "synth"
     first = (out / "gt.npy").read_bytes()
     code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 11, "--seed", 1, "--json")  # its own output: no flag needed
     assert code == 0, err
@@ -109,17 +113,33 @@ def test_an_unwritable_parent_exits_2(tmp_path, capsys):
 
 
 def test_a_second_run_on_the_same_output_is_refused_with_the_holders_pid(tmp_path, tiny_dataset, rig_file, capsys):
+    import threading
+
     out = tmp_path / "tc"
-    with claim_output(out, "slide"):
+    held, done = threading.Event(), threading.Event()
+
+    def hold():  # another thread: claims nest only within one thread's run
+        with claim_output(out, "slide"):
+            held.set()
+            done.wait(60)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        held.wait(60)
         code, _, err = run(capsys, "slide", tiny_dataset, "--rig", rig_file, "--out", out, "--quiet")
-        one_line_error(code, err, out, f"in use by pid {os.getpid()}")
-    assert not (tmp_path / ".tc.lock").exists()
+    finally:
+        done.set()
+        holder.join()
+    one_line_error(code, err, out, f"in use by pid {os.getpid()}")
+    assert not list(tmp_path.glob(".tc.*lock"))
 
 
 def test_replacing_renames_aside_before_deleting(tmp_path, monkeypatch):
     target, new = tmp_path / "out", tmp_path / "new"
     target.mkdir()
     (target / "old.txt").write_text("old")
+    _write_marker(target, "slide")  # mvtex wrote all of it: it may be replaced
     new.mkdir()
     (new / "new.txt").write_text("new")
     seen = []
@@ -208,7 +228,7 @@ def test_a_failure_while_finishing_leaves_a_partial_the_rerun_completes(tmp_path
         return real(src, dst)
 
     monkeypatch.setattr(mvtex.util.output, "replace_path", fail)
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError, match="tc: cannot write it"):
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     monkeypatch.undo()
     # The rerun has nothing left to compute: any chunk would fail.
@@ -671,7 +691,7 @@ def test_camera_names_from_a_colmap_model_are_checked(tmp_path):
     pytest.importorskip("pycolmap")
     from mvtex.data.camera import look_at
     from mvtex.formats.colmap import read_rig, rig_reconstruction
-    from mvtex.util.errors import InputError
+    from mvtex.util.errors import InputError, OutputError
 
     rec, ids = rig_reconstruction(Rig((look_at("a", (0, 0, 1), (0, 0, 0), width=64, height=48, focal=50.0),)))
     rec.images[ids["a"]].name = "bad name.png"
