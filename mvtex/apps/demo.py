@@ -40,6 +40,9 @@ class DemoOptions:
 
         if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, int) or self.num_poses < MIN_POSES:
             raise OptionError(f"num_poses must be an integer of at least {MIN_POSES}, got {self.num_poses!r}")
+        from mvtex.util.checks import check_seed
+
+        check_seed(self.seed)
 
 
 def _step(name: str, progress: bool) -> float:

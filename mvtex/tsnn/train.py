@@ -43,6 +43,7 @@ import numpy as np
 
 from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _write_model, mesh_fingerprint,
                                  rebuild_mesh)
+from mvtex.util.checks import check_seed
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.output import writer
 
@@ -148,6 +149,12 @@ class TrainOptions:
             raise OptionError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
         if self.arch is not None and self.arch not in ARCHS:
             raise OptionError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
+        check_seed(self.seed)
+        if self.arch == "unet" and self.resolution is not None:  # one halving per level
+            levels = len(self.widths) if self.widths else 4
+            if self.resolution < 2 ** levels:
+                raise OptionError(f"resolution must be at least {2 ** levels} for the unet ({levels} levels), "
+                                  f"got {self.resolution}")
         if not 1 <= self.components <= 256:
             raise OptionError(f"components must be in 1..256, got {self.components}")
         for name in ("epochs", "batch_size", "patience"):

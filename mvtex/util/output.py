@@ -107,7 +107,7 @@ def _entries(directory: Path) -> list[str]:
         dirs[:] = [d for d in dirs if not is_temporary(Path(root) / d)]
         for name in dirs + files:
             entry = (rel / name).as_posix()
-            if entry != MARKER and not (name.startswith(".") and name.endswith((_LOCK_SUFFIX, MARKER + ".tmp"))):
+            if name != MARKER and not (name.startswith(".") and name.endswith((_LOCK_SUFFIX, MARKER + ".tmp"))):
                 out.append(entry)
     return sorted(out)
 
@@ -208,10 +208,24 @@ def _record(target: Path) -> None:
     os.replace(tmp, root / MARKER)
 
 
+def forget(root: str | os.PathLike, entries: Iterable[str]) -> None:
+    """Drop `entries` (relative POSIX paths mvtex deleted) from folder `root`'s manifest."""
+    root = Path(root)
+    marker = _read_marker(root)
+    if not marker or not isinstance(marker.get("files"), list):
+        return
+    gone = set(entries)
+    marker["files"] = [f for f in marker["files"] if f not in gone]
+    tmp = root / (MARKER + ".tmp")
+    tmp.write_text(json.dumps(marker) + "\n")
+    os.replace(tmp, root / MARKER)
+
+
 # -- writing ----------------------------------------------------------------------------------
 
 def _check_replaceable(target: Path) -> None:
-    """Refuse to replace `target` when that would delete something mvtex did not write."""
+    """Refuse to replace folder `target` when that would delete something mvtex did not
+    write. (A single file is the claim's business: `claim_file` asks for `overwrite`.)"""
     if target.is_symlink() or not target.exists():
         return
     if target.is_dir():
@@ -219,11 +233,6 @@ def _check_replaceable(target: Path) -> None:
         if foreign:
             raise InputError(target, _foreign_message(target, foreign))
         return
-    root = _claimed_root(target)
-    if root is not None:
-        rel = Path(os.path.relpath(os.path.realpath(target), os.path.realpath(root))).as_posix()
-        if rel not in (written_by_mvtex(root) or set()):
-            raise InputError(target, "is a file mvtex did not write; mvtex never replaces it: move it away")
 
 
 def _foreign_message(path: Path, foreign: list[str]) -> str:
@@ -239,9 +248,9 @@ def replace_path(source: str | os.PathLike, target: str | os.PathLike) -> None:
     """Move `source` (a file or directory) onto `target`, never deleting first, and never
     deleting what mvtex did not write.
 
-    An existing `target` must be replaceable: a folder only when its manifest lists all it
-    holds (or it is empty), a file inside a claimed output only when that output's
-    manifest lists it (InputError otherwise). It is renamed aside (to a hidden, stamped
+    An existing folder `target` must be replaceable: its manifest (or that of the claimed
+    output it lies in) lists all it holds, or it is empty (InputError otherwise). It is
+    renamed aside (to a hidden, stamped
     ``.<name>.mvtex-*.aside`` folder), `source` is renamed in, and only then is the aside
     copy deleted; if the rename-in fails the aside copy is put back. A kill between the two
     renames leaves both versions on disk, never neither.
@@ -637,3 +646,8 @@ def writer(command: str, *, out: str = "out", inputs=None, in_place: bool = Fals
         return run
 
     return wrap
+
+
+def mark_output(directory: str | os.PathLike, command: str) -> None:
+    """Write the manifest of a folder mvtex has just made whole (all it holds is `command`'s)."""
+    _write_marker(Path(directory), command)
