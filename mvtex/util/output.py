@@ -499,7 +499,10 @@ def claim_file(path: str | os.PathLike, command: str, *, overwrite: bool = False
         raise InputError(path, "is a symbolic link; give the real output path")
     if path.is_dir():
         raise InputError(path, "is a directory; give a file name")
-    check_inputs(path, inputs)
+    for source in inputs:  # a new file beside an input's files changes none of them: only the same file
+        if source is not None and os.path.realpath(source) == os.path.realpath(path):
+            raise InputError(path, f"is also an input of this command ({os.fspath(source)}); write the output "
+                             "to another file")
     if _key(path) in _CLAIMED.get() or _claimed_root(path) is not None:
         with _output_errors(path):
             yield path
