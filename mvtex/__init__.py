@@ -27,7 +27,7 @@ __version__ = "0.2.0"
 # public name -> the module that defines it
 _API = {
     # errors
-    "InputError": "mvtex.util.errors", "OptionError": "mvtex.util.errors",
+    "InputError": "mvtex.util.errors", "OptionError": "mvtex.util.errors", "OutputError": "mvtex.util.errors",
     # cameras, rigs, datasets, texcoord sets
     "Camera": "mvtex.data.camera", "look_at": "mvtex.data.camera",
     "Rig": "mvtex.data.rig", "load_rig": "mvtex.data.rig", "save_rig": "mvtex.data.rig",

@@ -10,7 +10,7 @@ import sys
 import mvtex
 
 PUBLIC = {
-    "__version__", "InputError", "OptionError",
+    "__version__", "InputError", "OptionError", "OutputError",
     "Camera", "look_at", "Rig", "load_rig", "save_rig", "Dataset", "load_dataset", "save_dataset", "import_sequences",
     "TexcoordSet", "open_texcoords", "save_texcoords",
     "SynthOptions", "SynthResult", "synthesize", "write_synth",

@@ -5,16 +5,18 @@
           -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
 
 Each step writes into OUT and is skipped when its output is already there, so an
-interrupted demo resumes where it stopped.
+interrupted demo resumes where it stopped. OUT/demo.json records the options; a rerun with
+other options is refused (or, with `overwrite`, starts over) instead of reporting the old run.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from mvtex.util.output import writer
 
 MIN_POSES = 10  # the test split must hold a pose to show, the training split enough for a model
 
@@ -41,6 +43,9 @@ class DemoOptions:
 
         if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, int) or self.num_poses < MIN_POSES:
             raise OptionError(f"num_poses must be an integer of at least {MIN_POSES}, got {self.num_poses!r}")
+        from mvtex.util.checks import check_seed
+
+        check_seed(self.seed)
 
 
 def _step(name: str, progress: bool) -> float:
@@ -51,8 +56,15 @@ def _step(name: str, progress: bool) -> float:
     return time.perf_counter()
 
 
-def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progress: bool = True) -> dict:
-    """Run the demo into `out`; returns a summary dict (also written to OUT/summary.json)."""
+@writer("demo", in_place=True)
+def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progress: bool = True, *,
+             overwrite: bool = False) -> dict:
+    """Run the demo into `out`; returns a summary dict (also written to OUT/summary.json).
+
+    A folder holding an earlier demo is resumed when its demo.json records the same options;
+    with other options it is refused (InputError), or with `overwrite` emptied of what the
+    demo wrote there and run again. Never a folder holding files mvtex did not write.
+    """
     from mvtex.util.checks import as_path, check_instance
 
     out = as_path(out, "out")
@@ -68,8 +80,10 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     from mvtex.sliding.options import SlideOptions
     from mvtex.synth.generate import SynthOptions, write_synth
 
+    from mvtex.util.files import write_json
+
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    _check_resume(out, options, overwrite)
     timings: dict[str, float] = {}
     summary: dict = {"out": str(out)}
 
@@ -151,8 +165,34 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     summary["report"] = str(demo_report(out, summary, dataset))
     summary["timings_s"]["report"] = round(time.perf_counter() - t, 2)
     summary["summary_text"] = _text(summary)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / "summary.json", summary)
     return summary
+
+
+def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
+    """Resume only a demo of the same options (demo.json); record them for a new one."""
+    from dataclasses import asdict
+
+    from mvtex import __version__
+    from mvtex.util.errors import InputError
+    from mvtex.util.files import read_json, write_json
+    from mvtex.util.output import MARKER, clear_output
+
+    record = {"options": asdict(options), "mvtex": __version__}
+    started = any(p.name != MARKER for p in out.iterdir())
+    if started:
+        try:
+            old = read_json(out / "demo.json")
+        except InputError:
+            old = None
+        if old != record:
+            if not overwrite:
+                was = ", ".join(f"{k}={v}" for k, v in old["options"].items()) \
+                    if isinstance(old, dict) and isinstance(old.get("options"), dict) else "unknown options"
+                raise InputError(out, f"holds a demo run with other options ({was}); it would be reported as this "
+                                 "one: choose another folder, or pass --overwrite to start over")
+            clear_output(out)
+    write_json(out / "demo.json", record)
 
 
 def _short(result) -> dict:

@@ -26,10 +26,12 @@ VIEWER_JS = "model-viewer-umd.min.js"
 def copy_viewer(out: str | os.PathLike) -> Path:
     """Copy the vendored model-viewer script to OUT/viewer/; returns its path."""
     src = Path(__file__).resolve().parents[1] / "vendor" / VIEWER_JS
+    from mvtex.util.output import atomic_path
+
     dst = Path(out) / "viewer" / VIEWER_JS
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(src, dst)
-    shutil.copyfile(src.with_name("model-viewer.LICENSE"), dst.with_name("model-viewer.LICENSE"))
+    for source, target in ((src, dst), (src.with_name("model-viewer.LICENSE"), dst.with_name("model-viewer.LICENSE"))):
+        with atomic_path(target) as tmp:  # written whole, and recorded in the demo's manifest
+            shutil.copyfile(source, tmp)
     return dst
 
 

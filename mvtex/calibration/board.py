@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.output import writer
 
 SPEC_PATTERN = re.compile(r"^charuco:(\d+)x(\d+):([0-9.eE+-]+):([0-9.eE+-]+):(DICT_\w+)$")
 
@@ -145,8 +146,10 @@ def board_image(spec: BoardSpec, pixels_per_square: int, margin_px: int = 0) -> 
     return np.asarray(spec.cv_board.generateImage(size, marginSize=int(margin_px), borderBits=1), dtype=np.uint8)
 
 
+@writer("board", out="path", file=True)
 def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | None = None,
-                    pixels_per_square: int | None = None, margin_m: float | None = None) -> dict:
+                    pixels_per_square: int | None = None, margin_m: float | None = None,
+                    overwrite: bool = False) -> dict:
     """Write the printable board as a PNG that records its print resolution.
 
     Give `dpi` (pixels per inch of the print; default 300) or `pixels_per_square`. The PNG

@@ -57,16 +57,27 @@ def write_calibration(calibration: Calibration, rig_path: str | os.PathLike,
 
 
 def calibrate_folder(images: str | os.PathLike, rig_path: str | os.PathLike, options: CalibrateOptions, *,
-                     pictures: str | os.PathLike | None = None, progress: bool = True) -> Calibration:
+                     pictures: str | os.PathLike | None = None, progress: bool = True,
+                     overwrite: bool = False) -> Calibration:
     """`mvtex calibrate`: find the images, calibrate, write the rig (and, into `pictures`,
-    the record and pictures of the calibration)."""
+    the record and pictures of the calibration). Both outputs follow the writer policy of
+    `mvtex.util.output`: an existing rig file is replaced only with `overwrite`, neither
+    output may be, hold or lie inside the image folder."""
+    import contextlib
+
     from mvtex.util.checks import as_path, check_instance
+    from mvtex.util.output import claim_file, claim_output
 
     images, rig_path = as_path(images, "images"), as_path(rig_path, "rig_path")
     pictures = as_path(pictures, "pictures", optional=True)
     check_instance(options, CalibrateOptions, "options")
-    calibration = calibrate(find_images(images), options, progress=progress)
-    write_calibration(calibration, rig_path, pictures)
+
+    with contextlib.ExitStack() as claims:
+        claims.enter_context(claim_file(rig_path, "calibrate", overwrite=overwrite, inputs=[images]))
+        if pictures is not None:
+            claims.enter_context(claim_output(pictures, "calibrate", overwrite=overwrite, inputs=[images, rig_path]))
+        calibration = calibrate(find_images(images), options, progress=progress)
+        write_calibration(calibration, rig_path, pictures)
     return calibration
 
 

@@ -14,6 +14,7 @@ from mvtex.calibration.calibrate import image_size
 from mvtex.data.camera import undistort_image, undistorted_camera
 from mvtex.data.rig import Rig, save_rig, undistort_rig
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.output import writer
 
 UNDISTORT_FORMAT = "mvtex-undistorted"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -34,16 +35,19 @@ def rig_summary(rig: Rig) -> dict:
             "baseline_m": {"min": float(distances.min()), "max": float(distances.max())} if distances.size else None}
 
 
-def write_pinhole_rig(rig: Rig, out: str | os.PathLike, alpha: float | None = None) -> Rig:
-    """Write the undistorted (pinhole) rig of `rig` (see `mvtex.data.camera.undistorted_camera`)."""
+def write_pinhole_rig(rig: Rig, out: str | os.PathLike, alpha: float | None = None, *, overwrite: bool = False) -> Rig:
+    """Write the undistorted (pinhole) rig of `rig` (see `mvtex.data.camera.undistorted_camera`);
+    an existing file is replaced only with `overwrite` (`save_rig`)."""
     if alpha is not None and not 0.0 <= alpha <= 1.0:
         raise OptionError(f"alpha must be in [0, 1], got {alpha}")
     pinhole = undistort_rig(rig, alpha)
-    save_rig(pinhole, out)
+    save_rig(pinhole, out, overwrite=overwrite)
     return pinhole
 
 
-def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, source: str | os.PathLike | None = None) -> Path:
+@writer("rig", inputs=lambda a: (a["source"],))
+def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, source: str | os.PathLike | None = None,
+                  overwrite: bool = False) -> Path:
     """Write a rig as a COLMAP model (PINHOLE cameras, one image `<camera>.png` each) into
     the folder `out` (written whole, then renamed in)."""
     from mvtex.formats.colmap import write_rig
@@ -59,7 +63,8 @@ def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, sourc
         raise InputError(source, str(err)) from None
 
 
-def import_colmap(model: str | os.PathLike, out: str | os.PathLike) -> Rig:
+@writer("rig", file=True, inputs=lambda a: (a["model"],))
+def import_colmap(model: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool = False) -> Rig:
     """Read the cameras of a COLMAP model (PINHOLE or SIMPLE_PINHOLE) and write them as a rig."""
     from mvtex.formats.colmap import read_rig
 
@@ -68,7 +73,8 @@ def import_colmap(model: str | os.PathLike, out: str | os.PathLike) -> Rig:
     return rig
 
 
-def plot_rig_file(rig: Rig, out: str | os.PathLike, title: str = "") -> None:
+@writer("rig", file=True)
+def plot_rig_file(rig: Rig, out: str | os.PathLike, title: str = "", *, overwrite: bool = False) -> None:
     """A 3-D picture of the rig (frusta and names) as PNG."""
     from mvtex.calibration.output import plot_rig
 
@@ -96,8 +102,9 @@ def _camera_images(folder: Path, rig: Rig) -> dict[str, list[tuple[Path, Path]]]
     return plan
 
 
+@writer("undistort", inputs=lambda a: (a["images"],))
 def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike, *, alpha: float | None = None,
-                     progress: bool = True) -> dict:
+                     progress: bool = True, overwrite: bool = False) -> dict:
     """Undistort a folder of images with OpenCV so they compare with mvtex's renders.
 
     Input: `IMAGES/<camera>/<name>.png|jpg` or `IMAGES/<camera>.png|jpg`, camera names of

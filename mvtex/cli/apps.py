@@ -48,5 +48,5 @@ def cmd_demo(args):
 
     options = DemoOptions(num_poses=args.num_poses)
     with output(args, "demo", in_place=True):
-        result = run_demo(args.out, options, progress=not args.quiet)
+        result = run_demo(args.out, options, progress=not args.quiet, overwrite=args.overwrite)
     emit(args, result, result.get("summary_text", dumps_strict(result, indent=2)))

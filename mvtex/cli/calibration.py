@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mvtex.cli.common import UsageError, add_common, emit, load_rig, output
+from mvtex.cli.common import UsageError, add_common, command_inputs, emit, load_rig, output
 
 
 def register(sub) -> None:
@@ -61,7 +61,7 @@ def register(sub) -> None:
 def _claim_file(args, path: Path, *inputs):
     from mvtex.util.output import claim_file
 
-    return claim_file(path, args.command, overwrite=args.overwrite, inputs=inputs)
+    return claim_file(path, args.command, overwrite=args.overwrite, inputs=(*inputs, *command_inputs(args)))
 
 
 def cmd_calibrate(args):

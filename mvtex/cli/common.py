@@ -175,11 +175,27 @@ def emit(args, result: Any, text: str) -> None:
         print(text)
 
 
+INPUT_ARGUMENTS = ("dataset", "texcoords", "model", "images", "rig", "pose_vectors", "from_colmap")
+"""The arguments that name a command's inputs (paths that exist; a built-in rig's name is none)."""
+
+
+def command_inputs(args) -> list[str]:
+    """The files and folders a command reads, from its arguments and its globs."""
+    import glob
+
+    from mvtex.util.output import input_paths
+
+    globs = [glob.glob(str(getattr(args, k))) for k in ("gt", "inferred", "body_glob") if getattr(args, k, None)]
+    return input_paths(*(getattr(args, k, None) for k in INPUT_ARGUMENTS), *globs)
+
+
 def output(args, command: str, path: Path | None = None, in_place: bool = False):
-    """Claim the command's output (see `mvtex.util.output.claim_output`)."""
+    """Claim the command's output with its inputs (see `mvtex.util.output.claim_output`:
+    the library writer called inside claims it again and adds its own checks)."""
     from mvtex.util.output import claim_output
 
-    return claim_output(path if path is not None else args.out, command, overwrite=args.overwrite, in_place=in_place)
+    return claim_output(path if path is not None else args.out, command, overwrite=args.overwrite, in_place=in_place,
+                        inputs=command_inputs(args))
 
 
 def load_rig(spec: str, pinhole: bool = True):

@@ -88,7 +88,7 @@ def cmd_render(args):
     rig = rig.select(cameras(args.cameras), rig_path)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses) if args.texcoords else None
     dataset.check_poses([args.pose])
-    with output(args, "render", in_place=True):
+    with output(args, "render"):
         summary = render_pose(dataset, rig, args.pose, args.out, texcoord_set=tc, raster=args.raster,
                               rig_path=rig_path, progress=not args.quiet)
     emit(args, summary, f"wrote {len(summary['files'])} files to {args.out}")

@@ -50,7 +50,7 @@ def cmd_eval(args):
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
     rig = rig.select(tc.cameras, rig_path)
-    with output(args, "eval", args.heatmaps, in_place=True) if args.heatmaps else contextlib.nullcontext():
+    with output(args, "eval", args.heatmaps) if args.heatmaps else contextlib.nullcontext():
         result = evaluate(dataset, rig_path, tc, poses=poses, cameras=rig.names, heatmaps=args.heatmaps,
                           progress=not args.quiet, workers=args.workers or 1, scheduler=args.scheduler)
     emit(args, result, summary_text(result))

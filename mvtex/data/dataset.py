@@ -26,7 +26,7 @@ import numpy as np
 
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_row, read_rows
-from mvtex.util.output import atomic_path
+from mvtex.util.output import atomic_path, writer
 
 FORMAT = "mvtex-dataset"
 
@@ -374,11 +374,15 @@ def metadata(name: str, num_poses: int, num_vertices: int, pose_dim: int, body_f
     return {**meta, **extra_meta}
 
 
+@writer("save_dataset", out="path", inputs=lambda a: (a["gt"], a["inferred"], a["poses"], a["body"]))
 def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray,
                  inferred: np.ndarray, poses: np.ndarray, name: str = "dataset",
                  rest: np.ndarray | None = None, split: dict[str, Sequence[int]] | None = None,
-                 body_faces: np.ndarray | None = None, body: np.ndarray | None = None, **extra_meta) -> Path:
-    """Write a dataset directory atomically (the whole directory appears at once).
+                 body_faces: np.ndarray | None = None, body: np.ndarray | None = None, overwrite: bool = False,
+                 **extra_meta) -> Path:
+    """Write a dataset directory atomically (the whole directory appears at once), under
+    the writer policy (`mvtex.util.output`): an existing folder is replaced only when mvtex
+    wrote all it holds (another command's output only with `overwrite`), never an input.
 
     Everything `load_dataset` checks is checked first (shapes, finite values, the split's
     pose indices, the body), so that a dataset written is a dataset that loads.

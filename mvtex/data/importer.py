@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mvtex.data.dataset import save_dataset
+from mvtex.util.output import writer
 from mvtex.util.errors import InputError
 from mvtex.util.files import load_npy
 
@@ -129,9 +130,16 @@ def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray
     return faces, positions
 
 
+def _inputs(a: dict) -> list:
+    import glob
+
+    return [glob.glob(str(a[k])) for k in ("gt_glob", "inferred_glob", "body_glob") if a[k]] + [a["poses_file"]]
+
+
+@writer("import", inputs=_inputs)
 def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
                      poses_file: str | os.PathLike | None = None, name: str | None = None,
-                     progress: bool = True, body_glob: str | None = None) -> Path:
+                     progress: bool = True, body_glob: str | None = None, overwrite: bool = False) -> Path:
     """Turn two OBJ/PLY sequences with identical connectivity into a dataset.
 
     Files are paired in sorted order. The first gt mesh defines faces and uv (and `rest`);

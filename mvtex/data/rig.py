@@ -95,8 +95,9 @@ class UnknownCamera(OptionError, KeyError):
         return type(self), (self.name, self.names)
 
 
-def save_rig(rig: Rig, path: str | os.PathLike) -> None:
-    """Write a rig as OpenCV FileStorage YAML (atomically).
+def save_rig(rig: Rig, path: str | os.PathLike, *, overwrite: bool = False) -> None:
+    """Write a rig as OpenCV FileStorage YAML (atomically), under the writer policy of
+    `mvtex.util.output.claim_file`: an existing file is replaced only with `overwrite`.
 
     The file is read back with `load_rig`'s reader before it is renamed into place and must
     give the same cameras: `save_rig` writes exactly the rigs `load_rig` accepts.
@@ -106,14 +107,14 @@ def save_rig(rig: Rig, path: str | os.PathLike) -> None:
     """
     import cv2
 
-    from mvtex.util.output import atomic_path
+    from mvtex.util.output import atomic_path, claim_file
 
     if not isinstance(rig, Rig):
         raise OptionError(f"rig must be a Rig, got {type(rig).__name__}")
     if not isinstance(path, (str, os.PathLike)):
         raise OptionError(f"path must be a file path, got {type(path).__name__}")
     path = Path(path)
-    with atomic_path(path) as tmp:
+    with claim_file(path, "save_rig", overwrite=overwrite), atomic_path(path) as tmp:
         # FileStorage picks the format from the extension: keep ".yaml" on the temporary.
         tmp_yaml = tmp.with_name(tmp.name + ".yaml")
         fs = cv2.FileStorage(str(tmp_yaml), cv2.FILE_STORAGE_WRITE)

@@ -25,9 +25,11 @@ import numpy as np
 from mvtex.data.mesh import apply_extension, extension_matrix
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_row, read_rows
-from mvtex.util.output import atomic_path
+from mvtex.util.output import atomic_path, writer
 
 FORMAT = "mvtex-texcoords"
+
+_LAYOUT = ["texcoords.json", "mesh.npz", "rig.yaml"]  # the files of a set beside its camera folders
 
 
 VERSION = 1
@@ -428,6 +430,7 @@ class PartialSet:
         import sys
 
         from mvtex.util.files import create_npy, read_json
+        from mvtex.util.output import foreign_entries, mark_output, written_by_mvtex
 
         partial = self.path
         if partial.is_dir():
@@ -441,19 +444,29 @@ class PartialSet:
             if all(old.get(k) == v for k, v in record.items()) and old.get("poses") == self.poses \
                     and old.get("cameras") == self.cameras and old.get("subdiv") == subdiv:
                 return
+            # Only what mvtex wrote there goes: its manifest's entries (and the views' rig.yaml,
+            # saved last), or, for a partial from before manifests, the set's own layout.
+            if written_by_mvtex(partial) is not None:
+                foreign = [e for e in foreign_entries(partial) if e != "rig.yaml"]
+            else:
+                layout = [str(c) for c in old.get("cameras") or []] + _LAYOUT
+                foreign = [e for e in foreign_entries(partial) if e.split("/")[0] not in layout]
+            if foreign:
+                raise InputError(partial, f"an unfinished run with other settings that also holds files mvtex did "
+                                 f"not write ({', '.join(foreign[:3])}); move them away and rerun")
             print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
             shutil.rmtree(partial)
-        tmp = partial.with_name(partial.name + ".new")
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=self.poses,
-                     cameras=self.cameras, **record)
-        for cam in self.cameras:
-            (tmp / cam).mkdir()
-            create_npy(tmp / cam / "displacement.npy", np.float32, (len(self.poses), len(uv), 2))
-            create_npy(tmp / cam / "assigned.npy", np.bool_, (len(self.poses), len(uv)))
-            np.save(tmp / cam / "done.npy", np.zeros(len(self.poses), bool), allow_pickle=False)
-        os.replace(tmp, partial)
+        # Built in a stamped temporary beside it, marked as `command`'s, renamed in whole.
+        with atomic_path(partial) as tmp:
+            tmp.mkdir()
+            write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=self.poses,
+                         cameras=self.cameras, **record)
+            for cam in self.cameras:
+                (tmp / cam).mkdir()
+                create_npy(tmp / cam / "displacement.npy", np.float32, (len(self.poses), len(uv), 2))
+                create_npy(tmp / cam / "assigned.npy", np.bool_, (len(self.poses), len(uv)))
+                np.save(tmp / cam / "done.npy", np.zeros(len(self.poses), bool), allow_pickle=False)
+            mark_output(tmp, command)
 
     @property
     def rows_done(self) -> int:
@@ -482,7 +495,7 @@ class PartialSet:
             RuntimeError: rows still missing (a backend that lost tasks): never rename an
                 incomplete set into place.
         """
-        from mvtex.util.output import replace_path
+        from mvtex.util.output import forget, replace_path
 
         missing = [c for c in self.cameras if not self.done[c].all()]
         if missing:
@@ -491,14 +504,18 @@ class PartialSet:
         replace_path(self.path, self.out)
         for cam in self.cameras:
             (self.out / cam / "done.npy").unlink(missing_ok=True)
+        forget(self.out, [f"{cam}/done.npy" for cam in self.cameras])
         return self.out
 
 
+@writer("save_texcoords", out="path", inputs=lambda a: (a["displacement"], a["assigned"]))
 def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray,
                    source: str, subdiv: int, poses: Sequence[int],
                    displacement: dict[str, np.ndarray], assigned: dict[str, np.ndarray],
-                   uncertainty: dict[str, np.ndarray] | None = None, **extra: Any) -> Path:
-    """Write a whole texcoord set atomically from in-memory arrays.
+                   uncertainty: dict[str, np.ndarray] | None = None, overwrite: bool = False, **extra: Any) -> Path:
+    """Write a whole texcoord set atomically from in-memory arrays, under the writer policy
+    (`mvtex.util.output`): an existing folder is replaced only when mvtex wrote all it holds
+    (another command's output only with `overwrite`), never an input.
 
     Everything is checked before anything is written, with the rules `open_texcoords`
     reads by: the mesh (faces, uv, parent), subdiv in 0..MAX_SUBDIV, poses distinct

@@ -28,6 +28,7 @@ the same pixels. For a set assigned everywhere (a model's prediction) both error
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from dataclasses import asdict, dataclass, field
@@ -39,6 +40,7 @@ import numpy as np
 from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.util.errors import OptionError
 from mvtex.util.files import read_row
+from mvtex.util.output import atomic_path, writer
 from mvtex.util.parallel import ThreadState, WorkerState, check_backend
 
 if TYPE_CHECKING:
@@ -409,9 +411,10 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
     return out
 
 
+@writer("eval", out="heatmaps", inputs=lambda a: (a["dataset"], a["texcoord_set"], a["rig"]))
 def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
              cameras: Sequence[str] | None = None, heatmaps: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
-             scheduler: str | None = None, ctx: GLContext | None = None) -> Evaluation:
+             scheduler: str | None = None, ctx: GLContext | None = None, overwrite: bool = False) -> Evaluation:
     """SqrtMSE of the baseline and of a texcoord set over poses and cameras (DESIGN §7).
 
     "inferred" is the baseline: the base inferred mesh with T_G. "texcoords" is the
@@ -479,28 +482,30 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         tc.row(p)  # InputError for a pose the set does not have
     for name in rig.names:
         tc.displacement(name, poses[0])  # validates the camera's arrays once, here
-    out_dir = Path(heatmaps) if heatmaps is not None else None
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    spec = _EvalSpec(dataset=str(Path(ds.path).resolve()), texcoords=str(Path(tc.path).resolve()), rig=rig,
-                     heatmaps=None if out_dir is None else str(out_dir.resolve()))
-    local = workers <= 1 and not scheduler
-    if local:  # this process: reuse what is open
-        own = GLContext() if ctx is None else None
-        _EVAL_STATE.set(spec.key, _open_eval_state(ds, tc, own or ctx, own is not None))
-    jobs = [(i, k, name) for i, (k, name) in enumerate((k, c.name) for k in poses for c in rig)]
-    chunk = max(1, min(8, len(jobs) // (4 * max(1, workers))))
-    tasks = [(spec, jobs[i:i + chunk]) for i in range(0, len(jobs), chunk)]
-    values: list = [None] * len(jobs)
-    try:
-        with tqdm(total=len(jobs), desc="eval", unit="image", disable=not progress, file=sys.stderr) as bar:
-            for results in map_unordered(_eval_images, tasks, workers=workers, scheduler=scheduler):
-                for index, *image in results:
-                    values[index] = image
-                bar.update(len(results))
-    finally:
-        if local:
-            _EVAL_STATE.set(None, None)
+    # Heatmaps are drawn into a temporary folder renamed onto `heatmaps` when all are in, so
+    # that the folder appears whole, with the manifest of what mvtex wrote there.
+    with (atomic_path(heatmaps) if heatmaps is not None else contextlib.nullcontext()) as out_dir:
+        if out_dir is not None:
+            out_dir.mkdir()
+        spec = _EvalSpec(dataset=str(Path(ds.path).resolve()), texcoords=str(Path(tc.path).resolve()), rig=rig,
+                         heatmaps=None if out_dir is None else str(out_dir.resolve()))
+        local = workers <= 1 and not scheduler
+        if local:  # this process: reuse what is open
+            own = GLContext() if ctx is None else None
+            _EVAL_STATE.set(spec.key, _open_eval_state(ds, tc, own or ctx, own is not None))
+        jobs = [(i, k, name) for i, (k, name) in enumerate((k, c.name) for k in poses for c in rig)]
+        chunk = max(1, min(8, len(jobs) // (4 * max(1, workers))))
+        tasks = [(spec, jobs[i:i + chunk]) for i in range(0, len(jobs), chunk)]
+        values: list = [None] * len(jobs)
+        try:
+            with tqdm(total=len(jobs), desc="eval", unit="image", disable=not progress, file=sys.stderr) as bar:
+                for results in map_unordered(_eval_images, tasks, workers=workers, scheduler=scheduler):
+                    for index, *image in results:
+                        values[index] = image
+                    bar.update(len(results))
+        finally:
+            if local:
+                _EVAL_STATE.set(None, None)
     has_rest, has_body = ds.rest is not None, ds.body is not None
     per_cam: dict[str, list[tuple]] = {c.name: [] for c in rig}
     for (_, _, name), image in zip(jobs, values):

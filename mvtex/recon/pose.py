@@ -17,11 +17,13 @@ if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 from mvtex.recon.report import ReconReport, reconstruction_report
 from mvtex.recon.triangulate import ReconOptions, reconstruct
+from mvtex.util.output import writer
 
 
+@writer("triangulate", inputs=lambda a: (a["dataset"], a["texcoords"]))
 def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike | None,
                      options: ReconOptions = ReconOptions(), progress: bool = True, *,
-                     ctx: GLContext | None = None) -> ReconReport:
+                     ctx: GLContext | None = None, overwrite: bool = False) -> ReconReport:
     """`mvtex triangulate`: reconstruct one pose of a dataset from a texcoord set.
 
     Args:
@@ -33,6 +35,8 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
             or None for the numbers only.
         options: see ReconOptions.
         progress: progress bars on stderr.
+        overwrite: replace another command's output at `out` (never files mvtex did not
+            write, never an input: the writer policy of `mvtex.util.output`).
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
     Returns:

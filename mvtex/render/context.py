@@ -51,6 +51,10 @@ class GLContext:
             raise RuntimeError("no OpenGL 3.3 context could be created (needs EGL: on Debian "
                                "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1, or an NVIDIA driver): "
                                + "; ".join(errors))
+        with self.mgl:  # read once here: leaving a nested `with` would release a caller's current context
+            info = self.mgl.info
+            self._max_size = int(min(info["GL_MAX_TEXTURE_SIZE"], info["GL_MAX_RENDERBUFFER_SIZE"],
+                                     *info["GL_MAX_VIEWPORT_DIMS"]))
         self._programs: dict = {}
         self._targets: OrderedDict = OrderedDict()
         self._pairs: OrderedDict = OrderedDict()
@@ -61,6 +65,12 @@ class GLContext:
         """The GL renderer string (e.g. 'llvmpipe (...)' or an NVIDIA GPU)."""
         with self.mgl:
             return str(self.mgl.info["GL_RENDERER"])
+
+    @property
+    def max_size(self) -> int:
+        """The largest framebuffer side this GL draws into (texture, renderbuffer and
+        viewport limits together; 16384 on llvmpipe)."""
+        return self._max_size
 
     @property
     def error(self) -> str:
@@ -96,6 +106,12 @@ class GLContext:
         apart framebuffers of one kind and size that are used together."""
         key = (kind, width, height, slot)
         if key not in self._targets:
+            wide = 2 * width if kind == "pair" else width
+            if max(wide, height) > self.max_size:
+                from mvtex.util.errors import InputError
+
+                raise InputError(None, f"an image of {width}x{height} pixels is larger than this OpenGL draws "
+                                 f"({self.max_size} pixels a side at most); use smaller camera images")
             ctx = self.mgl
             if kind == "ids":
                 attachments = [ctx.texture((width, height), 1, dtype="i4"), ctx.texture((width, height), 4, dtype="f4")]

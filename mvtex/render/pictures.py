@@ -296,23 +296,30 @@ def busiest_window(a: np.ndarray, b: np.ndarray, mask: np.ndarray, size: int) ->
 
 def grid_image(rows: Sequence[Sequence[np.ndarray]], col_labels: Sequence[str] | None = None,
                row_labels: Sequence[str] | None = None, gap: int = 4, max_width: int = 3072) -> np.ndarray:
-    """Tile RGB uint8 images (all the same size) into one picture, labelled "row / column".
+    """Tile RGB uint8 images into one picture, labelled "row / column".
 
-    Wide grids are scaled down to at most `max_width` pixels.
+    Images may differ in size (cameras of one rig may): every cell is as large as the
+    largest image, each image sits in its cell's top-left corner on white. Wide grids are
+    scaled down to at most `max_width` pixels, tile by tile, so the full-size canvas is
+    never allocated.
     """
     import cv2
 
-    h, w = rows[0][0].shape[:2]
+    h = max(image.shape[0] for row in rows for image in row)
+    w = max(image.shape[1] for row in rows for image in row)
     ncol = max(len(r) for r in rows)
-    canvas = np.full((len(rows) * (h + gap) - gap, ncol * (w + gap) - gap, 3), 255, np.uint8)
+    scale = min(1.0, max_width / (ncol * (w + gap) - gap))
+    ch, cw, g = max(1, int(h * scale)), max(1, int(w * scale)), max(1, int(round(gap * scale))) if gap else 0
+    canvas = np.full((len(rows) * (ch + g) - g, ncol * (cw + g) - g, 3), 255, np.uint8)
     for i, row in enumerate(rows):
         for j, image in enumerate(row):
             text = " / ".join(t for t in ((row_labels[i] if row_labels else ""), (col_labels[j] if col_labels else "")) if t)
+            if scale < 1.0:
+                size = (max(1, int(image.shape[1] * scale)), max(1, int(image.shape[0] * scale)))
+                image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
             tile = label(image, text) if text else image
-            canvas[i * (h + gap):i * (h + gap) + h, j * (w + gap):j * (w + gap) + w] = tile
-    if canvas.shape[1] > max_width:
-        s = max_width / canvas.shape[1]
-        canvas = cv2.resize(canvas, (max_width, int(canvas.shape[0] * s)), interpolation=cv2.INTER_AREA)
+            th, tw = min(tile.shape[0], ch), min(tile.shape[1], cw)
+            canvas[i * (ch + g):i * (ch + g) + th, j * (cw + g):j * (cw + g) + tw] = tile[:th, :tw]
     return canvas
 
 

@@ -26,7 +26,7 @@ from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.data.texcoords import TexcoordSet
 from mvtex.util.errors import InputError
 from mvtex.util.files import read_row, save_png, write_json
-from mvtex.util.output import atomic_path
+from mvtex.util.output import atomic_path, writer
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
@@ -59,15 +59,21 @@ def check_sees_mesh(raster, camera: Camera, rig_path, pose: int, what: str) -> N
         raise InputError(rig_path, f"camera {camera.name!r} sees nothing of the {what} mesh at pose {pose}")
 
 
+@writer("render", inputs=lambda a: (a["dataset"], a["texcoord_set"], a["rig_path"]))
 def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *,
                 texcoord_set: TexcoordSet | None = None, raster: bool = False, rig_path: str | None = None,
-                progress: bool = True, ctx: GLContext | None = None) -> dict:
+                progress: bool = True, ctx: GLContext | None = None, overwrite: bool = False) -> dict:
     """Render one pose from every camera of a rig into `out` (see module docstring); the
     dataset's body, if it has one, is drawn with the cloth (neutral matte) and is in the
     rasters' depth test.
 
+    `out` is written whole under a temporary name and renamed into place, so a killed
+    render leaves no half folder; the writer policy of `mvtex.util.output` applies.
+
     Args:
         ctx: the GL context (one is created, and released, for this call if None).
+        overwrite: replace another command's output at `out` (never files mvtex did not
+            write, never an input).
 
     Returns:
         {"pose": k, "cameras": [...], "files": [...]} (paths relative to out).
@@ -83,9 +89,7 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
     texcoord_set = None if texcoord_set is None else as_texcoords(texcoord_set, "texcoord_set")
     pose = as_index(pose, "pose")
     out = as_path(out, "out")
-    from mvtex.render import raster as gl
     from mvtex.render.context import GLContext
-    from mvtex.render.shading import garment_box, render_shaded, render_textured, scaled_camera
 
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
@@ -101,12 +105,19 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
         with GLContext() as own:
             return render_pose(dataset, rig, pose, out, texcoord_set=texcoord_set, raster=raster,
                                rig_path=rig_path, progress=progress, ctx=own)
+    with atomic_path(out) as tmp:
+        tmp.mkdir()
+        return _render_into(tmp, dataset, rig, pose, texcoord_set, raster, rig_path, progress, ctx)
+
+
+def _render_into(out: Path, dataset: Dataset, rig: Rig, pose: int, texcoord_set: TexcoordSet | None, raster: bool,
+                 rig_path: str | None, progress: bool, ctx: GLContext) -> dict:
     from tqdm import tqdm
 
+    from mvtex.render import raster as gl
     from mvtex.render.pictures import side_by_side
+    from mvtex.render.shading import garment_box, render_shaded, render_textured, scaled_camera
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     files, tiles = [], []
     body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
     for cam in tqdm(list(rig), desc=f"render pose {pose}", unit="camera", disable=not progress):

@@ -381,7 +381,7 @@ def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, came
         w, h = c1 - c0, r1 - r0
         gl.disable(moderngl.CULL_FACE)
         gl.enable(moderngl.DEPTH_TEST)
-        if attributes:
+        if attributes or 2 * W > ctx.max_size:
             # Two framebuffers, each mesh at the image's own window coordinates: the
             # barycentrics are those `rasterize` reads (a viewport shifted by W rounds them
             # differently in float32).
@@ -429,7 +429,7 @@ def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, came
                 # gl_PrimitiveID restarts at 0 on each draw call; ids are stored +1.
                 ids = np.frombuffer(data, np.int32).reshape(h, w) - 1
                 bary = None
-                if attributes:
+                if attributes:  # (the two-framebuffer path also serves images too wide for one)
                     data = fbo.read(attachment=1, components=4, dtype="f4", viewport=(x0, r0, w, h))
                     bary = np.frombuffer(data, np.float32).reshape(h, w, 4)[..., :3]
             else:

@@ -8,7 +8,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from mvtex.data.camera import Camera
+from mvtex.data.camera import MAX_IMAGE_SIZE, Camera
 from mvtex.render.context import GLContext
 from mvtex.render.raster import clip_from_camera, depth_range
 
@@ -131,7 +131,8 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
     positions, faces, matte = _with_body(positions, faces, body)
     cam = camera.to_camera(positions)
     near, far = depth_range(cam)
-    s = max(1, int(supersample))
+    # Supersampled, as far as the GL's and the camera model's largest image allow.
+    s = max(1, min(int(supersample), min(ctx.max_size, MAX_IMAGE_SIZE) // max(camera.width, camera.height)))
     big = Camera(camera.name, camera.width * s, camera.height * s,
                  K=np.diag([s, s, 1.0]) @ camera.K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]]),
                  R=camera.R, t=camera.t)

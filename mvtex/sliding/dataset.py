@@ -22,6 +22,7 @@ from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import slide_pose
 from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
 from mvtex.util.files import read_row
+from mvtex.util.output import writer
 from mvtex.util.parallel import ThreadState, WorkerState, check_backend, worker_count
 
 if TYPE_CHECKING:
@@ -95,9 +96,10 @@ def _slide_chunk(spec: _Spec, camera: str, rows: list[int], poses: list[int]):
     return camera, rows, d_out, a_out
 
 
+@writer("slide", inputs=lambda a: (a["dataset"], a["rig"]))
 def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], options: SlideOptions,
                   cameras: list[str] | None = None, workers: int | None = None, scheduler: str | None = None,
-                  progress: bool = True, ctx: GLContext | None = None) -> Path:
+                  progress: bool = True, ctx: GLContext | None = None, overwrite: bool = False) -> Path:
     """Texture-slide every (pose, camera) of a dataset into a texcoord set (DESIGN §4).
 
     Results stream into memory-mapped .npy files in ``<out>.partial/``; a per-camera done
@@ -128,6 +130,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         progress: show a progress bar on stderr.
         ctx: `raster.GLContext` for the jobs run in this process (created, and released at
             the end, if None); worker processes create their own.
+        overwrite: replace another command's output at `out` (never files mvtex did not
+            write, never an input: the writer policy of `mvtex.util.output`).
 
     Returns:
         Path of the finished texcoord set.

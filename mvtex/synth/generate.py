@@ -27,8 +27,9 @@ import numpy as np
 from mvtex.data.dataset import default_split
 from mvtex.data.mesh import edge_strain, edges
 from mvtex.synth.predictor import _CHUNK, fit_predictor
-from mvtex.util.checks import check_field_types
+from mvtex.util.checks import check_field_types, check_seed
 from mvtex.util.errors import OptionError
+from mvtex.util.output import writer
 
 GARMENTS = ("shirt", "skirt")
 
@@ -65,6 +66,7 @@ class SynthOptions:
                 or not 3 <= self.num_poses <= MAX_POSES:
             raise OptionError(f"num_poses must be an integer in 3..{MAX_POSES} (one pose per split at least), "
                               f"got {self.num_poses!r}")
+        check_seed(self.seed)
         if not (isinstance(self.pca_components, (int, np.integer)) and self.pca_components >= 1):
             raise OptionError(f"pca_components must be an integer >= 1, got {self.pca_components!r}")
         if not (np.isfinite(self.ridge) and self.ridge >= 0):
@@ -294,8 +296,9 @@ class _RowFile:
         return out
 
 
-def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(), *,
-                progress: bool = False) -> SynthResult:
+@writer("synth", out="path")
+def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(), *, progress: bool = False,
+                overwrite: bool = False) -> SynthResult:
     """Synthesize and save the dataset directory at `path` (format: DESIGN §4) atomically,
     streaming: the shapes (and the body) go to gt.npy / inferred.npy / body.npy block by
     block as they are made, so memory does not hold all poses, and the predictor fit reads

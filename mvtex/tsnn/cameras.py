@@ -12,6 +12,7 @@ from typing import Sequence
 from mvtex.tsnn.modeldir import TrainedCameras, TrainResult, _kept_model
 from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, dataset_fingerprint, train
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.output import writer
 
 
 def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> TrainResult:
@@ -26,9 +27,10 @@ def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, opti
     return train(ds, open_texcoords(texcoords, ds.num_vertices), out, camera=camera, options=options, progress=False)
 
 
+@writer("train", in_place=True, inputs=lambda a: (a["dataset"], a["texcoords"]))
 def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.PathLike,
                   options: TrainOptions = TrainOptions(), *, workers: int = 1, scheduler: str | None = None,
-                  progress: bool = True) -> TrainedCameras:
+                  progress: bool = True, overwrite: bool = False) -> TrainedCameras:
     """One model per camera, OUT/<camera>/ (each a model directory as `train` writes it),
     trained side by side on local processes or a Dask cluster (`mvtex.util.parallel`).
 

@@ -29,7 +29,7 @@ from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, 
 from mvtex.tsnn.train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import create_npy, read_json, write_npy_rows
-from mvtex.util.output import atomic_path
+from mvtex.util.output import atomic_path, writer
 
 _BLOCK = 256  # poses predicted (and written) at a time
 
@@ -284,8 +284,9 @@ def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.nda
     return [(name, m, view) for name, (m, view) in jobs.items()]
 
 
+@writer("predict", inputs=lambda a: (a["dataset"], a["models"]))
 def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike, *, poses: Sequence[int],
-            rig=None, progress: bool = True, device: str = "cpu") -> Path:
+            rig=None, progress: bool = True, device: str = "cpu", overwrite: bool = False) -> Path:
     """Run networks over poses and write a texcoord set.
 
     Args:
@@ -299,6 +300,8 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
             model's own camera(s).
         progress: progress bar over cameras on stderr.
         device: where to run the networks.
+        overwrite: replace another command's output at `out` (never files mvtex did not
+            write, never an input: the writer policy of `mvtex.util.output`).
 
     Returns:
         `out` as a Path.

@@ -47,8 +47,9 @@ import numpy as np
 
 from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _write_model, mesh_fingerprint,
                                  rebuild_mesh)
-from mvtex.util.checks import check_field_types
+from mvtex.util.checks import check_field_types, check_seed
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.output import writer
 
 ARCHS = ("gp", "mlp", "unet", "paper")
 
@@ -164,6 +165,12 @@ class TrainOptions:
             raise OptionError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
         if self.arch is not None and self.arch not in ARCHS:
             raise OptionError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
+        check_seed(self.seed)
+        if self.arch == "unet" and self.resolution is not None:  # one halving per level
+            levels = len(self.widths) if self.widths else 4
+            if self.resolution < 2 ** levels:
+                raise OptionError(f"resolution must be at least {2 ** levels} for the unet ({levels} levels), "
+                                  f"got {self.resolution}")
         if not 1 <= self.components <= 256:
             raise OptionError(f"components must be in 1..256, got {self.components}")
         for name in ("epochs", "batch_size", "patience"):
@@ -326,9 +333,10 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
     return fingerprint_record(record)
 
 
+@writer("train", inputs=lambda a: (a["dataset"], a["texcoords"]))
 def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = None, rig=None,
           options: TrainOptions = TrainOptions(), train_poses: Sequence[int] | None = None,
-          cameras: Sequence[str] | None = None, progress: bool = True) -> TrainResult:
+          cameras: Sequence[str] | None = None, progress: bool = True, overwrite: bool = False) -> TrainResult:
     """Train a texture sliding network and write a model directory.
 
     Args:
@@ -345,6 +353,8 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         cameras: with `camera` None, train on these cameras of the set only (held-out
             camera experiments); None: all of them.
         progress: show a progress bar with the losses on stderr.
+        overwrite: replace another command's output at `out` (never files mvtex did not
+            write, never an input: the writer policy of `mvtex.util.output`).
 
     Returns:
         A JSON-serialisable summary: camera, cameras, arch, out, device, epochs_run,

@@ -9,6 +9,20 @@ import numpy as np
 
 from mvtex.util.errors import OptionError
 
+MAX_SEED = 2**32 - 1
+"""Seeds are what NumPy's and PyTorch's generators both take: integers in 0..2**32-1."""
+
+
+def check_seed(seed) -> int:
+    """A random seed: an integer in 0..`MAX_SEED`.
+
+    Raises:
+        OptionError: "seed must be an integer in 0..4294967295, got -1".
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise OptionError(f"seed must be an integer in 0..{MAX_SEED}, got {seed!r}")
+    return int(seed)
+
 
 def check_shape(array: np.ndarray, name: str, spec: Sequence[int | str],
                 sizes: dict[str, int] | None = None) -> dict[str, int]:

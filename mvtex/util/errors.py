@@ -34,3 +34,11 @@ class OptionError(InputError):
 
     def __reduce__(self):
         return type(self), (self.problem,)
+
+
+class OutputError(InputError):
+    """An output that cannot be written: the disk is full, a file-size limit is reached, the
+    place is read-only. `str(err)` is "OUTPUT: cannot write it (No space left on device)",
+    naming the output being written even when the operating system named no file. Nothing
+    is left half-written: the temporaries are removed (a resumable run keeps its
+    ``OUT.partial``). It is an `InputError` (exit code 2 from the CLI)."""

@@ -1,11 +1,9 @@
 """Safe file input and output.
 
-Output: everything is written under a temporary name beside its target and renamed when
-complete (`atomic_path`); an older target is renamed aside before the new one is renamed
-in, and deleted only then (`replace_path`). A command's output directory is claimed with
-`claim_output`: a directory mvtex's same command did not write is refused unless
-overwriting is asked for, one run at a time holds it (an advisory lock), and what is
-written there carries a marker file (`MARKER`) naming the command.
+Output: every file is written through `mvtex.util.output.atomic_path` (a stamped temporary
+beside its target, renamed in when complete); the writer policy there (`claim_output`, the
+`writer` decorator) decides what may be replaced: never what mvtex did not write, never an
+input.
 
 Input: `read_json`, `load_npy`, `load_npz` never unpickle, never accept NaN in JSON, and
 turn every malformed or truncated file into an `InputError` naming it.

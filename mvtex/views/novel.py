@@ -17,6 +17,7 @@ import numpy as np
 from mvtex.data.camera import Camera, check_camera_name
 from mvtex.data.rig import Rig, check_outside_body
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.output import writer
 from mvtex.util.parallel import ThreadState, check_backend
 from mvtex.views.cameras import check_weights, interpolate_camera
 from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
@@ -103,10 +104,11 @@ class NovelViews:
         return out
 
 
+@writer("views", inputs=lambda a: (a["dataset"], a["texcoords"], a["rig_source"]))
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
                 rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
-                scheduler: str | None = None) -> dict:
+                scheduler: str | None = None, overwrite: bool = False) -> dict:
     """`mvtex views`: a texcoord set whose cameras are novel views of an array.
 
     Args:
@@ -218,7 +220,7 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
             for start, disp, asg in map_unordered(_view_block, tasks, workers=workers, scheduler=scheduler):
                 write(start, disp, asg)
         bar.close()
-    save_rig(Rig(tuple(cameras)), partial.path / "rig.yaml")
+    save_rig(Rig(tuple(cameras)), partial.path / "rig.yaml", overwrite=True)  # the unfinished set is mvtex's
     partial.finish()
     return NovelViews(out=out, method=options.method, views=record["views"], poses=poses,
                       cameras={c.name: c.center.tolist() for c in cameras})

@@ -38,6 +38,7 @@ from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig, check_outside_body
 from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.output import writer
 
 BACKGROUND = (40, 40, 46)
 
@@ -218,6 +219,7 @@ def _path_weights(names: list[str], per_segment: int) -> list[dict[str, float]]:
     return out
 
 
+@writer("preview", inputs=lambda a: (a["dataset"], a["texcoords"], a["rig_source"]))
 def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike, *,
                    weights: Mapping[str, float] | None = None, options: PreviewOptions = PreviewOptions(),
                    rig_source: str | os.PathLike | None = None, progress: bool = True,
@@ -229,7 +231,8 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         rig: the array. texcoords: the array's `TexcoordSet`.
         pose: dataset pose index (one of the set's poses).
         out: output directory; an existing one must be an earlier preview (it is replaced),
-            or empty, unless `overwrite` (`mvtex.util.output.check_output`).
+            or empty, or with `overwrite` another command's output (the writer policy of
+            `mvtex.util.output`: never files mvtex did not write, never an input).
         weights: the viewpoint (array camera -> weight); default equal over the array.
 
     Returns:
@@ -249,7 +252,7 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     check_instance(options, PreviewOptions, "options")
     from mvtex.render.pictures import grid_image, side_by_side
     from mvtex.util.files import save_png, write_json
-    from mvtex.util.output import atomic_path, check_output
+    from mvtex.util.output import atomic_path
     from mvtex.views.cameras import check_weights, interpolate_camera
 
     pose = int(pose)
@@ -258,7 +261,7 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     texcoords.row(pose)
     texcoords.check_rig(rig, rig_source)
     texcoords.check_dataset(dataset)
-    out = check_output(out, "preview", overwrite=overwrite)
+    out = Path(out)
     array = [c for c in rig.names if c in texcoords.cameras]
     if weights is None:
         weights = {c: 1.0 / len(array) for c in array}

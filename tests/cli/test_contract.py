@@ -40,9 +40,24 @@ def test_existing_files_are_kept_without_overwrite(tmp_path, capsys):
 
 
 def test_one_run_per_output_file(tmp_path, capsys):
+    import threading
+
     out = tmp_path / "board.png"
-    with claim_file(out, "board"):
+    held, done = threading.Event(), threading.Event()
+
+    def hold():  # another thread: claims nest only within one thread's run
+        with claim_file(out, "board"):
+            held.set()
+            done.wait(60)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        held.wait(60)
         code, _, err = run(capsys, "board", "charuco:5x4:0.04:0.03:DICT_4X4_50", "--out", out)
+    finally:
+        done.set()
+        holder.join()
     one_line_error(code, err, f"in use by pid {os.getpid()}")
     assert not out.exists()
 
@@ -221,8 +236,10 @@ def test_a_zero_quaternion_in_a_colmap_model_is_refused(tmp_path, capsys):
 
 def test_leftovers_of_a_killed_run_go_and_outputs_are_readable(tmp_path, capsys):
     # As if a run had been killed between writing its temporaries and renaming them in.
-    (tmp_path / ".board.png.x1.tmp").mkdir()
-    (tmp_path / ".und.y2.tmp").mkdir()
+    from mvtex.util.output import _temporary
+
+    _temporary(tmp_path / "board.png", "tmp")  # what killed runs leave: named and stamped as mvtex's
+    _temporary(tmp_path / "und", "tmp")
     assert run(capsys, "board", "charuco:5x4:0.04:0.03:DICT_4X4_50", "--out", tmp_path / "board.png")[0] == 0
     (tmp_path / "imgs" / "left").mkdir(parents=True)
     import cv2

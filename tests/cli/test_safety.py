@@ -21,8 +21,8 @@ from helpers import bad_input, fake_model, one_line_error, run, square
 from mvtex.cli import main
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig, save_rig
-from mvtex.util.errors import InputError
-from mvtex.util.output import MARKER, claim_output, replace_path
+from mvtex.util.errors import InputError, OutputError
+from mvtex.util.output import MARKER, _temporary, _write_marker, claim_output, replace_path
 
 MVTEX = [sys.executable, "-m", "mvtex"]
 
@@ -73,11 +73,15 @@ def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_
     assert tree(out) == {"keep.txt": b"x"}
 
 
-def test_own_output_is_replaced_and_overwrite_replaces_a_foreign_one(tmp_path, capsys):
+def test_own_output_is_replaced_and_overwrite_never_deletes_a_users_file(tmp_path, capsys):
     out = foreign(tmp_path)
     code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 10, "--overwrite", "--json")
+    one_line_error(code, err, out, "keep.txt")
+    assert tree(out) == {"keep.txt": b"x"}
+    (out / "keep.txt").unlink()  # an empty folder is free
+    code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 10, "--json")
     assert code == 0, err
-    assert not (out / "keep.txt").exists() and json.loads((out / MARKER).read_text())["command"] == "synth"
+    assert json.loads((out / MARKER).read_text())["command"] == "synth"
     first = (out / "gt.npy").read_bytes()
     code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 11, "--seed", 1, "--json")  # its own output: no flag needed
     assert code == 0, err
@@ -109,17 +113,33 @@ def test_an_unwritable_parent_exits_2(tmp_path, capsys):
 
 
 def test_a_second_run_on_the_same_output_is_refused_with_the_holders_pid(tmp_path, tiny_dataset, rig_file, capsys):
+    import threading
+
     out = tmp_path / "tc"
-    with claim_output(out, "slide"):
+    held, done = threading.Event(), threading.Event()
+
+    def hold():  # another thread: claims nest only within one thread's run
+        with claim_output(out, "slide"):
+            held.set()
+            done.wait(60)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        held.wait(60)
         code, _, err = run(capsys, "slide", tiny_dataset, "--rig", rig_file, "--out", out, "--quiet")
-        one_line_error(code, err, out, f"in use by pid {os.getpid()}")
-    assert not (tmp_path / ".tc.lock").exists()
+    finally:
+        done.set()
+        holder.join()
+    one_line_error(code, err, out, f"in use by pid {os.getpid()}")
+    assert not list(tmp_path.glob(".tc.*lock"))
 
 
 def test_replacing_renames_aside_before_deleting(tmp_path, monkeypatch):
     target, new = tmp_path / "out", tmp_path / "new"
     target.mkdir()
     (target / "old.txt").write_text("old")
+    _write_marker(target, "slide")  # mvtex wrote all of it: it may be replaced
     new.mkdir()
     (new / "new.txt").write_text("new")
     seen = []
@@ -203,12 +223,12 @@ def test_a_failure_while_finishing_leaves_a_partial_the_rerun_completes(tmp_path
     real = mvtex.util.output.replace_path
 
     def fail(src, dst):  # only the last step: renaming the finished set in
-        if Path(src).name == "tc.partial":
+        if Path(src).name == "tc.partial" and Path(dst).name == "tc":
             raise OSError(28, "No space left on device", str(dst))
         return real(src, dst)
 
     monkeypatch.setattr(mvtex.util.output, "replace_path", fail)
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError, match="tc: cannot write it"):
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     monkeypatch.undo()
     # The rerun has nothing left to compute: any chunk would fail.
@@ -240,9 +260,8 @@ def test_a_kill_while_saving_a_done_mask_leaves_nothing_in_the_finished_set(tmp_
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     monkeypatch.undo()
     cam = tmp_path / "tc.partial" / "a"
-    for hidden in (".done.npy.k1ll3d.aside", ".done.npy.k1ll3d.tmp"):
-        (cam / hidden).mkdir()
-        shutil.copy(cam / "done.npy", cam / hidden / "done.npy")
+    for kind in ("aside", "tmp"):  # named and stamped as mvtex's own
+        shutil.copy(cam / "done.npy", _temporary(cam / "done.npy", kind) / "done.npy")
     (cam / "done.npy").unlink()
     _slide(tiny_dataset, front_rig, tmp_path / "tc")
     _slide(tiny_dataset, front_rig, tmp_path / "fresh")
@@ -581,8 +600,7 @@ def test_dask_local_cluster_slide_equals_one_process(tmp_path, reference_set, sl
         slide_dataset(slow_dataset, reference_set / "rig.yaml", tmp_path / "tc", poses=list(range(40)),
                       options=SlideOptions(subdiv=0),
                       scheduler=cluster.scheduler_address, progress=False)
-    ref = tree(reference_set / "tc")
-    ref.pop(MARKER)
+    ref = tree(reference_set / "tc")  # the manifests too: the same files
     assert tree(tmp_path / "tc") == ref
 
 
@@ -606,8 +624,7 @@ def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path
         assert main([str(a) for a in views + ["--out", tmp_path / "v", "--scheduler", cluster.scheduler_address]]) == 0
     assert main([str(a) for a in views + ["--out", tmp_path / "v1"]]) == 0
     assert tree(tmp_path / "v") == tree(tmp_path / "v1")
-    ref = tree(reference_set / "tc")
-    ref.pop(MARKER)
+    ref = tree(reference_set / "tc")  # the manifests too: the same files
     assert tree(tmp_path / "tc") == ref
     assert threaded == evaluate(slow_dataset, rig, reference_set / "tc", poses=list(range(0, 40, 2)), progress=False)
 

@@ -85,9 +85,24 @@ def test_preview_bad_input(tmp_path, sheet_set, capsys):
     # One run at a time per output folder.
     from mvtex.util.output import claim_output
 
-    with claim_output(tmp_path / "busy", "preview"):
+    import threading
+
+    held, done = threading.Event(), threading.Event()
+
+    def hold():  # another thread: claims nest only within one thread's run
+        with claim_output(tmp_path / "busy", "preview"):
+            held.set()
+            done.wait(60)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        held.wait(60)
         code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 4, "--out",
                            tmp_path / "busy", "--quiet")
+    finally:
+        done.set()
+        holder.join()
     assert code == 2 and "in use by pid" in err and len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out",
                        tmp_path / "p", "--quiet")

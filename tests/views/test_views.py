@@ -214,8 +214,9 @@ def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, caps
         return real(synth, cameras, weights, poses, tick=tick)
 
     # As if killed while saving the done mask: its hidden temporary copy is left behind.
-    (tmp_path / "v.partial" / "view_000" / ".done.npy.k1ll3d.tmp").mkdir()
-    (tmp_path / "v.partial" / "view_000" / ".done.npy.k1ll3d.tmp" / "done.npy").write_bytes(b"")
+    from mvtex.util.output import _temporary
+
+    (_temporary(tmp_path / "v.partial" / "view_000" / "done.npy", "tmp") / "done.npy").write_bytes(b"")
     monkeypatch.setattr(mvtex.views.novel, "_views_of_poses", count)
     assert run(capsys, *argv, "--out", out)[0] == 0
     assert blocks == [[0, 2], [4]]  # the second run computed only the block the first did not finish
