@@ -1,17 +1,19 @@
 """Material the body hides, assigned by texture sliding: `slide` against a ray cast.
 
     python benchmarks/body_hidden.py DATA [DATA ...] [--rigs stereo square4 trapezoid12]
-        [--poses 0:40] [--subdiv 1] [--json out.json]
+        [--openings] [--poses 0:40] [--subdiv 1] [--json out.json]
 
 For every (pose, camera) job it slides the worn dataset (`slide_pose` with the body, as
 `mvtex slide` does) and casts every subdivided inferred vertex's ray from the camera with
 Embree (`trimesh.ray.ray_pyembree`, needs `embreex`) against the body alone and against the
 ground-truth cloth alone. Embree works in float32: the triangles it reports for the ray and
 for four rays tilted 1e-5 rad around it, with the faces sharing a vertex with them, are
-intersected with the ray again in float64 (Möller–Trumbore), and the nearest hit counts. A vertex (projected into the image) is hidden by the body when the body meets
-its ray before the vertex (t < 1, t = 1 at the vertex) or before the first gt cloth hit
-(exact ties go to the cloth), DESIGN §5 "The body". Prints a Markdown table per dataset and
-rig: hidden vertices, those of them `slide` assigns, and their share.
+intersected with the ray again in float64 (Möller–Trumbore), and the nearest hit counts.
+A vertex (projected into the image) is hidden by the body when the body meets its ray
+before the vertex (t < 1, t = 1 at the vertex) or before the first gt cloth hit (exact
+ties go to the cloth), DESIGN §5 "The body". Prints a Markdown table per dataset and rig:
+hidden vertices, those of them `slide` assigns, and their share. `--openings` adds four
+cameras looking into the garment's top and bottom openings (a collar, a waist, a hem).
 """
 
 from __future__ import annotations

@@ -216,7 +216,8 @@ def nearest_body_hit(camera: Camera, positions: np.ndarray, faces: np.ndarray, p
     """(k,) float64 t of the first point where the ray from the camera centre towards each
     of `points` (k,3) meets the body (positions (nb,3), faces (mb,3)), with t = 1 at the
     point (inf: never). Exact: every face the ray can meet is tested in float64
-    (Möller–Trumbore, as the cloth hits): the faces binned to its pixel (`bin_body`).
+    (Möller–Trumbore, as the cloth hits): the faces binned to its pixel (`bin_body`);
+    a point behind the camera or far outside its image is tested against every face.
     The body hides the point when t < 1 (DESIGN §5 "The body")."""
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
@@ -224,7 +225,11 @@ def nearest_body_hit(camera: Camera, positions: np.ndarray, faces: np.ndarray, p
     points = np.asarray(points, np.float64)
     dirs = np.ascontiguousarray(points - origin)
     pixels, z = camera.project(points)
-    ahead = (z > 0) & np.all(np.isfinite(pixels), axis=1)
+    # Rays through the image or near it are binned (the grid's size stays bounded by the
+    # image's); any other is tested against every face.
+    W, H = camera.width, camera.height
+    with np.errstate(invalid="ignore"):
+        ahead = (z > 0) & (pixels[:, 0] > -W) & (pixels[:, 0] < 2 * W) & (pixels[:, 1] > -H) & (pixels[:, 1] < 2 * H)
     pixels = np.ascontiguousarray(np.where(ahead[:, None], pixels, 0.0))
     bins = bin_body(camera, positions, faces, pixels[ahead])
     if compiled:
@@ -389,9 +394,6 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     # Candidate occluders: the base inferred triangles drawn around its projection (the
     # same surface as their subdivided children).
     dirs = X[cand] - origin
-    t_body = np.full(len(cand), np.inf)
-    if body is not None:
-        t_body = nearest_body_hit(camera, body_positions, body[1].faces, X[cand], compiled=compiled)
     if compiled:
         from mvtex.sliding.kernels import first_hits, nearest_occluder
         from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
@@ -409,8 +411,13 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
         ray, tri = ray[other], tri[other]
         t_occ = intersect_pairs(origin, dirs[ray], inferred, faces, tri)[0]
         _, t_first = _first_per_ray(ray, t_occ, len(cand))
-    front = in_front(t_first, options) & ~(t_body < 1)
-    cand, dirs, t_body = cand[front], dirs[front], t_body[front]
+    front = in_front(t_first, options)
+    cand, dirs = cand[front], dirs[front]
+    t_body = np.full(len(cand), np.inf)
+    if body is not None:
+        t_body = nearest_body_hit(camera, body_positions, body[1].faces, X[cand], compiled=compiled)
+        past = ~(t_body < 1)
+        cand, dirs, t_body = cand[past], dirs[past], t_body[past]
     visible = np.zeros(n, bool)
     visible[cand] = True
     tri_hit = np.full(n, -1, np.int64)

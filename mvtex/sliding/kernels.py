@@ -171,9 +171,10 @@ def first_hits(origin, dirs, pixels, tri_id, radius, neighbours, positions, face
         origin, dirs, pixels, tri_id, radius, neighbours: as `nearest_occluder` (ids are
         base face ids, no modulo). host_keys, vertices: as `nearest_occluder` (keys
         v * num_cloth + f). positions: (n,3) float64 gt positions. faces: (m,3) int64.
-        num_cloth: m (raster ids from it on are the body's, left out). t_body: (k,) float64 each ray's first body hit (`nearest_body_hit`; inf
-        without a body): a ray whose first cloth hit lies past it has none (exact ties,
-        within the relative 1e-9 of the cloth's own ties, go to the cloth).
+        num_cloth: m (raster ids from it on are the body's, left out). t_body: (k,)
+        float64 each ray's first body hit (`nearest_body_hit`; inf without a body): a ray
+        whose first cloth hit lies past it has none (exact ties, within the relative 1e-9
+        of the cloth's own ties, go to the cloth).
         vert_chart: (k,) int64 chart of each ray's vertex. face_chart: (m,) int64.
         vert_uv: (k,2) float64 the vertex's T_G. face_uv: (n,2) float64 gt uv.
 
@@ -279,8 +280,8 @@ def nearest_body_hit(origin, dirs, pixels, ahead, c0, r0, tile, columns, rows, s
                      positions, faces):
     """Per ray k: the smallest t > 0 at which dirs[k] (from `origin`) hits a face of the
     body, testing the faces binned to the tile of pixels[k] and those in `everywhere`
-    (`sliding.hits.BodyBins`); a ray not `ahead` (its point not in front of the camera)
-    is tested against every face.
+    (`sliding.hits.BodyBins`); a ray not `ahead` (its point not binned: behind the
+    camera or far outside the image) is tested against every face.
 
     Args:
         origin: (3,) float64. dirs: (k,3) float64. pixels: (k,2) float64. ahead: (k,) bool.
