@@ -172,9 +172,10 @@ class BodyBins:
 
 
 def bin_body(camera: Camera, positions: np.ndarray, faces: np.ndarray, pixels: np.ndarray,
-             tile: int = _TILE) -> BodyBins:
+             tile: int = _TILE, *, compiled: bool = True) -> BodyBins:
     """`BodyBins` of the body (positions (nb,3), faces (mb,3)) for rays through `pixels`
-    ((k,2) finite projections of points in front of `camera`)."""
+    ((k,2) finite projections of points in front of `camera`). `compiled`: bin with
+    `mvtex.sliding.kernels.bin_faces` (False: NumPy; the same bins)."""
     faces = np.asarray(faces, np.int64)
     if len(pixels):
         lo, hi = np.floor(pixels.min(axis=0)), np.floor(pixels.max(axis=0))
@@ -183,6 +184,13 @@ def bin_body(camera: Camera, positions: np.ndarray, faces: np.ndarray, pixels: n
     columns = int((hi[0] - lo[0]) // tile) + 1
     rows = int((hi[1] - lo[1]) // tile) + 1
     proj, z = camera.project(positions)
+    if compiled:
+        from mvtex.sliding.kernels import bin_faces
+
+        start, binned, everywhere = bin_faces(np.ascontiguousarray(proj), np.ascontiguousarray(z), faces,
+                                              float(lo[0]), float(lo[1]), float(tile), columns, rows, _BIN_MARGIN)
+        return BodyBins(c0=float(lo[0]), r0=float(lo[1]), tile=int(tile), columns=columns, rows=rows, start=start,
+                        faces=binned, everywhere=everywhere)
     zf = z[faces]
     ahead = np.all(zf > 0, axis=1)
     everywhere = np.flatnonzero(~ahead & np.any(zf > 0, axis=1))
@@ -231,7 +239,7 @@ def nearest_body_hit(camera: Camera, positions: np.ndarray, faces: np.ndarray, p
     with np.errstate(invalid="ignore"):
         ahead = (z > 0) & (pixels[:, 0] > -W) & (pixels[:, 0] < 2 * W) & (pixels[:, 1] > -H) & (pixels[:, 1] < 2 * H)
     pixels = np.ascontiguousarray(np.where(ahead[:, None], pixels, 0.0))
-    bins = bin_body(camera, positions, faces, pixels[ahead])
+    bins = bin_body(camera, positions, faces, pixels[ahead], compiled=compiled)
     if compiled:
         from mvtex.sliding.kernels import nearest_body_hit as kernel
 

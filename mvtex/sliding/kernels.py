@@ -13,16 +13,17 @@ tie-break keys are those of `sliding._window_pairs`, `sliding.intersect_pairs` a
 are not sorted: the nearest t does not depend on their order, and equal tie-break keys go
 to the smaller face id, which is what the reference's ascending order gives.
 
-Four kernels:
+Five kernels:
 
 - `nearest_occluder`: the nearest hit t of each vertex's ray on the inferred base mesh,
   leaving out the base faces the vertex itself lies on (rule 2, the depth test).
 - `first_hits`: the first gt hit of each ray with its tie-break (own chart, then facing
   the camera, then uv nearest the vertex's own T_G); the candidates also hold the faces
   the vertex lies on (gt and inferred share faces).
-- `nearest_body_hit`: the first body hit of each ray among the body faces binned to its
-  pixel (`sliding.hits.bin_body`): every face the ray can meet, so the body's answer is an
-  exact ray cast's whatever the raster shows.
+- `bin_faces` and `nearest_body_hit`: the body's faces binned to pixel tiles by their
+  projection (`sliding.hits.bin_body`), and the first body hit of each ray among the faces
+  of its tile: every face the ray can meet, so the body's answer is an exact ray cast's
+  whatever the raster shows.
 - `seen_from_inside`: `sliding.seen_from_inside` (area-weighted vertex normals, summed in
   the same order as `mesh.vertex_normals`, against the view direction) without its
   (m,3) and (n,3) temporaries.
@@ -319,3 +320,51 @@ def nearest_body_hit(origin, dirs, pixels, ahead, c0, r0, tile, columns, rows, s
                 best = t
         out[i] = best
     return out
+
+
+@_compiled
+def bin_faces(proj, z, faces, lo0, lo1, tile, columns, rows, margin):
+    """`sliding.hits.bin_body` after the projection: proj (nb,2) float64 and z (nb,)
+    float64 the body's projected corners and depths, faces (mb,3) int64, the grid's first
+    corner (lo0, lo1), tile size, size in tiles, margin in pixels. Returns start
+    (columns * rows + 1,) int64, the faces tile by tile (each tile's in increasing order,
+    as the NumPy formulation's stable sort leaves them) and the faces reaching behind the
+    camera's plane, the same arrays as the NumPy formulation."""
+    m = len(faces)
+    cells = columns * rows
+    box = np.empty((m, 4), np.int64)
+    keep = np.zeros(m, np.bool_)
+    behind = np.zeros(m, np.bool_)
+    start = np.zeros(cells + 1, np.int64)
+    for f in range(m):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if not (z[a] > 0 and z[b] > 0 and z[c] > 0):
+            behind[f] = z[a] > 0 or z[b] > 0 or z[c] > 0
+            continue
+        c_lo = np.floor((min(proj[a, 0], proj[b, 0], proj[c, 0]) - margin - lo0) / tile)
+        c_hi = np.floor((max(proj[a, 0], proj[b, 0], proj[c, 0]) + margin - lo0) / tile)
+        r_lo = np.floor((min(proj[a, 1], proj[b, 1], proj[c, 1]) - margin - lo1) / tile)
+        r_hi = np.floor((max(proj[a, 1], proj[b, 1], proj[c, 1]) + margin - lo1) / tile)
+        if not (c_hi >= 0 and c_lo <= columns - 1 and r_hi >= 0 and r_lo <= rows - 1):
+            continue
+        keep[f] = True
+        box[f, 0] = np.int64(min(max(c_lo, 0), columns - 1))
+        box[f, 1] = np.int64(min(max(c_hi, 0), columns - 1))
+        box[f, 2] = np.int64(min(max(r_lo, 0), rows - 1))
+        box[f, 3] = np.int64(min(max(r_hi, 0), rows - 1))
+        for r in range(box[f, 2], box[f, 3] + 1):
+            for col in range(box[f, 0], box[f, 1] + 1):
+                start[r * columns + col + 1] += 1
+    for j in range(cells):
+        start[j + 1] += start[j]
+    pos = start[:-1].copy()
+    out = np.empty(start[cells], np.int64)
+    for f in range(m):
+        if not keep[f]:
+            continue
+        for r in range(box[f, 2], box[f, 3] + 1):
+            for col in range(box[f, 0], box[f, 1] + 1):
+                cell = r * columns + col
+                out[pos[cell]] = f
+                pos[cell] += 1
+    return start, out, np.flatnonzero(behind).astype(np.int64)

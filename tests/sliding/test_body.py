@@ -300,6 +300,14 @@ def test_nearest_body_hit_equals_brute_force(compiled, oblique):
     t = nearest_body_hit(oblique, positions, faces, points, compiled=compiled)
     dirs = points - oblique.center
     _, t_ref, _ = brute_force_first_hit(oblique.center, dirs, positions, faces)
+    from mvtex.sliding.hits import bin_body
+
+    pixels, z = oblique.project(points)
+    seen = (z > 0) & oblique.in_image(pixels, z)
+    bins = [bin_body(oblique, positions, faces, pixels[seen], compiled=c) for c in (True, False)]
+    for field in ("start", "faces", "everywhere"):
+        assert np.array_equal(getattr(bins[0], field), getattr(bins[1], field)), field
+    assert len(bins[0].everywhere) == 1
     finite = np.isfinite(t_ref)
     assert finite.sum() > 1000 and (t_ref < 1).sum() > 200 and (t_ref[-200:] < np.inf).sum() > 10
     assert np.array_equal(np.isfinite(t), finite)
