@@ -59,3 +59,19 @@ def test_material_where_splits_eval_s_error(sheet_set, tmp_path):
     assert everything["near an opening"]["pixel_share"] == 1
     assert everything["near an opening"]["error_share"] == pytest.approx(1)
     assert (tmp_path / "where.png").stat().st_size > 0
+
+
+def test_body_hidden_counts_what_the_body_hides(tmp_path):
+    """One pose of the worn T-shirt, stereo and the cameras into its openings: the body
+    hides many vertices per Embree, `slide` assigns none of them."""
+    pytest.importorskip("embreex")
+    from mvtex.synth.generate import SynthOptions, write_synth
+
+    write_synth(tmp_path / "shirt", SynthOptions(num_poses=3, seed=2))
+    out = load("body_hidden").main([str(tmp_path / "shirt"), "--rigs", "stereo", "--openings", "--poses", "0",
+                                    "--subdiv", "0", "--json", str(tmp_path / "rows.json")])
+    assert [(r["rig"], r["jobs"]) for r in out["rows"]] == [("stereo", 2), ("openings", 4)]
+    for row in out["rows"]:
+        assert row["hidden"] > 1000 and row["assigned_total"] > 1000
+        assert row["assigned"] == 0
+    assert (tmp_path / "rows.json").exists()

@@ -48,26 +48,35 @@ def _first_hits(intersector, origins: np.ndarray, dirs: np.ndarray, num_faces: i
     return out
 
 
+def _first_t(intersector, origin: np.ndarray, dirs: np.ndarray, positions: np.ndarray, faces: np.ndarray):
+    """Per ray: t (units of dirs) of Embree's first hit, re-intersected in float64 (inf for
+    none: Embree's float32 hit can miss in float64 by a hair at an edge)."""
+    unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    tri = _first_hits(intersector, np.broadcast_to(origin, unit.shape), unit, len(faces))
+    t = np.full(len(dirs), np.inf)
+    has = tri >= 0
+    t[has] = intersect_pairs(origin, dirs[has], positions, faces, tri[has])[0]
+    return t, tri
+
+
 def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X: np.ndarray, topo: SlideTopology,
                      camera: Camera, options: SlideOptions, *,
                      body: tuple[np.ndarray, BodyTopology] | None = None) -> Hits:
     """Same contract as `sliding.find_hits_raster`, by ray casting with Embree (the body,
-    if given, in every scene: the pixels', the depth test's and the gt hits')."""
+    if given, in a scene of its own: it is in the pixels' scene, hides a vertex it meets
+    before the vertex and a gt hit it meets before the hit)."""
     from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
 
     n = len(X)
     origin = camera.center
     W, H = camera.width, camera.height
-    m_sub, m = len(topo.faces), len(faces)
-    X_all, sub_faces_all, gt_all, faces_all = X, topo.faces, gt, np.asarray(faces, np.int64)
+    m_sub = len(topo.faces)
+    faces = np.asarray(faces, np.int64)
+    X_all, sub_faces_all = X, topo.faces
     if body is not None:
         body_positions = np.asarray(body[0], np.float64)
         X_all = np.concatenate([X, body_positions])
         sub_faces_all = np.concatenate([topo.faces, body[1].faces + len(X)])
-        gt_all = np.concatenate([gt, body_positions])
-        faces_all = np.concatenate([faces_all, body[1].faces + len(gt)])
-    inf_rt = _intersector(X_all, sub_faces_all)
-    gt_rt = _intersector(gt_all, faces_all)
     pixels, z = camera.project(X)
     # Rule 1: cast a ray through every pixel centre of the projected bounding box.
     front = z > 0
@@ -76,24 +85,26 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     cols, rows = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
     pix = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float64)
     dirs_px = camera.pixel_rays(pix)
-    owner = _first_hits(inf_rt, np.broadcast_to(origin, dirs_px.shape), dirs_px, len(sub_faces_all))
+    scene = _intersector(X_all, sub_faces_all)
+    owner = _first_hits(scene, np.broadcast_to(origin, dirs_px.shape), dirs_px, len(sub_faces_all))
     owned = np.zeros(m_sub, bool)
     owned[owner[(owner >= 0) & (owner < m_sub)]] = True
     cand = owning_vertices(owned, topo, camera, pixels, z)
-    # Rule 2: the first surface along the vertex ray (inferred cloth or body) is not (much) nearer.
+    # Rule 2: the first inferred surface along the vertex ray is not (much) nearer, and the
+    # body is not nearer at all.
     dirs = X[cand] - origin
-    unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    occ = _first_hits(inf_rt, np.broadcast_to(origin, unit.shape), unit, len(sub_faces_all))
-    t_occ = np.full(len(cand), np.inf)
-    has = occ >= 0
-    t_occ[has] = intersect_pairs(origin, dirs[has], X_all, sub_faces_all, occ[has])[0]
-    # Embree's float32 hit can miss in float64 by a hair at an edge: then it is not an occluder.
-    vis = in_front(t_occ, options)
-    cand, dirs, unit = cand[vis], dirs[vis], unit[vis]
+    t_occ, _ = _first_t(scene if body is None else _intersector(X, topo.faces), origin, dirs, X, topo.faces)
+    t_body = np.full(len(cand), np.inf)
+    if body is not None:
+        t_body, _ = _first_t(_intersector(body_positions, body[1].faces), origin, dirs, body_positions,
+                             body[1].faces)
+    vis = in_front(t_occ, options) & ~(t_body < 1)
+    cand, dirs, t_body = cand[vis], dirs[vis], t_body[vis]
     visible = np.zeros(n, bool)
     visible[cand] = True
-    tri = _first_hits(gt_rt, np.broadcast_to(origin, unit.shape), unit, len(faces_all))
-    tri[tri >= m] = -1  # the body first: that material is hidden from the camera
+    # Rule 3: the first gt hit, none where the body comes first (exact ties go to the cloth).
+    t_gt, tri = _first_t(_intersector(gt, faces), origin, dirs, gt, faces)
+    tri[t_gt > t_body * (1 + 1e-9)] = -1
     tri_hit = np.full(n, -1, np.int64)
     bary = np.zeros((n, 3))
     back = np.zeros(n, bool)

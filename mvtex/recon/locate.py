@@ -8,7 +8,7 @@ T_G[i] at the projection of the inferred-surface point whose T_N^p equals T_G[i]
   float64 barycentrics decide);
 - `collect_hypotheses` turns each into a 3-D point on the inferred mesh (same
   barycentrics of X_N), keeps it where the camera sees it (depth test against a raster of
-  the inferred mesh) and records its pixel.
+  the inferred mesh; with a body, an exact ray cast against it) and records its pixel.
 
 The GL rasters come from `mvtex.render.raster`; the rest of the reconstruction (`mvtex.recon.triangulate`)
 needs no GL.
@@ -270,7 +270,8 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         require_assigned: with `assigned`, drop hypotheses in triangles with an
             unassigned corner.
         body: optional (positions (nb,3), faces (mb,3)) of the wearer's body in this pose:
-            in the depth test of every camera, so that no hypothesis the body hides is kept.
+            a hypothesis whose ray from the camera meets the body before the point (an
+            exact float64 ray cast, `mvtex.sliding.hits.nearest_body_hit`) is not kept.
         uncertainty: optional camera name -> (n',) predictive standard deviation of that
             camera's T_N (uv units), for every camera: the hypotheses then carry `sigma`
             (`located_sigma`).
@@ -287,6 +288,7 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
 
     from mvtex.render.context import GLContext
     from mvtex.render.raster import rasterize
+    from mvtex.sliding.hits import nearest_body_hit
 
     if ctx is None:
         with GLContext() as own:
@@ -322,10 +324,12 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         seen, pixels = visible_points(cam, P, fi, raster, tolerance=depth_tolerance)
         counts["occluded"] += int((~seen).sum())
         if body is not None:
-            body_raster = rasterize(ctx, body_positions, body_faces, cam)
-            past_body, _ = visible_points(cam, P, fi, raster, [body_raster], tolerance=depth_tolerance)
-            counts["hidden_by_body"] += int((seen & ~past_body).sum())
-            seen &= past_body
+            # The body hides the point when the ray from the camera meets it before the
+            # point: an exact ray cast, the rule of texture sliding's depth test.
+            hidden = np.zeros(len(P), bool)
+            hidden[seen] = nearest_body_hit(cam, body_positions, body_faces, P[seen]) < 1
+            counts["hidden_by_body"] += int(hidden.sum())
+            seen &= ~hidden
         hyp_v.append(vi[seen])
         hyp_c.append(np.full(int(seen.sum()), c))
         hyp_px.append(pixels[seen])

@@ -9,7 +9,8 @@ these steps, each a function of its own:
    inferred mesh (`locate_uv`: every triangle whose T_N^p contains it is a hypothesis,
    texcoords may fold over); the same barycentric combination of the inferred positions
    X_N is a 3-D point, kept where camera p sees it (depth test against a raster of the
-   inferred mesh, and of the wearer's body when there is one); its projection is the
+   inferred mesh; the wearer's body, when there is one, hides it where the ray from the
+   camera meets the body before it, by an exact ray cast); its projection is the
    observation.
 2. `mvtex.recon.consensus.screen_hypotheses`: the triangle test drops hypotheses located in
    a triangle whose T_N is stretched across a fold edge (`ReconOptions.max_stretch`).

@@ -71,11 +71,11 @@ def intersect_pairs(origin: np.ndarray, dirs: np.ndarray, positions: np.ndarray,
 
 def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
                   neighbours: np.ndarray | None = None, modulo: int | None = None,
-                  body: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  split: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distinct triangle ids in the (2r+1)² window around each pixel (and their edge
     neighbours if given), as (ray, tri) pairs sorted by ray. With `modulo`, the raster's
-    ids (>= 0) are taken modulo it first (subdivided face ids -> base face ids). With
-    `body` = (split, base), ids from split on are the body's: split + j becomes base + j."""
+    ids (>= 0) are taken modulo it first (subdivided face ids -> base face ids). Ids from
+    `split` on (the body's) are left out."""
     H, W = tri_id.shape
     col = np.rint(pixels[:, 0]).astype(np.int64)
     row = np.rint(pixels[:, 1]).astype(np.int64)
@@ -83,11 +83,10 @@ def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
     rr = np.clip(row[:, None, None] + off[None, :, None], 0, H - 1)
     cc = np.clip(col[:, None, None] + off[None, None, :], 0, W - 1)
     ids = tri_id[rr, cc].reshape(len(pixels), -1)
-    is_body = None if body is None else ids >= body[0]
+    if split is not None:
+        ids = np.where(ids >= split, -1, ids)
     if modulo is not None:
         ids = np.where(ids >= 0, ids % modulo, -1)
-    if is_body is not None:
-        ids = np.where(is_body, tri_id[rr, cc].reshape(len(pixels), -1) - body[0] + body[1], ids)
     if neighbours is not None:
         ids = np.sort(ids, axis=1)
         ids[:, 1:][ids[:, 1:] == ids[:, :-1]] = -1
@@ -107,17 +106,14 @@ def _window_pairs(tri_id: np.ndarray, pixels: np.ndarray, radius: int,
 def _with_hosts(ray: np.ndarray, tri: np.ndarray, vertices: np.ndarray, host_keys: np.ndarray,
                 m: int) -> tuple[np.ndarray, np.ndarray]:
     """(ray, tri) pairs with each ray's host faces added (the base faces vertices[ray] lies
-    on, from the sorted keys v * m + f), distinct and sorted by ray then face (tri may hold
-    body faces from m on)."""
+    on, from the sorted keys v * m + f), distinct and sorted by ray then face."""
     lo = np.searchsorted(host_keys, vertices * m)
     hi = np.searchsorted(host_keys, (vertices + 1) * m)
     count = hi - lo
     host_ray = np.repeat(np.arange(len(vertices)), count)
     host = host_keys[np.repeat(lo, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
-    # Face ids up to m + body faces: keys in a base past every id.
-    base = max(m, int(tri.max()) + 1 if len(tri) else 0)
-    keys = np.unique(np.r_[ray * base + tri, host_ray * base + (host - vertices[host_ray] * m)])
-    return keys // base, keys % base
+    keys = np.unique(np.r_[ray * m + tri, host_ray * m + (host - vertices[host_ray] * m)])
+    return keys // m, keys % m
 
 
 def _first_per_ray(ray: np.ndarray, key: np.ndarray, num_rays: int) -> tuple[np.ndarray, np.ndarray]:
@@ -135,6 +131,133 @@ def _first_per_ray(ray: np.ndarray, key: np.ndarray, num_rays: int) -> tuple[np.
     first = idx[np.r_[True, r[1:] != r[:-1]]] if len(idx) else idx
     best[ray[first]] = first
     return best, best_key
+
+
+_TILE = 8  # pixels per side of a body bin
+_BIN_MARGIN = 1.0  # pixels added around a face's projected box (far above rounding)
+
+
+@dataclass(frozen=True)
+class BodyBins:
+    """The body's faces binned by where they project, for the rays through a set of pixels.
+
+    A ray from the camera centre towards a point in front of the camera meets, at t > 0,
+    only points that project to that point's pixel; a face with all corners in front of
+    the camera can be hit only where its projected corners' box (grown by a margin) holds
+    the pixel. So the faces binned to a pixel's tile are every face its ray can hit, except
+    faces reaching behind the camera's plane, which are in `everywhere`; faces wholly
+    behind it are never hit (nor kept).
+
+    Attributes:
+        c0, r0: pixel of the grid's first tile corner. tile: tile size in pixels.
+        columns, rows: the grid's size in tiles (it covers the pixels it was made for).
+        start: (columns * rows + 1,) int64 offsets of each tile's faces in `faces`.
+        faces: int64 face ids, tile by tile. everywhere: int64 faces of every tile.
+    """
+
+    c0: float
+    r0: float
+    tile: int
+    columns: int
+    rows: int
+    start: np.ndarray
+    faces: np.ndarray
+    everywhere: np.ndarray
+
+    def cells(self, pixels: np.ndarray) -> np.ndarray:
+        """(k,) int64 tile index of each pixel (clipped to the grid)."""
+        col = np.clip(np.floor((pixels[:, 0] - self.c0) / self.tile), 0, self.columns - 1).astype(np.int64)
+        row = np.clip(np.floor((pixels[:, 1] - self.r0) / self.tile), 0, self.rows - 1).astype(np.int64)
+        return row * self.columns + col
+
+
+def bin_body(camera: Camera, positions: np.ndarray, faces: np.ndarray, pixels: np.ndarray,
+             tile: int = _TILE, *, compiled: bool = True) -> BodyBins:
+    """`BodyBins` of the body (positions (nb,3), faces (mb,3)) for rays through `pixels`
+    ((k,2) finite projections of points in front of `camera`). `compiled`: bin with
+    `mvtex.sliding.kernels.bin_faces` (False: NumPy; the same bins)."""
+    faces = np.asarray(faces, np.int64)
+    if len(pixels):
+        lo, hi = np.floor(pixels.min(axis=0)), np.floor(pixels.max(axis=0))
+    else:
+        lo = hi = np.zeros(2)
+    columns = int((hi[0] - lo[0]) // tile) + 1
+    rows = int((hi[1] - lo[1]) // tile) + 1
+    proj, z = camera.project(positions)
+    if compiled:
+        from mvtex.sliding.kernels import bin_faces
+
+        start, binned, everywhere = bin_faces(np.ascontiguousarray(proj), np.ascontiguousarray(z), faces,
+                                              float(lo[0]), float(lo[1]), float(tile), columns, rows, _BIN_MARGIN)
+        return BodyBins(c0=float(lo[0]), r0=float(lo[1]), tile=int(tile), columns=columns, rows=rows, start=start,
+                        faces=binned, everywhere=everywhere)
+    zf = z[faces]
+    ahead = np.all(zf > 0, axis=1)
+    everywhere = np.flatnonzero(~ahead & np.any(zf > 0, axis=1))
+    f = np.flatnonzero(ahead)
+    corners = proj[faces[f]]
+    # Tile range of each face's box, clipped to the grid; faces off the grid are dropped.
+    c_lo = np.floor((corners[:, :, 0].min(axis=1) - _BIN_MARGIN - lo[0]) / tile)
+    c_hi = np.floor((corners[:, :, 0].max(axis=1) + _BIN_MARGIN - lo[0]) / tile)
+    r_lo = np.floor((corners[:, :, 1].min(axis=1) - _BIN_MARGIN - lo[1]) / tile)
+    r_hi = np.floor((corners[:, :, 1].max(axis=1) + _BIN_MARGIN - lo[1]) / tile)
+    on = (c_hi >= 0) & (c_lo <= columns - 1) & (r_hi >= 0) & (r_lo <= rows - 1)
+    f = f[on]
+    c_lo = np.clip(c_lo[on], 0, columns - 1).astype(np.int64)
+    c_hi = np.clip(c_hi[on], 0, columns - 1).astype(np.int64)
+    r_lo = np.clip(r_lo[on], 0, rows - 1).astype(np.int64)
+    r_hi = np.clip(r_hi[on], 0, rows - 1).astype(np.int64)
+    width = c_hi - c_lo + 1
+    count = width * (r_hi - r_lo + 1)
+    owner = np.repeat(np.arange(len(f)), count)
+    local = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    cell = (r_lo[owner] + local // width[owner]) * columns + c_lo[owner] + local % width[owner]
+    order = np.argsort(cell, kind="stable")
+    start = np.zeros(columns * rows + 1, np.int64)
+    np.cumsum(np.bincount(cell, minlength=columns * rows), out=start[1:])
+    return BodyBins(c0=float(lo[0]), r0=float(lo[1]), tile=int(tile), columns=columns, rows=rows, start=start,
+                    faces=f[owner[order]].astype(np.int64), everywhere=everywhere.astype(np.int64))
+
+
+def nearest_body_hit(camera: Camera, positions: np.ndarray, faces: np.ndarray, points: np.ndarray, *,
+                     compiled: bool = True) -> np.ndarray:
+    """(k,) float64 t of the first point where the ray from the camera centre towards each
+    of `points` (k,3) meets the body (positions (nb,3), faces (mb,3)), with t = 1 at the
+    point (inf: never). Exact: every face the ray can meet is tested in float64
+    (Möller–Trumbore, as the cloth hits): the faces binned to its pixel (`bin_body`);
+    a point behind the camera or far outside its image is tested against every face.
+    The body hides the point when t < 1 (DESIGN §5 "The body")."""
+    positions = np.ascontiguousarray(positions, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    origin = np.ascontiguousarray(camera.center, dtype=np.float64)
+    points = np.asarray(points, np.float64)
+    dirs = np.ascontiguousarray(points - origin)
+    pixels, z = camera.project(points)
+    # Rays through the image or near it are binned (the grid's size stays bounded by the
+    # image's); any other is tested against every face.
+    W, H = camera.width, camera.height
+    with np.errstate(invalid="ignore"):
+        ahead = (z > 0) & (pixels[:, 0] > -W) & (pixels[:, 0] < 2 * W) & (pixels[:, 1] > -H) & (pixels[:, 1] < 2 * H)
+    pixels = np.ascontiguousarray(np.where(ahead[:, None], pixels, 0.0))
+    bins = bin_body(camera, positions, faces, pixels[ahead], compiled=compiled)
+    if compiled:
+        from mvtex.sliding.kernels import nearest_body_hit as kernel
+
+        return kernel(origin, dirs, pixels, ahead, bins.c0, bins.r0, bins.tile, bins.columns, bins.rows, bins.start,
+                      bins.faces, bins.everywhere, positions, faces)
+    cell = bins.cells(pixels)
+    lo, hi = bins.start[cell], bins.start[cell + 1]
+    count = np.where(ahead, hi - lo, 0)
+    ray = np.repeat(np.arange(len(points)), count)
+    tri = bins.faces[np.repeat(lo, count) + np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)]
+    behind = np.flatnonzero(~ahead)
+    ray = np.concatenate([ray, np.repeat(np.flatnonzero(ahead), len(bins.everywhere)),
+                          np.repeat(behind, len(faces))])
+    tri = np.concatenate([tri, np.tile(bins.everywhere, int(ahead.sum())), np.tile(np.arange(len(faces)), len(behind))])
+    t = intersect_pairs(origin, dirs[ray], positions, faces, tri)[0]
+    out = np.full(len(points), np.inf)
+    np.minimum.at(out, ray, t)
+    return out
 
 
 @dataclass
@@ -167,38 +290,34 @@ def seen_from_inside(X: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np
 
 def choose_hits(origin: np.ndarray, dirs: np.ndarray, gt: np.ndarray, gt_faces: np.ndarray, ray: np.ndarray,
                 tri: np.ndarray, vert_chart: np.ndarray, gt_chart: np.ndarray, vert_uv: np.ndarray | None = None,
-                gt_uv: np.ndarray | None = None, num_cloth: int | None = None):
+                gt_uv: np.ndarray | None = None, t_body: np.ndarray | None = None):
     """Nearest hit per ray among its candidate (ray, tri) pairs. Exact ties (a ray through
     a gt vertex or edge) prefer a triangle of the vertex's own chart, then one facing the
     camera, then (given `vert_uv` (k,2) and `gt_uv` (n,2)) the one whose uv at the hit is
     nearest the vertex's own T_G: where a chart meets itself along a seam, both sides name
     the same material and the vertex keeps its own side's coordinates.
-    With `num_cloth`, faces from it on (of `gt` and `gt_faces`, which then hold the body
-    after the cloth) are the body's: a ray whose first hit is there has none (exact ties go
-    to the cloth).
+    With `t_body` (k,) (each ray's first body hit, `nearest_body_hit`), a ray whose
+    nearest cloth hit lies past it has none (exact ties, within the relative 1e-9 of the
+    cloth's own ties, go to the cloth).
     Returns tri (k,) (-1 = no hit), bary (k,3), back (k,) bool."""
     k = len(dirs)
     t, b1, b2, facing = intersect_pairs(origin, dirs[ray], gt, gt_faces, tri)
     _, t_min = _first_per_ray(ray, t, k)
+    if t_body is not None:
+        t_min = np.where(t_min > t_body * (1 + 1e-9), -np.inf, t_min)  # the body first: no pair is near
     # Only the pairs tied for the nearest hit compete on the tie-break key; they keep their
     # order, so the first best pair is the same as over all pairs.
     near = np.flatnonzero(np.isfinite(t) & (t <= t_min[ray] * (1 + 1e-9)))
     ray, tri, b1, b2 = ray[near], tri[near], b1[near], b2[near]
     back = facing[near] > 0
-    body = None if num_cloth is None else tri >= num_cloth
-    cloth_tri = tri if body is None else np.where(body, 0, tri)
-    other = gt_chart[cloth_tri] != vert_chart[ray]
+    other = gt_chart[tri] != vert_chart[ray]
     key = 4.0 * other + 2.0 * back
     if vert_uv is not None and gt_uv is not None:
-        corners = gt_uv[gt_faces[cloth_tri]]
+        corners = gt_uv[gt_faces[tri]]
         w = np.stack([1 - b1 - b2, b1, b2], axis=1)
         hit_uv = np.einsum("kj,kjc->kc", w, corners)
         key = key + np.minimum(np.linalg.norm(hit_uv - vert_uv[ray], axis=1), 1.0)
-    if body is not None:
-        key = np.where(body, 8.0, key)
     best, _ = _first_per_ray(ray, key, k)
-    if body is not None:
-        best[best >= 0] = np.where(body[best[best >= 0]], -1, best[best >= 0])
     found = best >= 0
     sel = best[found]
     out_tri = np.full(k, -1, np.int64)
@@ -247,9 +366,12 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
             (the default); False runs the NumPy formulation (`_window_pairs`,
             `intersect_pairs`, `choose_hits`), which gives the same answer, slower.
         body: (positions (nb,3), `body_topology(...)`) of the wearer's body in this pose:
-            drawn into both rasters; a vertex it hides is not visible (rule 2), a ray that
-            meets it before the gt cloth has no hit (rule 3). Its triangles are candidates
-            from the same raster windows and intersected exactly like the cloth's.
+            drawn into both rasters (a pixel where it is nearest shows no cloth); a vertex
+            whose ray meets it before the vertex (t < 1) is not visible (rule 2), a ray
+            that meets it before the gt cloth has no hit (rule 3). The body's first hit on
+            each ray comes from an exact ray cast (`nearest_body_hit`: every body face
+            the ray can meet, in float64), not from the raster windows, which miss faces
+            seen edge-on at the body's silhouette.
     """
     from mvtex.render.raster import body_offsets, rasterize_pair
 
@@ -265,10 +387,6 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
         body_positions = np.asarray(body[0], np.float64)
         occluder = (body_positions, body[1].faces)
         split_base, split_sub = body_offsets(m, len(topo.levels) - 1)
-        # The windows around vertices at the edge of the cloth's box reach past it by the
-        # radius, where only the body can be: read it back there too.
-        lo, hi = bounds.min(axis=0) - options.radius, bounds.max(axis=0) + options.radius
-        bounds = np.concatenate([bounds, [lo, hi]])
     # Ids of the subdivided inferred faces (they give rule 1 directly); the base face of
     # subdivided face k is k % m (children keep their parent modulo m). Both corners sets
     # bound the read-back region (the inferred base vertices are among X's first n).
@@ -278,36 +396,36 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     owned[sub_ids[(sub_ids >= 0) & (sub_ids < split_sub)]] = True
     cand = owning_vertices(owned, topo, camera, pixels, z)
     neighbours = topo.face_neighbours
-    inferred_all, gt_all, faces_all = inferred, gt, faces
-    if body is not None:
-        neighbours = body[1].neighbours
-        inferred_all = np.concatenate([inferred, body_positions])
-        gt_all = np.concatenate([gt, body_positions])
-        faces_all = np.concatenate([np.asarray(faces, np.int64), body[1].faces + len(gt)])
-    # Rule 2: nothing of the inferred mesh (nor the body) in front of the vertex along its
-    # ray (t = 1 at the vertex). Candidate occluders: the base inferred triangles drawn
-    # around its projection (the same surface as their subdivided children).
+    faces = np.asarray(faces, np.int64)
+    # Rule 2: nothing of the inferred mesh in front of the vertex along its ray (t = 1 at
+    # the vertex), up to the depth tolerance, and nothing of the body before it at all.
+    # Candidate occluders: the base inferred triangles drawn around its projection (the
+    # same surface as their subdivided children).
     dirs = X[cand] - origin
     if compiled:
         from mvtex.sliding.kernels import first_hits, nearest_occluder
         from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
 
-        faces64 = np.ascontiguousarray(faces_all, dtype=np.int64)
+        faces64 = np.ascontiguousarray(faces, dtype=np.int64)
         origin64 = np.ascontiguousarray(origin, dtype=np.float64)
         t_first = nearest_occluder(origin64, dirs, pixels[cand], sub_ids, options.radius, neighbours, m,
                                    split_sub, topo.host_keys, cand,
-                                   np.ascontiguousarray(inferred_all, dtype=np.float64), faces64)
+                                   np.ascontiguousarray(inferred, dtype=np.float64), faces64)
     else:
-        ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, neighbours, modulo=m,
-                                 body=None if body is None else (split_sub, m))
-        keys = cand[ray] * len(faces) + tri
+        ray, tri = _window_pairs(sub_ids, pixels[cand], options.radius, neighbours, modulo=m, split=split_sub)
+        keys = cand[ray] * m + tri
         pos = np.minimum(np.searchsorted(topo.host_keys, keys), len(topo.host_keys) - 1)
-        other = (topo.host_keys[pos] != keys) | (tri >= m)
+        other = topo.host_keys[pos] != keys
         ray, tri = ray[other], tri[other]
-        t_occ = intersect_pairs(origin, dirs[ray], inferred_all, faces_all, tri)[0]
+        t_occ = intersect_pairs(origin, dirs[ray], inferred, faces, tri)[0]
         _, t_first = _first_per_ray(ray, t_occ, len(cand))
     front = in_front(t_first, options)
     cand, dirs = cand[front], dirs[front]
+    t_body = np.full(len(cand), np.inf)
+    if body is not None:
+        t_body = nearest_body_hit(camera, body_positions, body[1].faces, X[cand], compiled=compiled)
+        past = ~(t_body < 1)
+        cand, dirs, t_body = cand[past], dirs[past], t_body[past]
     visible = np.zeros(n, bool)
     visible[cand] = True
     tri_hit = np.full(n, -1, np.int64)
@@ -316,15 +434,14 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     if compiled:
         tri_hit[cand], bary[cand], back[cand] = first_hits(
             origin64, dirs, pixels[cand], gt_ids, options.radius, neighbours,
-            np.ascontiguousarray(gt_all, dtype=np.float64), faces64, m, topo.chart[cand], topo.gt_chart,
+            np.ascontiguousarray(gt, dtype=np.float64), faces64, m, t_body, topo.chart[cand], topo.gt_chart,
             topo.uv[cand], np.ascontiguousarray(topo.uv[:len(gt)]), topo.host_keys, cand)
         from_inside = compiled_seen_from_inside(np.ascontiguousarray(X, dtype=np.float64), topo.faces, origin64)
     else:
-        ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, neighbours)
+        ray, tri = _window_pairs(gt_ids, pixels[cand], options.radius, neighbours, split=split_base)
         ray, tri = _with_hosts(ray, tri, cand, topo.host_keys, m)
-        tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt_all, faces_all, ray, tri,
-                                                            topo.chart[cand], topo.gt_chart, topo.uv[cand],
-                                                            topo.uv[:len(gt)],
-                                                            num_cloth=None if body is None else m)
+        tri_hit[cand], bary[cand], back[cand] = choose_hits(origin, dirs, gt, faces, ray, tri, topo.chart[cand],
+                                                            topo.gt_chart, topo.uv[cand], topo.uv[:len(gt)],
+                                                            t_body=t_body)
         from_inside = seen_from_inside(X, topo.faces, origin)
     return Hits(visible=visible, tri=tri_hit, bary=bary, back=back, from_inside=from_inside)

@@ -133,24 +133,18 @@ def build_topology(faces: np.ndarray, uv: np.ndarray, reference: np.ndarray, sub
 @dataclass(frozen=True)
 class BodyTopology:
     """The body (an opaque occluder that is not cloth) as the hit search sees it, built once
-    per dataset: its faces numbered after the cloth's m base faces.
+    per dataset.
 
     Attributes:
-        faces: (mb,3) int64 body faces (indices into the body's own vertices).
-        num_cloth_faces: m, the cloth's base faces; body face j is searched as m + j.
-        neighbours: (m + mb, 3) int64 face neighbours of cloth and body together (-1 none;
-            cloth and body never neighbour each other).
+        faces: (mb,3) int64 body faces (indices into the body's own vertices), C-contiguous.
+        num_cloth_faces: m, the cloth's base faces (the rasters number body face j as m + j).
     """
 
     faces: np.ndarray
     num_cloth_faces: int
-    neighbours: np.ndarray
 
 
 def body_topology(body_faces: np.ndarray, topology: SlideTopology) -> BodyTopology:
     """The hit search's view of a body with `body_faces` (mb,3) beside the cloth of `topology`."""
     body_faces = np.ascontiguousarray(body_faces, dtype=np.int64)
-    m = len(topology.face_neighbours)
-    own = face_neighbours(body_faces)
-    neighbours = np.concatenate([topology.face_neighbours, np.where(own >= 0, own + m, -1)])
-    return BodyTopology(faces=body_faces, num_cloth_faces=m, neighbours=np.ascontiguousarray(neighbours))
+    return BodyTopology(faces=body_faces, num_cloth_faces=len(topology.face_neighbours))

@@ -10,6 +10,7 @@ import subprocess
 
 import numpy as np
 import pytest
+import trimesh
 from helpers import grid_mesh, wave
 
 from mvtex.data.camera import look_at
@@ -578,3 +579,30 @@ def test_without_uncertainty_the_cameras_disagreement_decides(gl):
     err = reprojection_errors(cams, X, pixels)
     expected = np.sqrt(np.sum(np.where(weights > 0, err, 0) ** 2) / (2 * weights.sum() - 3 * 40))
     assert consistency_sigma_px(cams, X, pixels, weights) == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_body_no_pixel_centre_sees_still_hides_observations(gl):
+    """A thin box (0.5 mm wide) between the flat sheet and a camera, projecting between two
+    pixel columns (no raster shows it): the observations of the column of vertices whose
+    rays it crosses are hidden by the body, every other vertex is observed (closed form,
+    the slab method; T_N = T_G so each vertex is located at itself)."""
+    from mvtex.recon.locate import collect_hypotheses
+    from mvtex.render.raster import rasterize
+
+    faces, uv, rest = grid_mesh(31, 31)
+    cam = look_at("front", (0.0, 0.0, 2.0), (0, 0, 0), width=160, height=160, focal=400.0)
+    lo, hi = np.array([0.05 - 2.5e-4, -0.2, 0.99]), np.array([0.05 + 2.5e-4, 0.2, 1.0])
+    box = trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+    body = (np.asarray(box.vertices, np.float64), np.asarray(box.faces, np.int64))
+    assert not rasterize(gl, rest, faces, cam, occluder=body).body.any()
+    hyp, counts = collect_hypotheses(uv, rest, faces, {"front": uv}, [cam], body=body, ctx=gl)
+    d = rest - cam.center
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (lo - cam.center) / d, (hi - cam.center) / d
+    near, far = np.nanmax(np.minimum(t0, t1), axis=1), np.nanmin(np.maximum(t0, t1), axis=1)
+    hidden = (near <= far) & (far > 0) & (near < 1)
+    assert hidden.sum() >= 31
+    observed = np.zeros(len(rest), bool)
+    observed[hyp.vertex] = True
+    assert np.array_equal(observed, ~hidden)
+    assert counts["hidden_by_body"] >= hidden.sum()
