@@ -122,6 +122,20 @@ _DEVICE_SCALE = 16  # larger tiles and parts on CUDA: fewer, larger kernels
 _TILE_ELEMENTS = 2 ** 18  # (rows, tile, tile, P) temporaries of the kernel: 2 MB of float64, cache-sized
 
 
+def integer_config(cls, d: dict[str, Any], arch: str):
+    """A config dataclass of integer fields from its dict (config.json's "architecture",
+    "arch" left out), validated: ValueError on unknown keys or values that are not integers."""
+    d = {k: v for k, v in d.items() if k != "arch"}
+    unknown = set(d) - {f.name for f in fields(cls)}
+    if unknown:
+        raise ValueError(f"unknown architecture keys {sorted(unknown)}")
+    if any(isinstance(v, bool) or not isinstance(v, int) for v in d.values()):
+        raise ValueError(f"{arch} architecture values must be integers")
+    config = cls(**d)
+    config.validate()
+    return config
+
+
 @dataclass(frozen=True)
 class GPConfig:
     """Shape of a `PoseGP`.
@@ -152,15 +166,7 @@ class GPConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "GPConfig":
-        d = {k: v for k, v in d.items() if k != "arch"}
-        unknown = set(d) - {f.name for f in fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown architecture keys {sorted(unknown)}")
-        if any(isinstance(v, bool) or not isinstance(v, int) for v in d.values()):
-            raise ValueError("gp architecture values must be integers")
-        config = cls(**d)
-        config.validate()
-        return config
+        return integer_config(cls, d, "gp")
 
 
 class PoseGP(nn.Module):

@@ -22,7 +22,7 @@ networks (model.safetensors + config.json "architecture": {"arch": "mlp", ...}).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -81,15 +81,9 @@ class MLPConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "MLPConfig":
-        d = {k: v for k, v in d.items() if k != "arch"}
-        unknown = set(d) - {f.name for f in fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown architecture keys {sorted(unknown)}")
-        if any(isinstance(v, bool) or not isinstance(v, int) for v in d.values()):
-            raise ValueError("mlp architecture values must be integers")
-        config = cls(**d)
-        config.validate()
-        return config
+        from mvtex.tsnn.gp import integer_config
+
+        return integer_config(cls, d, "mlp")
 
 
 class PoseMLP(nn.Module):
