@@ -201,7 +201,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
         _WORKER.set(None, None)
         if own_ctx is not None:
             own_ctx.release()
-    save_rig(rig, partial.path / RIG_FILE)  # the set records its cameras: --rig defaults to them
+    save_rig(rig, partial.path / RIG_FILE, overwrite=True)  # the set records its cameras (the unfinished set is mvtex's)
     return partial.finish()
 
 
