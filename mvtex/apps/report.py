@@ -198,22 +198,24 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
                                                     "mesh lacks show")
                       if (out / "render" / "overview.png").is_file() else "")))
 
-    def ts_rows(items):
-        return [[name, r["num_images"], r.get("material_inferred_mm"), r.get("material_texcoords_mm"),
-                 r.get("ratio_material"), r.get("material_assigned_inferred_mm"),
-                 r.get("material_assigned_texcoords_mm"), r.get("ratio_material_assigned"),
-                 None if r.get("assigned_share") is None else 100 * r["assigned_share"],
-                 r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
-                 r["same_chart_texcoords_e3"], r["ratio_same_chart"]] for name, r in items]
+    def ts_tables(items) -> str:
+        """Two tables: the material error (all pixels, assigned triangles), the uv error."""
+        items = list(items)
+        material = [[name, r["num_images"], r.get("material_inferred_mm"), r.get("material_texcoords_mm"),
+                     r.get("ratio_material"), r.get("material_assigned_inferred_mm"),
+                     r.get("material_assigned_texcoords_mm"), r.get("ratio_material_assigned"),
+                     None if r.get("assigned_share") is None else 100 * r["assigned_share"]] for name, r in items]
+        uv = [[name, r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
+               r["same_chart_texcoords_e3"], r["ratio_same_chart"]] for name, r in items]
+        return (table(["", "images", "material error: inferred mm", "texcoords mm", "ratio",
+                       "assigned triangles: inferred mm", "texcoords mm", "ratio", "% of pixels"], material)
+                + table(["", "uv error: inferred e-3", "texcoords e-3", "ratio", "same chart: inferred e-3",
+                         "texcoords e-3", "ratio"], uv))
 
-    header = ["", "images", "material error, inferred mm", "material error, texcoords mm", "ratio",
-              "assigned triangles: inferred mm", "texcoords mm", "ratio", "% of pixels",
-              "uv error inferred e-3", "uv error texcoords e-3", "ratio", "uv error same chart, inferred e-3",
-              "texcoords e-3", "ratio"]
     ts = summary.get("texture_sliding", {})
     heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS; top uv error, bottom material error, each row on the logarithmic scale of its colour bar; the legend names the other colours")
                                          for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
-    sections.append(("Texture sliding from ground truth (material error in mm, uv error = the paper's SqrtMSE; per image, mean)", table(header, ts_rows(ts.items())) + heat))
+    sections.append(("Texture sliding from ground truth (material error in mm, uv error = the paper's SqrtMSE; per image, mean)", ts_tables(ts.items()) + heat))
 
     rec = summary.get("reconstruction")
     if rec:
@@ -241,7 +243,7 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
     if "tsnn" in summary:
         r = summary["tsnn"]
         sections.append(("Texture sliding network (camera left, test poses)",
-                         f"<p>trained on {r.get('train_poses')} poses.</p>" + table(header, ts_rows([("TSNN", r)])) +
+                         f"<p>trained on {r.get('train_poses')} poses.</p>" + ts_tables([("TSNN", r)]) +
                          "".join(figure(p, f"TSNN error heatmaps {Path(p).stem}: inferred | TSNN", width="60%")
                                  for p in _pictures(out, "heatmaps/tsnn", 1))))
 
