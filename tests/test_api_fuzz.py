@@ -274,6 +274,6 @@ def test_an_options_field_of_a_hostile_type_raises_a_typed_error(name, sandbox):
 
 def test_the_fuzzed_names_are_the_public_api():
     """Every public function and options class is fuzzed (the result types are not)."""
-    results = {"InputError", "OptionError", "Dataset", "TexcoordSet", "SynthResult", "GLContext", "Raster",
+    results = {"InputError", "OptionError", "OutputError", "Dataset", "TexcoordSet", "SynthResult", "GLContext", "Raster",
                "Evaluation", "Reconstruction", "ReconReport", "TrainResult", "TrainedCameras", "__version__"}
     assert set(mvtex.__all__) - results - set(NAMES) - set(OPTIONS) == set()

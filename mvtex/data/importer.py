@@ -133,7 +133,10 @@ def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray
 def _inputs(a: dict) -> list:
     import glob
 
-    return [glob.glob(str(a[k])) for k in ("gt_glob", "inferred_glob", "body_glob") if a[k]] + [a["poses_file"]]
+    # Only what names files: an argument of another type is refused by the function itself.
+    named = [a[k] for k in ("gt_glob", "inferred_glob", "body_glob") if isinstance(a[k], (str, os.PathLike))]
+    poses = a["poses_file"] if isinstance(a["poses_file"], (str, os.PathLike)) else None
+    return [glob.glob(os.fspath(g)) for g in named] + [poses]
 
 
 @writer("import", inputs=_inputs)

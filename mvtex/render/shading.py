@@ -251,7 +251,7 @@ def render_shaded(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, came
     positions, faces, matte = _with_body(positions, faces, body)
     cam = camera.to_camera(positions)
     near, far = depth_range(cam)
-    s = max(1, int(supersample))
+    s = max(1, min(int(supersample), min(ctx.max_size, MAX_IMAGE_SIZE) // max(camera.width, camera.height)))
     big = _supersampled(camera, s)
     clip = clip_from_camera(big, near, far)
     data = np.hstack([cam, normals_v @ camera.R.T, matte[:, None]]).astype("f4")

@@ -30,7 +30,7 @@ def test_a_rig_of_mixed_sizes_renders(tmp_path, tiny_dataset, front_rig, gl, cap
     rig = mvtex.Rig((a, resized(b, 80, 60)))
     summary = mvtex.render_pose(mvtex.load_dataset(tiny_dataset), rig, 0, tmp_path / "api", progress=False, ctx=gl)
     overview = cv2.imread(str(tmp_path / "api" / "overview.png"))
-    assert overview.shape[:2] == (2 * 120 + 4, 2 * 160 + 4)  # cells as large as the largest picture
+    assert overview.shape[:2] == (4 * 120 + 3 * 4, 2 * 160 + 4)  # cells as large as the largest picture (4 rows)
     small = cv2.imread(str(tmp_path / "api" / "b" / "gt.png"))
     assert small.shape[:2] == (60, 80) and "b/gt.png" in summary["files"]
     # The picture sits in its cell's corner: the overview there is the picture itself.
@@ -65,7 +65,7 @@ def test_the_largest_and_smallest_image_sizes_render_and_slide(size, tmp_path, t
 def test_seeds_out_of_range_are_typed_errors(seed, tmp_path, capsys):
     for make in (lambda: mvtex.SynthOptions(num_poses=10, seed=seed), lambda: mvtex.DemoOptions(seed=seed),
                  lambda: mvtex.TrainOptions(seed=seed).validate()):
-        with pytest.raises(mvtex.OptionError, match="^seed must be an integer in 0..4294967295"):
+        with pytest.raises(mvtex.OptionError, match="^seed must be an integer"):
             make()
     if isinstance(seed, int) and not isinstance(seed, bool):
         code, _, err = run(capsys, "synth", "--out", tmp_path / "ds", "--num-poses", 10, "--seed", seed, "--quiet")
