@@ -296,12 +296,9 @@ def triangulate_points(cameras: Sequence[Camera], pixels: np.ndarray, weights: n
 
 def _as_array(value, name: str) -> np.ndarray:
     """`value` as a float64 array; OptionError naming `name` when it is not numbers."""
-    if isinstance(value, (str, bytes)) or value is None:
-        raise OptionError(f"{name} must be an array of numbers, got {type(value).__name__}")
-    try:
-        return np.array(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        raise OptionError(f"{name} must be an array of numbers, got {type(value).__name__}") from None
+    from mvtex.data.camera import _as_float_array
+
+    return _as_float_array(value, name)
 
 
 def least_disagreement(cameras: Sequence[Camera], pixels: np.ndarray) -> tuple[int, np.ndarray]:

@@ -88,6 +88,32 @@ def _with_body(positions: np.ndarray, faces: np.ndarray, body: tuple[np.ndarray,
     return np.concatenate([positions, body_positions]), np.concatenate([faces, body_faces + len(positions)]), matte
 
 
+def _draw(ctx: GLContext, vao, big: Camera, background: tuple[int, int, int], bind=None) -> np.ndarray:
+    """Draw `vao` (inside the caller's `with ctx.mgl`) into a colour target of `big`'s size
+    over `background`, depth-tested with culling off (the projection mirrors winding), after
+    `bind()`; the (H,W,3) uint8 RGB readback, OpenCV row order."""
+    import moderngl
+
+    fbo = ctx._target("color", big.width, big.height)
+    fbo.use()
+    fbo.clear(*(np.asarray(background, np.float64) / 255), 1.0, depth=1.0)
+    ctx.mgl.disable(moderngl.CULL_FACE)
+    ctx.mgl.enable(moderngl.DEPTH_TEST)
+    if bind is not None:
+        bind()
+    vao.render(moderngl.TRIANGLES)
+    return np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(big.height, big.width, 3)
+
+
+def _downsampled(img: np.ndarray, camera: Camera, s: int) -> np.ndarray:
+    """A render supersampled by `s` brought back to `camera`'s size (area average)."""
+    import cv2
+
+    if s > 1:
+        img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img)
+
+
 def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray,
                     camera: Camera, *, normals: np.ndarray | None = None,
                     background: tuple[int, int, int] = (40, 40, 46), supersample: int = 2,
@@ -106,8 +132,6 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
     Returns:
         (H,W,3) uint8 RGB image, OpenCV row order.
     """
-    import cv2
-    import moderngl
 
     from mvtex.data.mesh import vertex_normals, weld_groups
 
@@ -148,20 +172,10 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
         ibo = gl.buffer(np.asarray(faces, dtype=np.int32).tobytes())
         vao = gl.vertex_array(prog, [(vbo, "3f 3f 2f 1f", "in_cam", "in_normal", "in_texcoord", "in_matte")],
                               index_buffer=ibo, index_element_size=4)
-        fbo = ctx._target("color", big.width, big.height)
-        fbo.use()
-        bg = np.asarray(background, dtype=np.float64) / 255
-        fbo.clear(*bg, 1.0, depth=1.0)
-        gl.disable(moderngl.CULL_FACE)
-        gl.enable(moderngl.DEPTH_TEST)
-        _fabric_gl(ctx, texture_size).use(0)
-        vao.render(moderngl.TRIANGLES)
-        img = np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(big.height, big.width, 3)
+        img = _draw(ctx, vao, big, background, bind=lambda: _fabric_gl(ctx, texture_size).use(0))
         for obj in (vao, vbo, ibo):
             obj.release()
-    if s > 1:
-        img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(img)
+    return _downsampled(img, camera, s)
 
 
 CLOTH_RGB = (150, 178, 214)  # the cloth's colour in untextured (`render_shaded`) pictures
@@ -224,8 +238,6 @@ def render_shaded(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, came
     Returns:
         (H,W,3) uint8 RGB image, OpenCV row order.
     """
-    import cv2
-    import moderngl
 
     from mvtex.data.mesh import face_normals, vertex_normals, weld_groups
 
@@ -268,18 +280,10 @@ def render_shaded(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, came
         ibo = gl.buffer(np.asarray(faces, dtype=np.int32).tobytes())
         vao = gl.vertex_array(prog, [(vbo, "3f 3f 1f", "in_cam", "in_normal", "in_matte")],
                               index_buffer=ibo, index_element_size=4)
-        fbo = ctx._target("color", big.width, big.height)
-        fbo.use()
-        fbo.clear(*(np.asarray(background, np.float64) / 255), 1.0, depth=1.0)
-        gl.disable(moderngl.CULL_FACE)
-        gl.enable(moderngl.DEPTH_TEST)
-        vao.render(moderngl.TRIANGLES)
-        img = np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(big.height, big.width, 3)
+        img = _draw(ctx, vao, big, background)
         for obj in (vao, vbo, ibo):
             obj.release()
-    if s > 1:
-        img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(img)
+    return _downsampled(img, camera, s)
 
 
 def garment_box(positions: np.ndarray, camera: Camera, *, margin: float = 0.06,
