@@ -3,7 +3,8 @@ docs/reconstruction.md.
 
     python benchmarks/table_recon.py WORK [--garments shirt,skirt] [--dataset DIR ...]
         [--rigs stereo,square4,trapezoid12] [--poses test] [--num-poses 300] [--subdiv 1]
-        [--source ts,tsnn] [--tsnn-poses 200] [--tsnn-rigs square4] [--slide KEY=VALUE ...]
+        [--source ts,tsnn] [--tsnn-poses 200] [--tsnn-test-poses N] [--tsnn-rigs square4]
+        [--slide KEY=VALUE ...]
         [--recon KEY=VALUE ...] [--workers N] [--json FILE]
 
 TS: the built-in garment (`mvtex synth --garment G --poses NUM_POSES`, or a dataset given
@@ -11,7 +12,7 @@ with --dataset) is slid with `slide`'s defaults (override with --slide break_rat
 each rig, and each selected pose is triangulated with `triangulate`'s defaults (override
 with --recon). TSNN: a dataset of TSNN_POSES poses is slid on every pose, one `gp` model
 per camera of each TSNN rig is trained on its train split (minutes per camera), the test
-poses are predicted and triangulated: every point taken (without and with `smooth`),
+poses (or N of them, evenly spaced, with --tsnn-test-poses) are predicted and triangulated: every point taken (without and with `smooth`),
 trusted by the cameras' agreement (the set's uncertainty ignored), and with the defaults
 (trusted by the models' predictive uncertainty); TS on the same test poses is reported
 next to it. Everything is written under WORK and reused by a rerun.
@@ -113,8 +114,9 @@ def run_ts(work: Path, dataset, garment: str, rig_name: str, poses: list[int], s
 
 
 def run_tsnn(work: Path, garment: str, rig_name: str, num_poses: int, slide: SlideOptions, options: ReconOptions,
-             workers: int, given: dict[str, Path], ctx) -> dict:
-    """TS and TSNN (plain and smoothed) on the test split of a num_poses dataset."""
+             workers: int, given: dict[str, Path], ctx, test_poses: int | None = None) -> dict:
+    """TS and TSNN (plain and smoothed) on the test split of a num_poses dataset (every
+    len(test) / test_poses -th test pose when test_poses is given)."""
     from dataclasses import replace
 
     from mvtex.tsnn.cameras import train_cameras
@@ -130,8 +132,10 @@ def run_tsnn(work: Path, garment: str, rig_name: str, num_poses: int, slide: Sli
     tc = open_texcoords(ts, dataset.num_vertices)
     train_cameras(dataset, tc, list(rig.names), base / "models", TrainOptions(arch="gp"), workers=workers,
                   progress=False)
-    test = dataset.split["test"]
-    pred = base / "tsnn_test"
+    test = [int(k) for k in dataset.split["test"]]
+    if test_poses:
+        test = test[::max(1, len(test) // test_poses)][:test_poses]
+    pred = base / ("tsnn_test" if len(test) == len(dataset.split["test"]) else f"tsnn_test{len(test)}")
     if not (pred / "texcoords.json").exists():
         predict(dataset, [base / "models" / c for c in rig.names], pred, poses=test, progress=False)
     pc = open_texcoords(pred, dataset.num_vertices)
@@ -182,6 +186,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--subdiv", type=int, default=1)
     p.add_argument("--source", default="ts", help="ts, tsnn or ts,tsnn")
     p.add_argument("--tsnn-poses", type=int, default=200, help="poses of the TSNN dataset (80 %% train)")
+    p.add_argument("--tsnn-test-poses", type=int, help="score only this many test poses, evenly spaced (default all)")
     p.add_argument("--tsnn-rigs", default="square4", help="rigs of the TSNN rows (one gp model per camera)")
     p.add_argument("--slide", action="append", default=[], metavar="KEY=VALUE", help="a SlideOptions field")
     p.add_argument("--recon", action="append", default=[], metavar="KEY=VALUE", help="a ReconOptions field")
@@ -209,7 +214,7 @@ def main(argv: list[str] | None = None) -> dict:
             if "tsnn" in sources:
                 for rig_name in args.tsnn_rigs.split(","):
                     out = run_tsnn(args.work, garment, rig_name, args.tsnn_poses, slide, options, args.workers, given,
-                                   ctx)
+                                   ctx, args.tsnn_test_poses)
                     for source, label in (("ts", f"TS ({args.tsnn_poses}-pose set)"),
                                           ("tsnn_plain", "TSNN, every point taken"),
                                           ("tsnn_smooth", "TSNN, every point taken, smooth"),

@@ -59,8 +59,8 @@ def cmd_train(args):
     if args.cameras is not None and not names:
         raise UsageError(f"mvtex train: error: --cameras needs a camera name or a comma-separated list "
                          f"(got {args.cameras!r})")
-    if (args.workers is not None or args.scheduler is not None) and (names is None or len(names) < 2):
-        raise UsageError("mvtex train: error: --workers and --scheduler train several cameras side by side: "
+    if (args.workers not in (None, 1) or args.scheduler is not None) and (names is None or len(names) < 2):
+        raise UsageError("mvtex train: error: --workers above 1 and --scheduler train several cameras side by side: "
                          "give --cameras A,B,...")
     dataset = load_dataset(args.dataset)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)

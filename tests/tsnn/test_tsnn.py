@@ -557,9 +557,13 @@ def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_p
                  str(tmp_path / "both" / "c"), "--out", str(tmp_path / "pred"), "--poses", "test", "--quiet"]) == 0
     assert open_texcoords(tmp_path / "pred", ds.num_vertices).cameras == ["a", "c"]
     capsys.readouterr()
-    # --workers without several cameras, and a camera the set does not have: exit 2, one line.
+    # --workers 2 without several cameras, and a camera the set does not have: exit 2, one line;
+    # --workers 1 (the default, as a script may spell it for every command) trains the one camera.
     assert main(["train", *base, "--cameras", "a", "--workers", "2", "--out", str(tmp_path / "x")]) == 2
     assert "several cameras" in capsys.readouterr().err
+    assert main(["train", *base, "--cameras", "a", "--workers", "1", "--out", str(tmp_path / "w1")]) == 0
+    assert (tmp_path / "w1" / "model.safetensors").is_file()
+    capsys.readouterr()
     assert main(["train", *base, "--cameras", "a,zz", "--out", str(tmp_path / "y")]) == 2
     err = capsys.readouterr().err
     assert "zz" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "y" / "a").exists()
