@@ -4,6 +4,8 @@ mvtex against independent computations), running the command line, and a failure
 from __future__ import annotations
 
 import json
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -228,3 +230,25 @@ def bad_input(x: int) -> int:
     from mvtex import InputError
 
     raise InputError(f"file{x}.npy", f"problem {x}")
+
+
+@contextmanager
+def held_elsewhere(claim):
+    """Hold `claim` (a context manager, e.g. `claim_output(...)`) on another thread while the
+    body runs: claims nest only within one thread's run, so this is how a second run on the
+    same output is made in one process."""
+    held, done = threading.Event(), threading.Event()
+
+    def hold():
+        with claim:
+            held.set()
+            done.wait(60)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        held.wait(60)
+        yield
+    finally:
+        done.set()
+        holder.join()

@@ -562,6 +562,20 @@ def pose_pca(poses: np.ndarray, d, components: int, basis_poses: int = MAX_TRAIN
     return x, mean_x, std_x, mean_d, basis, coef
 
 
+def pose_pca_counted(poses: np.ndarray, d, components: int,
+                     progress: Callable[[int, int], None] | None = None):
+    """`pose_pca` with its default basis, and how many progress steps its reading took (the
+    first steps of a fit's progress, which then goes on counting from there)."""
+    reads = [0]
+
+    def reading(done: int, total: int) -> None:
+        reads[0] = total
+        if progress is not None:
+            progress(done, total)
+
+    return pose_pca(poses, d, components, progress=reading), reads[0]
+
+
 def _residual_var(d, mean_d: np.ndarray, basis: np.ndarray, coef: np.ndarray) -> np.ndarray:
     """Per coordinate (2n',), the mean square over the training poses of what the principal
     components leave of d (the PCA truncation residual), read `_PCA_CHUNK` poses at a time."""
@@ -639,14 +653,7 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
     """
     if not 1 <= inducing <= MAX_TRAIN:
         raise ValueError(f"inducing must be in 1..{MAX_TRAIN}, got {inducing}")
-    read = [0]
-
-    def reading(done: int, total: int) -> None:
-        read[0] = total
-        if progress is not None:
-            progress(done, total)
-
-    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components, progress=reading)
+    (x, mean_x, std_x, mean_d, basis, coef), reads = pose_pca_counted(poses, d, components, progress)
     k, p = x.shape
     exact = k <= inducing
     expansion = np.arange(k) if exact else evenly_spaced(k, inducing)
@@ -669,7 +676,7 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
         # evaluation); the posterior conditions on all of them.
         hyper = torch.from_numpy(evenly_spaced(k, HYPER_POSES)).to(device)
         starts = _STARTS if len(hyper) <= MULTI_START_POSES else (_START,)
-        steps = read[0] + len(basis) * len(starts) * iterations
+        steps = reads + len(basis) * len(starts) * iterations
         total = steps + len(basis) * (1 if exact else 2)
         finished = [0]
         lock = threading.Lock()
@@ -685,7 +692,7 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
 
         with torch.no_grad(), _workers(device) as pool:
             params = _fit_hyperparameters(zt[hyper], yt[:, hyper], iterations, pool, starts,
-                                          lambda done, _: report(read[0] + done, total))
+                                          lambda done, _: report(reads + done, total))
             if exact:
                 alpha = _posterior(zt, yt, params, pool, rows_done).cpu()
             else:

@@ -173,16 +173,9 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
         (the model in eval mode, history {"train": [...], "val": [...]} mean over members per
         epoch, plus "best_epoch": [...] per member).
     """
-    from mvtex.tsnn.gp import pose_pca
+    from mvtex.tsnn.gp import pose_pca_counted
 
-    read = [0]
-
-    def reading(done: int, total: int) -> None:
-        read[0] = total
-        if progress is not None:
-            progress(done, total)
-
-    x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components, progress=reading)
+    (x, mean_x, std_x, mean_d, basis, coef), reads = pose_pca_counted(poses, d, components, progress)
     k, p = x.shape
     if k < 2:
         raise ValueError(f"an mlp needs at least 2 training poses, got {k}")
@@ -247,7 +240,7 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
             history["train"].append(total / per_epoch * scale ** 2)
             history["val"].append(float(val.mean()) * scale ** 2)
             if progress is not None:
-                progress(read[0] + epoch, read[0] + epochs)
+                progress(reads + epoch, reads + epochs)
     finally:
         torch.set_num_threads(previous)
     with torch.no_grad():

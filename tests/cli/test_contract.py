@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from helpers import grid_mesh, one_line_error, run, write_obj
+from helpers import grid_mesh, held_elsewhere, one_line_error, run, write_obj
 
 from mvtex.data.rig import load_rig
 from mvtex.util.output import MARKER, claim_file
@@ -40,24 +40,9 @@ def test_existing_files_are_kept_without_overwrite(tmp_path, capsys):
 
 
 def test_one_run_per_output_file(tmp_path, capsys):
-    import threading
-
     out = tmp_path / "board.png"
-    held, done = threading.Event(), threading.Event()
-
-    def hold():  # another thread: claims nest only within one thread's run
-        with claim_file(out, "board"):
-            held.set()
-            done.wait(60)
-
-    holder = threading.Thread(target=hold)
-    holder.start()
-    try:
-        held.wait(60)
+    with held_elsewhere(claim_file(out, "board")):
         code, _, err = run(capsys, "board", "charuco:5x4:0.04:0.03:DICT_4X4_50", "--out", out)
-    finally:
-        done.set()
-        holder.join()
     one_line_error(code, err, f"in use by pid {os.getpid()}")
     assert not out.exists()
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import bad_input, fake_model, one_line_error, run, square
+from helpers import bad_input, fake_model, held_elsewhere, one_line_error, run, square
 
 from mvtex.cli import main
 from mvtex.data.camera import Camera
@@ -113,24 +113,9 @@ def test_an_unwritable_parent_exits_2(tmp_path, capsys):
 
 
 def test_a_second_run_on_the_same_output_is_refused_with_the_holders_pid(tmp_path, tiny_dataset, rig_file, capsys):
-    import threading
-
     out = tmp_path / "tc"
-    held, done = threading.Event(), threading.Event()
-
-    def hold():  # another thread: claims nest only within one thread's run
-        with claim_output(out, "slide"):
-            held.set()
-            done.wait(60)
-
-    holder = threading.Thread(target=hold)
-    holder.start()
-    try:
-        held.wait(60)
+    with held_elsewhere(claim_output(out, "slide")):
         code, _, err = run(capsys, "slide", tiny_dataset, "--rig", rig_file, "--out", out, "--quiet")
-    finally:
-        done.set()
-        holder.join()
     one_line_error(code, err, out, f"in use by pid {os.getpid()}")
     assert not list(tmp_path.glob(".tc.*lock"))
 

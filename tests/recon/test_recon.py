@@ -179,16 +179,7 @@ def test_untriangulated_get_the_extended_displacement(gl):
     displacement, i.e. gt as well."""
     from mvtex.recon.triangulate import reconstruct
 
-    size = 0.9
-    faces, uv, rest = grid_mesh(36, 30, size=size)
-    inferred = rest + np.array([0.0, 0.0, 0.01])
-    rig = three_camera_rig()
-    T = {}
-    for cam in rig:
-        C = cam.center
-        s = C[2] / (C[2] - inferred[:, 2])
-        hit = C + s[:, None] * (inferred - C)
-        T[cam.name] = (hit[:, :2] + size / 2) / size
+    faces, uv, rest, inferred, rig, T = _sheet_in_front()
     rec = reconstruct(uv, inferred, faces, uv, T, rig)
     assert 0.3 < rec.triangulated.mean() < 0.97
     assert np.abs(rec.points - rest).max() < 1e-6

@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers import run
+from helpers import held_elsewhere, run
 
 from mvtex.data.rig import builtin_rig_path, load_rig
 from mvtex.views.cameras import interpolate_camera
@@ -85,24 +85,9 @@ def test_preview_bad_input(tmp_path, sheet_set, capsys):
     # One run at a time per output folder.
     from mvtex.util.output import claim_output
 
-    import threading
-
-    held, done = threading.Event(), threading.Event()
-
-    def hold():  # another thread: claims nest only within one thread's run
-        with claim_output(tmp_path / "busy", "preview"):
-            held.set()
-            done.wait(60)
-
-    holder = threading.Thread(target=hold)
-    holder.start()
-    try:
-        held.wait(60)
+    with held_elsewhere(claim_output(tmp_path / "busy", "preview")):
         code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 4, "--out",
                            tmp_path / "busy", "--quiet")
-    finally:
-        done.set()
-        holder.join()
     assert code == 2 and "in use by pid" in err and len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "preview", dataset, "--rig", rig_path, "--texcoords", ts, "--pose", 3, "--out",
                        tmp_path / "p", "--quiet")
