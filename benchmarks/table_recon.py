@@ -13,9 +13,9 @@ each rig, and each selected pose is triangulated with `triangulate`'s defaults (
 with --recon). TSNN: a dataset of TSNN_POSES poses is slid on every pose, one `gp` model
 per camera of each TSNN rig is trained on its train split (minutes per camera), the test
 poses (or N of them, evenly spaced, with --tsnn-test-poses) are predicted and triangulated:
-every point taken (without and with `smooth`), trusted by the cameras' agreement (the set's uncertainty ignored), and with the defaults
-(trusted by the models' predictive uncertainty); TS on the same test poses is reported
-next to it. Everything is written under WORK and reused by a rerun.
+every point taken (without and with `smooth`), trusted by the cameras' agreement (the set's
+uncertainty ignored), and with the defaults (trusted by the models' predictive uncertainty);
+TS on the same test poses is reported next to it. Everything is written under WORK and reused by a rerun.
 
 Per (garment, rig, source): triangulated share, RMSE over the triangulated and over all
 vertices (inferred -> reconstructed, mean over poses), the ratio inferred / reconstructed
