@@ -6,7 +6,7 @@ a time: edge breaking off/4/8, fill harmonic/fmm, candidate radius 1/2, depth to
 1e-3/1e-2, cross-chart hits off/on. Each run is evaluated from the stereo and square4 rigs'
 cameras together, and a markdown table per rig is printed: the paper's metric (SqrtMSE
 ratio inferred / TS, all pixels and same-chart pixels) and the material error in
-millimetres (and its ratio inferred / TS for one subdivision).
+millimeters (and its ratio inferred / TS for one subdivision).
 
     nice -n 10 python benchmarks/defaults_study.py [--poses 60] [--out DIR] [--json FILE]
 

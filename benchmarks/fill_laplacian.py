@@ -31,7 +31,7 @@ from mvtex.sliding.topology import build_topology
 
 def main(dataset_path: str, rig_spec: str = "stereo", spec: str = "test", seed: int = 0) -> dict:
     ds = load_dataset(dataset_path)
-    rig = as_rig(rig_spec)[0]
+    rig = as_rig(rig_spec)
     poses = ds.select(spec)
     options = SlideOptions(subdiv=1)
     base = build_topology(ds.faces, ds.uv, reference_shape(ds), options.subdiv)

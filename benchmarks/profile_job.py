@@ -69,7 +69,7 @@ def main(dataset: str, rig_spec: str, spec: str, repeats: int) -> tuple[str, dic
     """Returns the Markdown report and the milliseconds per job of each timed step and
     of the rows."""
     ds = load_dataset(dataset)
-    rig = as_rig(rig_spec)[0]
+    rig = as_rig(rig_spec)
     poses = ds.select(spec)
     options = SlideOptions(subdiv=1)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), options.subdiv)

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from mvtex.data.dataset import load_dataset
-from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.data.texcoords import open_texcoords
 from mvtex.evaluation.evaluate import evaluate
 from mvtex.sliding.dataset import slide_dataset
@@ -33,7 +33,7 @@ def main(work: Path, spec: str = "::2", rigs: tuple[str, ...] = ("stereo", "squa
              "| SqrtMSE ×10⁻³ (same-chart pixels) | ratio |",
              "|---|---|---|---|---|---|---|---|"]
     for rig_name in rigs:
-        rig = load_rig(builtin_rig_path(rig_name))
+        rig = load_rig(builtin_rig_file(rig_name))
         for subdiv in (0, 1, 2):
             tc_path = work / f"ts_{rig_name}_s{subdiv}"
             slide_dataset(dataset, rig, tc_path, poses=poses, options=SlideOptions(subdiv=subdiv), workers=2)

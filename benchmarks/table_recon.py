@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mvtex.data.dataset import load_dataset
-from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.data.texcoords import open_texcoords
 from mvtex.recon.consensus import OBSERVATION_REASONS
 from mvtex.recon.options import ReconOptions
@@ -106,7 +106,7 @@ def summarise(dataset, rig, texcoords, poses: list[int], options: ReconOptions, 
 
 def run_ts(work: Path, dataset, garment: str, rig_name: str, poses: list[int], slide: SlideOptions,
            options: ReconOptions, workers: int, ctx) -> dict:
-    rig = load_rig(builtin_rig_path(rig_name))
+    rig = load_rig(builtin_rig_file(rig_name))
     tag = "".join(f"_{k}{v}" for k, v in sorted(vars(slide).items()) if getattr(SlideOptions(), k) != v)
     path = work / f"{garment}_ts_{rig_name}{tag or '_defaults'}"
     slide_dataset(dataset, rig, path, poses=poses, options=slide, workers=workers, progress=False, ctx=ctx)
@@ -124,7 +124,7 @@ def run_tsnn(work: Path, garment: str, rig_name: str, num_poses: int, slide: Sli
     from mvtex.tsnn.train import TrainOptions
 
     dataset = _dataset(work, garment, num_poses, given)
-    rig = load_rig(builtin_rig_path(rig_name))
+    rig = load_rig(builtin_rig_file(rig_name))
     base = work / f"{garment}{num_poses}_tsnn_{rig_name}"
     ts = base / "ts_all"
     slide_dataset(dataset, rig, ts, poses=dataset.select("all"), options=slide, workers=workers, progress=False,

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mvtex.data.dataset import load_dataset
-from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.data.texcoords import open_texcoords
 from mvtex.evaluation.evaluate import evaluate
 from mvtex.recon.pose import triangulate_pose
@@ -58,7 +58,7 @@ def main(work: Path, total: int = 1200) -> dict:
     if not (data / "dataset.json").exists():
         write_synth(data, SynthOptions(num_poses=total))
     ds = load_dataset(data)
-    stereo = load_rig(builtin_rig_path("stereo"))
+    stereo = load_rig(builtin_rig_file("stereo"))
     test = ds.split["test"]
     out: dict = {"train_seconds": {}}
     rows = ["| method (test split, camera left) | SqrtMSE ×10⁻³ (all pixels) | ratio | SqrtMSE ×10⁻³ (same-chart) | ratio |",

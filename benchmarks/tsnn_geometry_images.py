@@ -29,7 +29,7 @@ def main() -> None:
     from matplotlib.figure import Figure
 
     from mvtex.data.dataset import load_dataset
-    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.rig import builtin_rig_file, load_rig
     from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.atlas import AtlasSampler
     from mvtex.tsnn.geometry import CHANNEL_NAMES, geometry_images
@@ -40,7 +40,7 @@ def main() -> None:
     pose = ds.split["test"][0] if args.pose is None else args.pose
     sampler = AtlasSampler(tc.faces, tc.uv, args.resolution)
     geo = geometry_images(ds, [pose], sampler, tc.parent)
-    cam = torch.tensor(load_rig(builtin_rig_path("stereo"))["left"].cam_from_world, dtype=torch.float32)[None]
+    cam = torch.tensor(load_rig(builtin_rig_file("stereo"))["left"].cam_from_world, dtype=torch.float32)[None]
     view = UNet.view_features(torch.from_numpy(geo), cam).numpy()
     target = sampler.to_image(tc.displacement("left", pose)).transpose(2, 0, 1)
     region = sampler.layout.tri_id >= 0

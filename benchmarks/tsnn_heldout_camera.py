@@ -28,7 +28,7 @@ def main() -> None:
     import torch
 
     from mvtex.data.dataset import load_dataset
-    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.rig import builtin_rig_file, load_rig
     from mvtex.data.texcoords import open_texcoords
     from mvtex.evaluation.evaluate import evaluate
     from mvtex.sliding.dataset import slide_dataset
@@ -42,7 +42,7 @@ def main() -> None:
     if not (data / "dataset.json").exists():
         write_synth(data, SynthOptions(num_poses=1200))
     ds = load_dataset(data)
-    rig = load_rig(builtin_rig_path("trapezoid12"))
+    rig = load_rig(builtin_rig_file("trapezoid12"))
     train_poses = ds.split["train"][:args.train_poses]
     poses = sorted(train_poses + ds.split["val"][:60] + ds.split["test"])
     ts = args.work / "ts_trap1"

@@ -132,21 +132,21 @@ def timed_gp_fit(reference: bool, info: dict):
 def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: int, dataset: Path | None = None,
         texcoords: Path | None = None) -> dict:
     from mvtex.data.dataset import load_dataset
-    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.rig import builtin_rig_file, load_rig
     from mvtex.data.texcoords import open_texcoords, save_texcoords
     from mvtex.evaluation.evaluate import evaluate
     from mvtex.sliding.dataset import slide_dataset
     from mvtex.sliding.options import SlideOptions
     from mvtex.synth.generate import SynthOptions, write_synth
     from mvtex.tsnn.predict import predict
-    from mvtex.tsnn.train import TrainOptions, train
+    from mvtex.tsnn.train import TrainOptions, resolve_options, train
 
     work.mkdir(parents=True, exist_ok=True)
     data = dataset or work / "shirt1200"
     if not (data / "dataset.json").exists():
         write_synth(data, SynthOptions(num_poses=1200))
     ds = load_dataset(data)
-    stereo = load_rig(builtin_rig_path("stereo"))
+    stereo = load_rig(builtin_rig_file("stereo"))
     left = stereo.select(["left"])
     ts = texcoords or work / "ts_stereo1"
     if not (ts / "texcoords.json").exists():
@@ -190,7 +190,7 @@ def run(work: Path, sizes: list[int], methods: list[str], epochs: int, steps: in
             else:
                 arch = "paper" if method == "paper" else "unet"
                 # The same number of optimiser steps at every size, at least `epochs` epochs.
-                n_epochs = max(epochs, -(-steps * TrainOptions(arch=arch).resolved().batch_size // m))
+                n_epochs = max(epochs, -(-steps * resolve_options(TrainOptions(arch=arch)).batch_size // m))
                 options = TrainOptions(arch=arch, epochs=n_epochs, device="cpu", patience=max(5, n_epochs // 4))
                 model = work / f"model_{method}_{m}"
                 summary = train(ds, tc, model, camera=None if method == "unet_all" else "left", rig=stereo,

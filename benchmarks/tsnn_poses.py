@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from mvtex.data.dataset import load_dataset
-from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.data.texcoords import open_texcoords
 from mvtex.evaluation.evaluate import evaluate
 from mvtex.sliding.dataset import slide_dataset
@@ -34,7 +34,7 @@ def main(work: Path, total: int = 1200, sizes: tuple[int, ...] = (120, 240, 480,
     if not (data / "dataset.json").exists():
         write_synth(data, SynthOptions(num_poses=total))
     ds = load_dataset(data)
-    left = load_rig(builtin_rig_path("stereo")).select(["left"])
+    left = load_rig(builtin_rig_file("stereo")).select(["left"])
     train, val, test = ds.split["train"], ds.split["val"], ds.split["test"]
     rows = ["| training poses | TSNN SqrtMSE ×10⁻³ (all) | ratio | TSNN SqrtMSE ×10⁻³ (same-chart) | ratio | training time |",
             "|---|---|---|---|---|---|"]

@@ -31,7 +31,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from mvtex.data.dataset import load_dataset
-    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.rig import builtin_rig_file, load_rig
     from mvtex.data.texcoords import open_texcoords
     from mvtex.sliding.dataset import slide_dataset
     from mvtex.sliding.options import SlideOptions
@@ -46,7 +46,7 @@ def main() -> None:
         write_synth(data, SynthOptions(num_poses=args.poses, seed=0))
     ds = load_dataset(data)
     test = ds.split["test"]
-    stereo, square = load_rig(builtin_rig_path("stereo")), load_rig(builtin_rig_path("square4"))
+    stereo, square = load_rig(builtin_rig_file("stereo")), load_rig(builtin_rig_file("square4"))
     for name, rig, poses in (("stereo", stereo, test), ("square4", square, test[:args.grid_poses])):
         if not (work / f"ts_{name}" / "texcoords.json").exists():
             slide_dataset(ds, rig, work / f"ts_{name}", poses=poses, options=SlideOptions(subdiv=1), progress=True)

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from mvtex.data.dataset import load_dataset
-from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.data.texcoords import open_texcoords
 from mvtex.sliding.dataset import slide_dataset
 from mvtex.sliding.options import SlideOptions
@@ -30,7 +30,7 @@ def main(work: Path, total: int = 1200, path_poses: int = 12, epochs: int = 60) 
     if not (data / "dataset.json").exists():
         write_synth(data, SynthOptions(num_poses=total))
     ds = load_dataset(data)
-    stereo = load_rig(builtin_rig_path("stereo"))
+    stereo = load_rig(builtin_rig_file("stereo"))
     test = ds.split["test"]
     ts = work / "ts_stereo_s0"
     if not (ts / "texcoords.json").exists():

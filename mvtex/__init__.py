@@ -14,65 +14,158 @@ one of these calls::
 
 Names are loaded on first use (PEP 562), so `import mvtex` needs nothing but the standard
 library and the heavy libraries (moderngl, torch, OpenCV, pycolmap) load with the stage that
-needs them. The modules behind them: docs/architecture.md.
+needs them. Type checkers read the same names from the import block below, the one list of
+the public API (it runs only for them; at run time `__getattr__` reads it). The modules
+behind them: docs/architecture.md.
 """
 
 from __future__ import annotations
 
+import ast
 import importlib
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-__version__ = "0.3.0"
+__version__ = "0.4.0"
 
-# public name -> the module that defines it
-_API = {
+if TYPE_CHECKING:
+    # isort: off
+    # (grouped by stage, in the order of the pipeline)
     # errors
-    "InputError": "mvtex.util.errors", "OptionError": "mvtex.util.errors", "OutputError": "mvtex.util.errors",
+    from mvtex.util.errors import InputError, OptionError, OutputError
     # cameras, rigs, datasets, texcoord sets
-    "Camera": "mvtex.data.camera", "look_at": "mvtex.data.camera",
-    "Rig": "mvtex.data.rig", "load_rig": "mvtex.data.rig", "save_rig": "mvtex.data.rig",
-    "Dataset": "mvtex.data.dataset", "load_dataset": "mvtex.data.dataset", "save_dataset": "mvtex.data.dataset",
-    "import_sequences": "mvtex.data.importer",
-    "TexcoordSet": "mvtex.data.texcoords", "open_texcoords": "mvtex.data.texcoords",
-    "save_texcoords": "mvtex.data.texcoords",
+    from mvtex.data.camera import Camera, look_at
+    from mvtex.data.rig import Rig, load_rig, save_rig
+    from mvtex.data.dataset import Dataset, load_dataset, save_dataset
+    from mvtex.data.importer import import_sequences
+    from mvtex.data.texcoords import TexcoordSet, open_texcoords, save_texcoords
     # the built-in datasets
-    "SynthOptions": "mvtex.synth.generate", "SynthResult": "mvtex.synth.generate",
-    "synthesize": "mvtex.synth.generate", "write_synth": "mvtex.synth.generate",
+    from mvtex.synth.options import SynthOptions
+    from mvtex.synth.generate import SynthResult, synthesize, write_synth
     # rendering
-    "GLContext": "mvtex.render.context", "Raster": "mvtex.render.raster", "rasterize": "mvtex.render.raster",
-    "rasterize_uv": "mvtex.render.raster", "interpolate": "mvtex.render.raster",
-    "render_textured": "mvtex.render.shading", "render_pose": "mvtex.render.pose",
+    from mvtex.render.context import GLContext
+    from mvtex.render.raster import Raster, rasterize, rasterize_uv, interpolate
+    from mvtex.render.shading import render_textured
+    from mvtex.render.pose import render_pose
     # texture sliding
-    "SlideOptions": "mvtex.sliding.options", "slide_pose": "mvtex.sliding.pose",
-    "slide_dataset": "mvtex.sliding.dataset", "fill": "mvtex.sliding.fill",
+    from mvtex.sliding.options import SlideOptions
+    from mvtex.sliding.pose import slide_pose
+    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.fill import fill
     # evaluation
-    "evaluate": "mvtex.evaluation.evaluate", "Evaluation": "mvtex.evaluation.evaluate",
-    "MaterialMap": "mvtex.evaluation.material",
+    from mvtex.evaluation.evaluate import evaluate, Evaluation
+    from mvtex.evaluation.material import MaterialMap
     # reconstruction
-    "ReconOptions": "mvtex.recon.options", "Reconstruction": "mvtex.recon.triangulate",
-    "ReconReport": "mvtex.recon.report",
-    "reconstruct": "mvtex.recon.triangulate", "triangulate_pose": "mvtex.recon.pose",
-    "project_points": "mvtex.recon.geometry", "triangulate_points": "mvtex.recon.geometry",
+    from mvtex.recon.options import ReconOptions
+    from mvtex.recon.triangulate import Reconstruction, reconstruct
+    from mvtex.recon.report import ReconReport
+    from mvtex.recon.pose import triangulate_pose
+    from mvtex.recon.geometry import project_points, triangulate_points
     # novel views and previews
-    "ViewOptions": "mvtex.views.synthesizer", "interpolate_camera": "mvtex.views.cameras",
-    "novel_views": "mvtex.views.novel", "PreviewOptions": "mvtex.views.preview",
-    "stereo_preview": "mvtex.views.preview",
+    from mvtex.views.options import ViewOptions, PreviewOptions
+    from mvtex.views.cameras import interpolate_camera
+    from mvtex.views.novel import novel_views
+    from mvtex.views.preview import stereo_preview
     # calibration
-    "BoardSpec": "mvtex.calibration.board", "parse_board_spec": "mvtex.calibration.board",
-    "write_board_png": "mvtex.calibration.board", "CalibrateOptions": "mvtex.calibration.calibrate",
-    "calibrate": "mvtex.calibration.calibrate", "calibrate_folder": "mvtex.calibration.output",
+    from mvtex.calibration.board import BoardSpec, parse_board_spec, write_board_png
+    from mvtex.calibration.options import CalibrateOptions
+    from mvtex.calibration.calibrate import calibrate
+    from mvtex.calibration.output import calibrate_folder
     # texture sliding models
-    "TrainOptions": "mvtex.tsnn.train", "TrainResult": "mvtex.tsnn.modeldir", "TrainedCameras": "mvtex.tsnn.modeldir",
-    "train": "mvtex.tsnn.train", "train_cameras": "mvtex.tsnn.cameras",
-    "predict": "mvtex.tsnn.predict", "load_model": "mvtex.tsnn.predict",
+    from mvtex.tsnn.options import TrainOptions
+    from mvtex.tsnn.modeldir import TrainResult, TrainedCameras
+    from mvtex.tsnn.train import train
+    from mvtex.tsnn.cameras import train_cameras, train_models
+    from mvtex.tsnn.predict import predict, load_model
     # applications
-    "run_bench": "mvtex.apps.bench", "DemoOptions": "mvtex.apps.demo", "run_demo": "mvtex.apps.demo",
-}
+    from mvtex.apps.bench import run_bench
+    from mvtex.apps.options import DemoOptions
+    from mvtex.apps.demo import run_demo
+    # isort: on
 
-__all__ = ["__version__", *_API]
+__all__ = [
+    "__version__",
+    "InputError",
+    "OptionError",
+    "OutputError",
+    "Camera",
+    "look_at",
+    "Rig",
+    "load_rig",
+    "save_rig",
+    "Dataset",
+    "load_dataset",
+    "save_dataset",
+    "import_sequences",
+    "TexcoordSet",
+    "open_texcoords",
+    "save_texcoords",
+    "SynthOptions",
+    "SynthResult",
+    "synthesize",
+    "write_synth",
+    "GLContext",
+    "Raster",
+    "rasterize",
+    "rasterize_uv",
+    "interpolate",
+    "render_textured",
+    "render_pose",
+    "SlideOptions",
+    "slide_pose",
+    "slide_dataset",
+    "fill",
+    "evaluate",
+    "Evaluation",
+    "MaterialMap",
+    "ReconOptions",
+    "Reconstruction",
+    "reconstruct",
+    "ReconReport",
+    "triangulate_pose",
+    "project_points",
+    "triangulate_points",
+    "ViewOptions",
+    "PreviewOptions",
+    "interpolate_camera",
+    "novel_views",
+    "stereo_preview",
+    "BoardSpec",
+    "parse_board_spec",
+    "write_board_png",
+    "CalibrateOptions",
+    "calibrate",
+    "calibrate_folder",
+    "TrainOptions",
+    "TrainResult",
+    "TrainedCameras",
+    "train",
+    "train_cameras",
+    "train_models",
+    "predict",
+    "load_model",
+    "run_bench",
+    "DemoOptions",
+    "run_demo",
+]
+
+
+def _read_api() -> dict[str, str]:
+    """public name -> the module that defines it, read from the `TYPE_CHECKING` block of
+    this file."""
+    tree = ast.parse(Path(__file__).read_text(encoding="utf-8"))
+    block = next(node for node in tree.body
+                 if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING")
+    return {alias.name: node.module for node in block.body if isinstance(node, ast.ImportFrom)
+            for alias in node.names if node.module}
+
+
+_API: dict[str, str] = {}
 
 
 def __getattr__(name: str) -> Any:
+    if not _API:
+        _API.update(_read_api())
     module = _API.get(name)
     if module is None:
         raise AttributeError(f"module 'mvtex' has no attribute {name!r}")

@@ -63,11 +63,11 @@ def test_ar_preview(tmp_path, gl):
 def test_make_rigs_matches_shipped_rigs(tmp_path):
     import numpy as np
 
-    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.rig import builtin_rig_file, load_rig
 
     rigs = load("make_rigs").rigs()
     for name, rig in rigs.items():
-        shipped = load_rig(builtin_rig_path(name))
+        shipped = load_rig(builtin_rig_file(name))
         assert shipped.names == rig.names
         for a, b in zip(shipped, rig):
             assert np.allclose(a.R, b.R) and np.allclose(a.t, b.t) and np.allclose(a.K, b.K)

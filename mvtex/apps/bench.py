@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from mvtex.data.camera import Camera
+from mvtex.data.limits import MAX_SUBDIV
 from mvtex.data.rig import Rig, check_outside_body, check_sees
 from mvtex.sliding.hits import Hits, find_hits_raster, in_front, intersect_pairs, owning_vertices
 from mvtex.sliding.options import SlideOptions
@@ -248,7 +249,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
 
     Args:
         dataset: `Dataset` or directory. rig: `Rig` or rig path / built-in name.
-        poses: pose indices (default: the first 10).
+        poses: pose indices (default: the first 20).
         subdiv: subdivision levels of the sliding jobs.
         repeats: timed passes over all jobs per path; the fastest pass is reported.
         progress: progress bar on stderr.
@@ -264,8 +265,10 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
 
     poses = None if poses is None else as_indices(poses, "poses")
     subdiv, repeats = as_index(subdiv, "subdiv"), as_index(repeats, "repeats")
-    if not 0 <= subdiv <= 3 or not 1 <= repeats <= 100:
-        raise OptionError(f"subdiv must be in 0..3 and repeats in 1..100, got {subdiv} and {repeats}")
+    if not 0 <= subdiv <= MAX_SUBDIV:
+        raise OptionError("subdiv", f"must be an integer in [0, {MAX_SUBDIV}], got {subdiv}")
+    if not 1 <= repeats <= 100:
+        raise OptionError("repeats", f"must be an integer in [1, 100], got {repeats}")
     from tqdm import tqdm
 
     from mvtex.data.dataset import as_dataset, reference_shape
@@ -274,11 +277,11 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
 
     check_backend(workers)
     ds = as_dataset(dataset)
-    rig, rig_source = as_rig(rig)
-    poses = list(range(min(10, ds.num_poses))) if poses is None else ds.check_poses(poses)
-    check_sees(rig, np.asarray(ds.inferred[poses[0]]), rig_source,
+    rig = as_rig(rig)
+    poses = list(range(min(20, ds.num_poses))) if poses is None else ds.check_poses(poses)
+    check_sees(rig, np.asarray(ds.inferred[poses[0]]),
                what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
-    check_outside_body(rig, ds, poses, rig_source)
+    check_outside_body(rig, ds, poses)
     if ctx is None:
         with GLContext() as own:
             return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,

@@ -16,37 +16,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from mvtex.apps.options import DemoOptions
 from mvtex.util.output import writer
-
-MIN_POSES = 10  # the test split must hold a pose to show, the training split enough for a model
-
-
-@dataclass(frozen=True)
-class DemoOptions:
-    """Options of `run_demo`.
-
-    Attributes:
-        num_poses: poses of the built-in dataset (at least `MIN_POSES`).
-        seed: seed of the dataset.
-        tsnn: also train and evaluate the per-camera model.
-    """
-
-    num_poses: int = 120
-    seed: int = 0
-    tsnn: bool = True
-
-    def __post_init__(self) -> None:
-        from mvtex.util.checks import check_field_types
-        from mvtex.util.errors import OptionError
-
-        check_field_types(self)
-
-        if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, int) or self.num_poses < MIN_POSES:
-            raise OptionError(f"num_poses must be an integer of at least {MIN_POSES}, got {self.num_poses!r}")
-        from mvtex.util.checks import check_seed
-
-        check_seed(self.seed)
-
 
 def _step(name: str, progress: bool) -> float:
     if progress:
@@ -70,7 +41,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     out = as_path(out, "out")
     check_instance(options, DemoOptions, "options")
     from mvtex.data.dataset import load_dataset
-    from mvtex.data.rig import builtin_rig_path, load_rig
+    from mvtex.data.rig import builtin_rig_file, load_rig
     from mvtex.data.texcoords import open_texcoords
     from mvtex.evaluation.evaluate import evaluate
     from mvtex.recon.pose import triangulate_pose
@@ -97,8 +68,8 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     summary["dataset"] = {"path": str(data), "num_poses": dataset.num_poses, "num_vertices": dataset.num_vertices,
                           "test_pose": test_pose}
 
-    stereo = load_rig(builtin_rig_path("stereo"))
-    square = load_rig(builtin_rig_path("square4"))
+    stereo = load_rig(builtin_rig_file("stereo"))
+    square = load_rig(builtin_rig_file("square4"))
 
     t = _step(f"rendering pose {test_pose} from the stereo rig", progress)
     render_pose(dataset, stereo, test_pose, out / "render", progress=progress)

@@ -61,7 +61,7 @@ def png_data_uri(image: np.ndarray) -> str:
 
 
 def model_view(glb: Path, caption: str, *, frame: dict | None = None, legend_png: str | None = None) -> str:
-    """The 3-D view of a GLB. frame: {"target": (x, y, z), "radius": r, "fov_deg": f} (metres,
+    """The 3-D view of a GLB. frame: {"target": (x, y, z), "radius": r, "fov_deg": f} (meters,
     the GLB's axes): the camera looks at target from r away (else model-viewer frames the
     whole scene). legend_png: a picture (URI) shown beside the view."""
     data = base64.b64encode(Path(glb).read_bytes()).decode("ascii")

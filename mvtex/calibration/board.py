@@ -1,5 +1,5 @@
-"""ChArUco calibration boards: the SPEC string, the printable image, corner detection, and
-a moderngl renderer of the board seen by a camera (synthetic calibration images).
+"""ChArUco calibration boards: the SPEC string, the printable image and corner detection
+(`mvtex.calibration.synthetic` draws the board seen by a camera).
 
 A board SPEC reads `charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT`, e.g.
 `charuco:9x6:0.05:0.0375:DICT_5X5_100`: COLS x ROWS chessboard squares of SQUARE_M meters,
@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.options import NO_DEFAULT, Options, knob
 from mvtex.util.output import writer
 
 SPEC_PATTERN = re.compile(r"^charuco:(\d+)x(\d+):([0-9.eE+-]+):([0-9.eE+-]+):(DICT_\w+)$")
@@ -38,7 +39,7 @@ MAX_BOARD_PIXELS = 32768  # side of the printable image (a 1.1 m board at 750 dp
 
 
 @dataclass(frozen=True)
-class BoardSpec:
+class BoardSpec(Options):
     """A ChArUco board.
 
     Attributes:
@@ -48,25 +49,20 @@ class BoardSpec:
         dictionary: name of an OpenCV predefined dictionary, e.g. "DICT_5X5_100".
     """
 
-    cols: int
-    rows: int
-    square_m: float
-    marker_m: float
-    dictionary: str
+    cols: int = knob(NO_DEFAULT, "chessboard squares along x", low=3, flag=False)
+    rows: int = knob(NO_DEFAULT, "chessboard squares along y", low=3, flag=False)
+    square_m: float = knob(NO_DEFAULT, "side of a chessboard square", unit="m", low=0, low_open=True, flag=False)
+    marker_m: float = knob(NO_DEFAULT, "side of an ArUco marker", unit="m", low=0, low_open=True, flag=False)
+    dictionary: str = knob(NO_DEFAULT, "an OpenCV predefined dictionary, e.g. DICT_5X5_100", flag=False)
 
-    def __post_init__(self) -> None:
+    def validate(self) -> None:
         import cv2
 
-        from mvtex.util.checks import check_field_types
-
-        check_field_types(self)
-        if self.cols < 3 or self.rows < 3:
-            raise OptionError(f"cols and rows must be at least 3, got {self.cols}x{self.rows}")
         if not 0 < self.marker_m < self.square_m:
-            raise OptionError(f"marker_m must be in (0, square_m), got square_m {self.square_m:g} and "
+            raise OptionError("marker_m", f"must be in (0, square_m), got square_m {self.square_m:g} and "
                               f"marker_m {self.marker_m:g}")
         if not self.dictionary.startswith("DICT_") or not isinstance(getattr(cv2.aruco, self.dictionary, None), int):
-            raise OptionError(f"dictionary must be an OpenCV ArUco dictionary (cv2.aruco.DICT_*), got {self.dictionary!r}")
+            raise OptionError("dictionary", f"must be an OpenCV ArUco dictionary (cv2.aruco.DICT_*), got {self.dictionary!r}")
 
     def __str__(self) -> str:
         return f"charuco:{self.cols}x{self.rows}:{self.square_m:g}:{self.marker_m:g}:{self.dictionary}"
@@ -167,9 +163,9 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
     for key, value in (("dpi", dpi), ("pixels_per_square", pixels_per_square), ("margin_m", margin_m)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
                                   or not np.isfinite(value)):
-            raise OptionError(f"{key} must be a finite number, got {value!r:.60}")
+            raise OptionError(key, f"must be a finite number, got {value!r:.60}")
     if pixels_per_square is not None and not float(pixels_per_square).is_integer():
-        raise OptionError(f"pixels_per_square must be an integer, got {pixels_per_square!r}")
+        raise OptionError("pixels_per_square", f"must be an integer, got {pixels_per_square!r}")
     import cv2
     from PIL import Image, PngImagePlugin
 
@@ -177,23 +173,23 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
 
     path = Path(path)
     if dpi is not None and pixels_per_square is not None:
-        raise OptionError("dpi and pixels_per_square: give one, not both")
+        raise OptionError("dpi", "and pixels_per_square: give one, not both")
     if pixels_per_square is None:
         dpi = 300.0 if dpi is None else float(dpi)
         if not (np.isfinite(dpi) and dpi > 0):
-            raise OptionError(f"dpi must be positive, got {dpi}")
+            raise OptionError("dpi", f"must be positive, got {dpi}")
         pixels_per_square = int(round(spec.square_m * 1000 / MM_PER_INCH * dpi))
     else:
         dpi = pixels_per_square / (spec.square_m * 1000 / MM_PER_INCH)
     if pixels_per_square < 8:
-        raise OptionError(f"pixels_per_square must be at least 8 to print the markers, got {pixels_per_square}")
+        raise OptionError("pixels_per_square", f"must be at least 8 to print the markers, got {pixels_per_square}")
     margin_m = max(spec.square_m / 2, 0.010) if margin_m is None else float(margin_m)
     if not (np.isfinite(margin_m) and margin_m >= 0):
-        raise OptionError(f"margin_m must be a finite number >= 0, got {margin_m}")
+        raise OptionError("margin_m", f"must be a finite number >= 0, got {margin_m}")
     margin_px = int(round(margin_m * 1000 / MM_PER_INCH * dpi))
     side = max(spec.cols, spec.rows) * pixels_per_square + 2 * margin_px
     if side > MAX_BOARD_PIXELS:  # checked before OpenCV allocates the image
-        raise OptionError(f"pixels_per_square {pixels_per_square} makes a board image of {side} pixels a side, more "
+        raise OptionError("pixels_per_square", f"{pixels_per_square} makes a board image of {side} pixels a side, more "
                           f"than {MAX_BOARD_PIXELS}; lower it (or the dpi)")
     image = board_image(spec, pixels_per_square, margin_px)
     text = f"{spec}   square {spec.square_m * 1000:g} mm   print at {dpi:.0f} dpi, 100 %"

@@ -34,54 +34,18 @@ from typing import Sequence
 import numpy as np
 
 from mvtex.calibration.board import BoardDetector, BoardSpec, Detection
+from mvtex.calibration.options import CalibrateOptions
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-DISTORTION_MODELS = ("k1k2p1p2k3", "k1k2p1p2", "k1k2", "none")
 
 
 CALIBRATION_FORMAT = "mvtex-calibration"
 
 
 MIN_FRAMES = 3
-
-
-@dataclass(frozen=True)
-class CalibrateOptions:
-    """Options of `calibrate` (the `mvtex calibrate` flags mirror them).
-
-    Attributes:
-        board: the board in the images.
-        reference: camera whose frame is the rig's world frame (default: first by name).
-        min_corners: frames where a camera sees fewer corners are skipped.
-        distortion: the distortion coefficients to fit (OpenCV's k1, k2, p1, p2, k3; the
-            others stay 0): "k1k2p1p2k3", "k1k2p1p2" (the default: k3 is poorly
-            determined unless the lens is wide), "k1k2" or "none" (pinhole).
-        huber_px: residual (pixels) above which the bundle adjustment down-weights a corner.
-    """
-
-    board: BoardSpec
-    reference: str | None = None
-    min_corners: int = 6
-    distortion: str = "k1k2p1p2"
-    huber_px: float = 1.0
-
-    def __post_init__(self) -> None:
-        check_field_types(self)
-        if self.distortion not in DISTORTION_MODELS:
-            raise OptionError(f"distortion must be one of {', '.join(DISTORTION_MODELS)}, got {self.distortion!r}")
-        if self.min_corners < 4:
-            raise OptionError(f"min_corners must be at least 4, got {self.min_corners}")
-
-    def to_json(self) -> dict:
-        out = asdict(self)
-        out["board"] = str(self.board)
-        return out
 
 
 @dataclass(frozen=True)
@@ -543,7 +507,7 @@ def calibrate(cameras: Sequence[CameraImages], options: CalibrateOptions, *, pro
 
     cameras = as_list(cameras, "cameras", CameraImages, "CameraImages (`find_images`)")
     if not cameras:
-        raise OptionError("cameras must be a non-empty list of CameraImages (`find_images`)")
+        raise OptionError("cameras", "must be a non-empty list of CameraImages (`find_images`)")
     import cv2
     from scipy.optimize import least_squares
     from tqdm import tqdm

@@ -15,7 +15,7 @@ from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
 
 
-def write_calibration(calibration: Calibration, rig_path: str | os.PathLike,
+def write_calibration(calibration: Calibration, rig_file: str | os.PathLike,
                       pictures: str | os.PathLike | None = None) -> dict:
     """Write the rig YAML and, given a `pictures` folder, `calibration.json` there (options,
     per-camera and per-frame numbers, skipped frames), `rig.png` (frusta and board poses)
@@ -30,13 +30,13 @@ def write_calibration(calibration: Calibration, rig_path: str | os.PathLike,
     from mvtex.data.rig import save_rig
     from mvtex.util.output import atomic_path
 
-    rig_path = Path(rig_path)
+    rig_file = Path(rig_file)
     files = []
     if pictures is not None:
         folder = Path(pictures)
         with atomic_path(folder) as tmp:
             tmp.mkdir()
-            record = {"format": CALIBRATION_FORMAT, "version": 1, "rig": str(rig_path),
+            record = {"format": CALIBRATION_FORMAT, "version": 1, "rig": str(rig_file),
                       "options": {**calibration.options.to_json(), "reference": calibration.reference}
                       if calibration.options else None,
                       **calibration.summary(),
@@ -52,11 +52,11 @@ def write_calibration(calibration: Calibration, rig_path: str | os.PathLike,
                            f"RMS {calibration.rms_px:.3f} px")
             plot_residuals(calibration, tmp / "residuals.png")
         files = [str(folder / "calibration.json"), str(folder / "rig.png"), str(folder / "residuals.png")]
-    save_rig(calibration.rig, rig_path)
-    return {"rig": str(rig_path), "pictures": files}
+    save_rig(calibration.rig, rig_file)
+    return {"rig": str(rig_file), "pictures": files}
 
 
-def calibrate_folder(images: str | os.PathLike, rig_path: str | os.PathLike, options: CalibrateOptions, *,
+def calibrate_folder(images: str | os.PathLike, rig_file: str | os.PathLike, options: CalibrateOptions, *,
                      pictures: str | os.PathLike | None = None, progress: bool = True,
                      overwrite: bool = False) -> Calibration:
     """`mvtex calibrate`: find the images, calibrate, write the rig (and, into `pictures`,
@@ -68,16 +68,16 @@ def calibrate_folder(images: str | os.PathLike, rig_path: str | os.PathLike, opt
     from mvtex.util.checks import as_path, check_instance
     from mvtex.util.output import claim_file, claim_output
 
-    images, rig_path = as_path(images, "images"), as_path(rig_path, "rig_path")
+    images, rig_file = as_path(images, "images"), as_path(rig_file, "rig_file")
     pictures = as_path(pictures, "pictures", optional=True)
     check_instance(options, CalibrateOptions, "options")
 
     with contextlib.ExitStack() as claims:
-        claims.enter_context(claim_file(rig_path, "calibrate", overwrite=overwrite, inputs=[images]))
+        claims.enter_context(claim_file(rig_file, "calibrate", overwrite=overwrite, inputs=[images]))
         if pictures is not None:
-            claims.enter_context(claim_output(pictures, "calibrate", overwrite=overwrite, inputs=[images, rig_path]))
+            claims.enter_context(claim_output(pictures, "calibrate", overwrite=overwrite, inputs=[images, rig_file]))
         calibration = calibrate(find_images(images), options, progress=progress)
-        write_calibration(calibration, rig_path, pictures)
+        write_calibration(calibration, rig_file, pictures)
     return calibration
 
 

@@ -39,15 +39,14 @@ def write_pinhole_rig(rig: Rig, out: str | os.PathLike, alpha: float | None = No
     """Write the undistorted (pinhole) rig of `rig` (see `mvtex.data.camera.undistorted_camera`);
     an existing file is replaced only with `overwrite` (`save_rig`)."""
     if alpha is not None and not 0.0 <= alpha <= 1.0:
-        raise OptionError(f"alpha must be in [0, 1], got {alpha}")
+        raise OptionError("alpha", f"must be in [0, 1], got {alpha}")
     pinhole = undistort_rig(rig, alpha)
     save_rig(pinhole, out, overwrite=overwrite)
     return pinhole
 
 
-@writer("rig", inputs=lambda a: (a["source"],))
-def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, source: str | os.PathLike | None = None,
-                  overwrite: bool = False) -> Path:
+@writer("rig", inputs=lambda a: (a["rig"],))
+def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, overwrite: bool = False) -> Path:
     """Write a rig as a COLMAP model (PINHOLE cameras, one image `<camera>.png` each) into
     the folder `out` (written whole, then renamed in)."""
     from mvtex.formats.colmap import write_rig
@@ -55,12 +54,12 @@ def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, sourc
     out = Path(out)
     distorted = [cam.name for cam in rig if np.any(cam.dist != 0)]
     if distorted:
-        raise InputError(source, f"cameras {', '.join(distorted)} have distortion; COLMAP PINHOLE needs a pinhole rig: "
+        raise InputError(rig.source, f"cameras {', '.join(distorted)} have distortion; COLMAP PINHOLE needs a pinhole rig: "
                          "mvtex rig RIG --undistort --out RIG2 (and undistort the images with mvtex undistort)")
     try:
         return write_rig(rig, out, text=text)
     except ValueError as err:  # skewed intrinsics
-        raise InputError(source, str(err)) from None
+        raise InputError(rig.source, str(err)) from None
 
 
 @writer("rig", file=True, inputs=lambda a: (a["model"],))
@@ -125,7 +124,7 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
     if not images.is_dir():
         raise InputError(images, "image folder not found")
     if alpha is not None and not 0.0 <= alpha <= 1.0:
-        raise OptionError(f"alpha must be in [0, 1], got {alpha}")
+        raise OptionError("alpha", f"must be in [0, 1], got {alpha}")
     if out.resolve() == images.resolve() or images.resolve() in out.resolve().parents:
         raise InputError(out, f"is inside the image folder {images}; write the undistorted images elsewhere")
     plan = _camera_images(images, rig)
@@ -143,7 +142,7 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
                 try:
                     result = undistort_image(image, rig[name], pinhole[name])
                 except ValueError as err:
-                    raise InputError(source, str(err)) from None
+                    raise InputError(rig.source, str(err)) from None
                 if result.ndim == 3 and result.shape[2] >= 3:  # save_png takes RGB
                     result = cv2.cvtColor(result, cv2.COLOR_BGRA2RGB if result.shape[2] == 4 else cv2.COLOR_BGR2RGB)
                 save_png(tmp / relative, result)

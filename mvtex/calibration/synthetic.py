@@ -1,6 +1,5 @@
-"""Synthetic calibration images: the printed board (a textured quad) seen by a camera,
-rendered with moderngl through the same projection as every mvtex render, and board poses
-that a whole rig sees.
+"""Synthetic calibration images: the printed board (a textured quad, drawn by
+`mvtex.render.quad`) seen by a camera through its lens, and board poses that a whole rig sees.
 """
 
 from __future__ import annotations
@@ -12,86 +11,37 @@ import numpy as np
 
 from mvtex.calibration.board import BoardSpec, board_image
 from mvtex.data.camera import Camera
-
-_QUAD_VERTEX = """
-#version 330
-uniform mat4 clip_from_cam;
-uniform mat4 cam_from_board;
-in vec3 in_board;
-in vec2 in_texcoord;
-out vec2 texcoord;
-void main() {
-    texcoord = in_texcoord;
-    gl_Position = clip_from_cam * (cam_from_board * vec4(in_board, 1.0));
-}
-"""
-
-
-_QUAD_FRAGMENT = """
-#version 330
-uniform sampler2D board;
-in vec2 texcoord;
-out vec4 color;
-void main() {
-    color = vec4(vec3(texture(board, texcoord).r), 1.0);
-}
-"""
-
+from mvtex.render.context import GLContext
+from mvtex.render.quad import QuadRenderer
 
 class BoardRenderer:
     """Renders the printed board (a textured quad, white margin included) seen by a camera,
-    with moderngl.
+    through its lens distortion if it has one.
 
-    `mvtex.render.shading.render_textured` shades meshes with the built-in fabric texture only, so
-    the board quad has its own small program here; the projection is the shared
-    `mvtex.render.raster.clip_from_camera`, so rendered pixels follow the OpenCV convention.
+    The quad is drawn by `mvtex.render.quad.QuadRenderer` (the shared projection, so pixels
+    follow the OpenCV convention) in a `mvtex.render.context.GLContext` (given, or its own);
+    this class adds the board's image, supersampling and OpenCV's distortion model.
 
-    It draws in a `mvtex.render.context.GLContext` (given, or its own), made current for each draw
-    as the rasterizer does, so it shares a process with other contexts.
+    Args:
+        spec: the board.
+        pixels_per_square: resolution of the board texture (mipmapped).
+        margin_squares: white paper around the board, in squares.
+        ctx: a `mvtex.render.context.GLContext` (default: a new one, released by `release`).
     """
 
     def __init__(self, spec: BoardSpec, pixels_per_square: int = 96, margin_squares: float = 0.5,
-                 ctx=None):
-        """
-        Args:
-            spec: the board.
-            pixels_per_square: resolution of the board texture (mipmapped).
-            margin_squares: white paper around the board, in squares.
-            ctx: a `mvtex.render.context.GLContext` (default: a new one, released by `release`).
-        """
-
-        from mvtex.render.context import GLContext
-
+                 ctx: GLContext | None = None):
         self.spec = spec
-        self._owns_gl = ctx is None
-        self.gl = GLContext() if ctx is None else ctx
-        self.ctx = self.gl.mgl
-        self._targets: dict[tuple[int, int], object] = {}
         margin_px = int(round(margin_squares * pixels_per_square))
         image = board_image(spec, pixels_per_square, margin_px)
-        # Quad corners in the board frame: the image's outer edges (pixel edges, see board_image).
+        # Quad corners in the board frame: the image's outer edges (pixel edges, see board_image);
+        # the image's top row (y0) is the texture's first row.
         margin_m = margin_px / pixels_per_square * spec.square_m
         width_m, height_m = spec.size_m
         x0, y0, x1, y1 = -margin_m, -margin_m, width_m + margin_m, height_m + margin_m
-        # GL texture row 0 is the first uploaded row, the image's top (y0): t = 0 at y0.
-        quad = np.array([[x0, y0, 0, 0, 0], [x1, y0, 0, 1, 0], [x1, y1, 0, 1, 1],
-                         [x0, y0, 0, 0, 0], [x1, y1, 0, 1, 1], [x0, y1, 0, 0, 1]], dtype="f4")
-        self._quad_corners = quad[[0, 1, 2, 5], :3].astype(np.float64)
-        with self.ctx:
-            self._make_objects(image, quad)
+        corners = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], dtype=np.float64)
+        self._quad = QuadRenderer(image, corners, ctx)
         self._maps: dict[tuple, tuple] = {}
-
-    def _make_objects(self, image: np.ndarray, quad: np.ndarray) -> None:
-        import moderngl
-
-        self._texture = self.ctx.texture((image.shape[1], image.shape[0]), 1, np.ascontiguousarray(image).tobytes())
-        self._texture.build_mipmaps()
-        self._texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-        self._texture.anisotropy = 16.0
-        self._texture.repeat_x = self._texture.repeat_y = False
-        self._program = self.ctx.program(vertex_shader=_QUAD_VERTEX, fragment_shader=_QUAD_FRAGMENT)
-        self._vbo = self.ctx.buffer(quad.tobytes())
-        self._vao = self.ctx.vertex_array(self._program, [(self._vbo, "3f 2f", "in_board", "in_texcoord")])
 
     def render(self, camera: Camera, cam_from_board: np.ndarray, *, background: int = 90,
                supersample: int = 3) -> np.ndarray:
@@ -108,20 +58,23 @@ class BoardRenderer:
             wider field is rendered at the supersampled size and resampled through OpenCV's
             distortion model (`cv2.undistortPoints` of every output pixel, `cv2.remap`).
         """
-        import cv2
+        import cv2  # noqa: PLC0415 (loaded on use)
 
         pose = np.eye(4)
         pose[:3, :] = np.asarray(cam_from_board, dtype=np.float64)[:3, :]
         s = max(1, int(supersample))
-        if np.any(camera.dist != 0):
-            pinhole, map_x, map_y = self._distortion_map(camera, s)
-            image = cv2.remap(self._draw(pinhole, pose, background), map_x, map_y, cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=background)
-        else:
-            K = np.diag([s, s, 1.0]) @ camera.K
-            K[:2, 2] += (s - 1) / 2.0  # pixel centres of the big image average onto the small one
-            image = self._draw(Camera(camera.name, camera.width * s, camera.height * s, K=K, R=np.eye(3),
-                                      t=np.zeros(3)), pose, background)
+        try:
+            if np.any(camera.dist != 0):
+                pinhole, map_x, map_y = self._distortion_map(camera, s)
+                image = cv2.remap(self._quad.draw(pinhole, pose, background), map_x, map_y, cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=background)
+            else:
+                K = np.diag([s, s, 1.0]) @ camera.K
+                K[:2, 2] += (s - 1) / 2.0  # pixel centres of the big image average onto the small one
+                image = self._quad.draw(Camera(camera.name, camera.width * s, camera.height * s, K=K, R=np.eye(3),
+                                               t=np.zeros(3)), pose, background)
+        except ValueError as err:
+            raise ValueError(str(err).replace("the quad", "the board")) from None
         if s > 1:
             image = cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
         return np.ascontiguousarray(image)
@@ -129,7 +82,7 @@ class BoardRenderer:
     def _distortion_map(self, camera: Camera, s: int):
         """A pinhole camera covering the distorted image's field at s x the resolution, and
         the (H*s, W*s) float32 maps from distorted pixels into it (cached per camera)."""
-        import cv2
+        import cv2  # noqa: PLC0415 (loaded on use)
 
         key = (camera.width, camera.height, s, camera.K.tobytes(), camera.dist.tobytes())
         if key not in self._maps:
@@ -148,49 +101,9 @@ class BoardRenderer:
             self._maps[key] = (pinhole, (px - x0).astype(np.float32), (py - y0).astype(np.float32))
         return self._maps[key]
 
-    def _draw(self, camera: Camera, pose: np.ndarray, background: int) -> np.ndarray:
-        """Draw the quad with a pinhole camera at its size; (H,W) uint8."""
-
-
-        z = self._quad_corners @ pose[2, :3] + pose[2, 3]
-        if z.min() <= 0:
-            raise ValueError(f"camera {camera.name!r}: the board is (partly) behind the camera")
-        near, far = max(1e-3, 0.5 * float(z.min())), 2.0 * float(z.max()) + 1e-3
-        with self.ctx:
-            return self._draw_current(camera, pose, background, near, far)
-
-    def _draw_current(self, camera: Camera, pose: np.ndarray, background: int, near: float, far: float) -> np.ndarray:
-        import moderngl
-
-        from mvtex.render.raster import clip_from_camera
-
-        self._program["clip_from_cam"].write(clip_from_camera(camera, near, far).T.astype("f4").tobytes())
-        self._program["cam_from_board"].write(pose.T.astype("f4").tobytes())
-        self._program["board"].value = 0
-        size = (camera.width, camera.height)
-        if size not in self._targets:  # kept for the renderer's life, one per image size
-            self._targets[size] = self.ctx.framebuffer(color_attachments=[self.ctx.texture(size, 1)])
-        fbo = self._targets[size]
-        fbo.use()
-        fbo.clear(background / 255.0, background / 255.0, background / 255.0, 1.0)
-        self.ctx.disable(moderngl.CULL_FACE | moderngl.DEPTH_TEST)
-        self._texture.use(0)
-        self._vao.render(moderngl.TRIANGLES)
-        return np.frombuffer(fbo.read(components=1), dtype=np.uint8).reshape(camera.height, camera.width).copy()
-
     def release(self) -> None:
         """Free this renderer's GL objects, and its context if it made it."""
-        if self._owns_gl:
-            self.gl.release()  # everything made in it goes with it
-            return
-        with self.ctx:
-            for fbo in self._targets.values():
-                for attachment in fbo.color_attachments:
-                    attachment.release()
-                fbo.release()
-            for obj in (self._vao, self._vbo, self._program, self._texture):
-                obj.release()
-        self._targets.clear()
+        self._quad.release()
 
 
 def random_board_poses(rig, spec: BoardSpec, count: int, *, target=(0.0, 0.0, 0.0), seed: int = 0,

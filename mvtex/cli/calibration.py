@@ -4,22 +4,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mvtex.cli.common import UsageError, add_common, command_inputs, emit, load_rig, output
+from mvtex.calibration.options import CalibrateOptions
+from mvtex.cli.common import UsageError, add_common, command_inputs, emit, output, rig_of
+from mvtex.cli.options import add_options, options_from
 
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="calibrate a camera array from ChArUco board images -> rig YAML")
     p.add_argument("images", type=Path, help="IMAGES/<camera>/<frame>.png|jpg; one frame name = one instant")
-    p.add_argument("--board", required=True, help="charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT, "
+    p.add_argument("--board", metavar="SPEC", required=True, help="charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT, "
                    "e.g. charuco:9x6:0.05:0.0375:DICT_5X5_100")
     p.add_argument("--out", type=Path, required=True, help="rig YAML to write")
-    p.add_argument("--pictures", type=Path, help="also write the calibration's record (calibration.json) and "
+    p.add_argument("--pictures", metavar="DIR", type=Path, help="also write the calibration's record (calibration.json) and "
                    "pictures (rig.png, residuals.png) into this folder")
-    p.add_argument("--reference", help="camera whose frame is the rig's world frame (default: first by name)")
-    p.add_argument("--distortion", default="k1k2p1p2", choices=("k1k2p1p2k3", "k1k2p1p2", "k1k2", "none"),
-                   help="distortion coefficients to fit (default k1k2p1p2; none: pinhole)")
-    p.add_argument("--min-corners", type=int, default=6,
-                   help="skip frames where a camera sees fewer corners (default 6)")
+    add_options(p, CalibrateOptions)
     add_common(p)
     p.set_defaults(run=cmd_calibrate)
 
@@ -68,11 +66,9 @@ def cmd_calibrate(args):
     import contextlib
 
     from mvtex.calibration.board import parse_board_spec
-    from mvtex.calibration.calibrate import CalibrateOptions
     from mvtex.calibration.output import calibrate_folder
 
-    options = CalibrateOptions(board=parse_board_spec(args.board), reference=args.reference,
-                               min_corners=args.min_corners, distortion=args.distortion)
+    options = options_from(args, CalibrateOptions, board=parse_board_spec(args.board))
     with _claim_file(args, args.out), \
             (output(args, "calibrate", args.pictures) if args.pictures else contextlib.nullcontext()):
         calibration = calibrate_folder(args.images, args.out, options, pictures=args.pictures,
@@ -116,21 +112,21 @@ def cmd_rig(args):
         return
     if args.rig is None:
         raise UsageError("mvtex rig: error: give a RIG (a YAML or a built-in rig name) (see mvtex rig --help)")
-    rig, rig_path = load_rig(args.rig, pinhole=False)
+    rig = rig_of(args, pinhole=False)
     if args.undistort:
-        with _claim_file(args, args.out, rig_path):
+        with _claim_file(args, args.out):
             pinhole = rigs.write_pinhole_rig(rig, args.out, alpha=args.alpha)
         result = {"rig": str(args.out), **rigs.rig_summary(pinhole)}
         text = f"wrote {args.out}: pinhole rig of {len(pinhole)} cameras (" + (
             "same K" if args.alpha is None else f"K from getOptimalNewCameraMatrix, alpha {args.alpha:g}") + ")"
     elif args.to_colmap is not None:
         with output(args, "rig", args.to_colmap):
-            out = rigs.export_colmap(rig, args.to_colmap, text=args.text, source=rig_path)
+            out = rigs.export_colmap(rig, args.to_colmap, text=args.text)
         result = {"colmap": str(out), **rigs.rig_summary(rig)}
         text = f"wrote COLMAP model {out}: {len(rig)} cameras"
     elif args.plot is not None:
         with _claim_file(args, args.plot):
-            rigs.plot_rig_file(rig, args.plot, title=Path(rig_path).name)
+            rigs.plot_rig_file(rig, args.plot, title=Path(rig.source).name)
         result = {"plot": str(args.plot), **rigs.rig_summary(rig)}
         text = f"wrote {args.plot}"
     else:
@@ -145,7 +141,7 @@ def cmd_rig(args):
 def cmd_undistort(args):
     from mvtex.calibration.rigs import undistort_folder
 
-    rig, _ = load_rig(args.rig, pinhole=False)
+    rig = rig_of(args, pinhole=False)
     with output(args, "undistort"):
         result = undistort_folder(args.images, rig, args.out, alpha=args.alpha, progress=not args.quiet)
     emit(args, result, f"wrote {result['num_images']} undistorted images and their pinhole rig to {args.out}")

@@ -2,43 +2,25 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
-from mvtex.cli.common import (
-    Deprecated,
-    add_common,
-    add_rig,
-    cameras,
-    emit,
-    load_rig,
-    output,
-    positional_out,
-    resolve_positional_out,
-    rig_spec,
-)
+from mvtex.cli.common import add_common, add_rig, cameras, emit, output, rig_of
+from mvtex.cli.options import add_options, options_from
+from mvtex.synth.options import SynthOptions
 
 
 def register(sub) -> None:
     p = sub.add_parser("synth", help="write a built-in garment dataset (T-shirt or skirt)")
-    positional_out(p, "dataset directory to write")
-    p.add_argument("--num-poses", type=int, default=300, help="number of poses (default 300)")
-    p.add_argument("--poses", dest="num_poses", type=int, action=Deprecated, new="--num-poses N", metavar="N")
-    p.add_argument("--seed", type=int, default=0, help="random seed of poses and folds (default 0)")
-    p.add_argument("--garment", default="shirt", choices=("shirt", "skirt"),
-                   help="shirt: a T-shirt on a mannequin; skirt: a flared skirt on hips and legs (default shirt)")
-    p.add_argument("--body", action=argparse.BooleanOptionalAction, default=True,
-                   help="write the mannequin as the dataset's body (default); --no-body: the garment alone")
+    p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    add_options(p, SynthOptions)
     add_common(p)
     p.set_defaults(run=cmd_synth)
 
     p = sub.add_parser("import", help="OBJ/PLY sequences (same connectivity) -> dataset")
-    positional_out(p, "dataset directory to write")
-    p.add_argument("--gt", required=True, help="glob of ground-truth meshes (sorted order = pose order)")
-    p.add_argument("--inferred", required=True, help="glob of inferred meshes, paired with --gt in sorted order")
-    p.add_argument("--pose-vectors", type=Path, help="pose vectors: .npy (K,P) or text rows (default: the frame index)")
-    p.add_argument("--poses", dest="pose_vectors", type=Path, action=Deprecated, new="--pose-vectors FILE",
-                   metavar="FILE")
+    p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    p.add_argument("--gt", metavar="GLOB", required=True, help="glob of ground-truth meshes (sorted order = pose order)")
+    p.add_argument("--inferred", metavar="GLOB", required=True, help="glob of inferred meshes, paired with --gt in sorted order")
+    p.add_argument("--pose-vectors", metavar="FILE", type=Path, help="pose vectors: .npy (K,P) or text rows (default: the frame index)")
     p.add_argument("--body", dest="body_glob", metavar="GLOB",
                    help="glob of the body's meshes (OBJ/PLY, one connectivity), paired with --gt in sorted order")
     p.add_argument("--name", help="dataset name (default: the folder name)")
@@ -48,20 +30,19 @@ def register(sub) -> None:
     p = sub.add_parser("render", help="textured PNGs of gt and inferred per camera, raster dumps")
     p.add_argument("dataset", type=Path, help="dataset directory")
     add_rig(p, from_texcoords=True)
-    p.add_argument("--pose", type=int, required=True, help="dataset pose index to render")
+    p.add_argument("--pose", metavar="K", type=int, required=True, help="dataset pose index to render")
     p.add_argument("--out", type=Path, required=True, help="output directory (PNGs, render.json)")
-    p.add_argument("--texcoords", type=Path, help="texcoord set: draw the inferred mesh with its texcoords")
+    p.add_argument("--texcoords", metavar="TC", type=Path, help="texcoord set: draw the inferred mesh with its texcoords")
     p.add_argument("--raster", action="store_true", help="also write raster dumps (tri_id, bary, depth, uv)")
-    p.add_argument("--cameras", help="comma-separated camera names (default: every camera of the rig)")
+    p.add_argument("--cameras", metavar="A,B", help="comma-separated camera names (default: every camera of the rig)")
     add_common(p)
     p.set_defaults(run=cmd_render)
 
 
 def cmd_synth(args):
-    from mvtex.synth.generate import SynthOptions, write_synth
+    from mvtex.synth.generate import write_synth
 
-    resolve_positional_out(args)
-    options = SynthOptions(num_poses=args.num_poses, seed=args.seed, garment=args.garment, body=args.body)
+    options = options_from(args, SynthOptions)
     with output(args, "synth"):
         result = write_synth(args.out, options, progress=not args.quiet)
     emit(args, result, f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
@@ -71,7 +52,6 @@ def cmd_synth(args):
 def cmd_import(args):
     from mvtex.data.importer import import_sequences
 
-    resolve_positional_out(args)
     with output(args, "import"):
         path = import_sequences(args.out, args.gt, args.inferred, args.pose_vectors, name=args.name,
                                 body_glob=args.body_glob, progress=not args.quiet)
@@ -84,11 +64,10 @@ def cmd_render(args):
     from mvtex.render.pose import render_pose
 
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(rig_spec(args))
-    rig = rig.select(cameras(args.cameras), rig_path)
+    rig = rig_of(args, names=cameras(args.cameras))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses) if args.texcoords else None
     dataset.check_poses([args.pose])
     with output(args, "render"):
         summary = render_pose(dataset, rig, args.pose, args.out, texcoord_set=tc, raster=args.raster,
-                              rig_path=rig_path, progress=not args.quiet)
+                              progress=not args.quiet)
     emit(args, summary, f"wrote {len(summary['files'])} files to {args.out}")

@@ -5,17 +5,17 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_rig, add_workers, emit, load_rig, output, rig_spec
+from mvtex.cli.common import add_common, add_rig, add_workers, emit, output, rig_of
 
 
 def register(sub) -> None:
     p = sub.add_parser("eval", help="material error (mm) and per-pixel uv error: baseline vs a texcoord set")
     p.add_argument("dataset", type=Path, help="dataset directory")
     add_rig(p, "the cameras (those of the texcoord set are evaluated)", from_texcoords=True)
-    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set to evaluate")
-    p.add_argument("--poses", help="pose SPEC (default: the texcoord set's poses)")
-    p.add_argument("--heatmaps", type=Path, help="write error heatmaps (PNG per image) into this folder")
-    add_workers(p, "default 1")
+    p.add_argument("--texcoords", metavar="TC", type=Path, required=True, help="texcoord set to evaluate")
+    p.add_argument("--poses", metavar="SPEC", help="pose SPEC (default: the texcoord set's poses)")
+    p.add_argument("--heatmaps", metavar="DIR", type=Path, help="write error heatmaps (PNG per image) into this folder")
+    add_workers(p, "1")
     add_common(p)
     p.set_defaults(run=cmd_eval)
 
@@ -46,11 +46,10 @@ def cmd_eval(args):
     from mvtex.evaluation.evaluate import evaluate
 
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(rig_spec(args))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
+    rig = rig_of(args, names=tc.cameras)
     poses = dataset.select(args.poses) if args.poses else None
-    rig = rig.select(tc.cameras, rig_path)
     with output(args, "eval", args.heatmaps) if args.heatmaps else contextlib.nullcontext():
-        result = evaluate(dataset, rig_path, tc, poses=poses, cameras=rig.names, heatmaps=args.heatmaps,
+        result = evaluate(dataset, rig, tc, poses=poses, cameras=rig.names, heatmaps=args.heatmaps,
                           progress=not args.quiet, workers=args.workers or 1, scheduler=args.scheduler)
     emit(args, result, summary_text(result))

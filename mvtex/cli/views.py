@@ -4,43 +4,41 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, load_rig, output, rig_spec
+from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, output, rig_of
+from mvtex.cli.options import add_options, options_from
+from mvtex.views.options import PreviewOptions, ViewOptions
 
 
 def register(sub) -> None:
     p = sub.add_parser("views", help="texcoords of novel views between array cameras -> texcoord set + rig.yaml")
     p.add_argument("dataset", type=Path, help="dataset directory")
     add_rig(p, "the array's cameras", from_texcoords=True)
-    p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set (from slide or predict)")
+    p.add_argument("--texcoords", metavar="TC", type=Path, required=True, help="the array's texcoord set (from slide or predict)")
     p.add_argument("--out", type=Path, required=True, help="texcoord set to write (with OUT/rig.yaml, the views)")
-    p.add_argument("--poses", help="pose SPEC (default: the texcoord set's poses)")
-    p.add_argument("--method", default="reconstruct", choices=("blend", "reconstruct"),
-                   help="blend the array's texcoords (the paper) or read the material where the view's rays meet "
-                        "the reconstruction (default reconstruct)")
+    p.add_argument("--poses", metavar="SPEC", help="pose SPEC (default: the texcoord set's poses)")
+    add_options(p, ViewOptions)
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--weights", help='one view: "A=0.3,B=0.7" (weights >= 0 summing to 1)')
-    g.add_argument("--between", help="A,B: --steps views evenly from A to B, both ends included")
-    g.add_argument("--grid", help="A,B,C,D: --steps x --steps views bilinear over a 2x2 array (row-major from A)")
-    p.add_argument("--steps", type=int, help="number of views along --between, per side of --grid")
-    p.add_argument("--name", default="view", help='name of the --weights view (default "view")')
+    g.add_argument("--weights", metavar="WEIGHTS", help='one view: "A=0.3,B=0.7" (weights >= 0 summing to 1)')
+    g.add_argument("--between", metavar="A,B", help="A,B: --steps views evenly from A to B, both ends included")
+    g.add_argument("--grid", metavar="A,B,C,D", help="A,B,C,D: --steps x --steps views bilinear over a 2x2 array (row-major from A)")
+    p.add_argument("--steps", metavar="N", type=int, help="number of views along --between, per side of --grid (required with "
+                   "them)")
+    p.add_argument("--name", help='name of the --weights view (default: "view")')
     p.add_argument("--plot", type=Path, help="also write a PNG of SqrtMSE along the views (needs gt): the baseline, "
                    "this method and TS computed directly at each view")
-    add_workers(p, "default 1")
+    add_workers(p, "1")
     add_common(p)
     p.set_defaults(run=cmd_views)
 
     p = sub.add_parser("preview", help="stereo AR preview: left/right eye renders, anaglyph, SSIM/PSNR vs gt")
     p.add_argument("dataset", type=Path, help="dataset directory")
     add_rig(p, "the array's cameras", from_texcoords=True)
-    p.add_argument("--texcoords", type=Path, required=True, help="the array's texcoord set")
-    p.add_argument("--pose", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
+    p.add_argument("--texcoords", metavar="TC", type=Path, required=True, help="the array's texcoord set")
+    p.add_argument("--pose", metavar="K", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
     p.add_argument("--out", type=Path, required=True,
                    help="output folder: stereo.png, anaglyph.png, comparison.png, preview.json")
-    p.add_argument("--weights", help='viewpoint "A=0.5,B=0.5" (default: equal weights over the rig\'s cameras)')
-    p.add_argument("--ipd", type=float, default=0.064, help="distance between the eyes in meters (default 0.064)")
-    p.add_argument("--method", default="reconstruct", choices=("blend", "reconstruct"),
-                   help="how each eye's texcoords are computed (as in views; default reconstruct)")
-    p.add_argument("--path", action="store_true", help="also write path.gif: the viewpoint moving across the array")
+    p.add_argument("--weights", metavar="WEIGHTS", help='viewpoint "A=0.5,B=0.5" (default: equal weights over the rig\'s cameras)')
+    add_options(p, PreviewOptions)
     add_common(p)
     p.set_defaults(run=cmd_preview)
 
@@ -53,15 +51,14 @@ def cmd_views(args):
     from mvtex.util.errors import OptionError
     from mvtex.views.cameras import plan_views
     from mvtex.views.novel import novel_views
-    from mvtex.views.synthesizer import ViewOptions
 
     weights, names = plan_views(weights=args.weights, between=cameras(args.between), grid=cameras(args.grid),
                                 steps=args.steps, name=args.name)
     if args.plot is not None and args.weights is not None:
-        raise OptionError("plot needs the views of between or grid")
-    options = ViewOptions(method=args.method)
+        raise OptionError("plot", "needs the views of between or grid")
+    options = options_from(args, ViewOptions)
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(rig_spec(args))
+    rig = rig_of(args)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None
     import contextlib
@@ -71,30 +68,30 @@ def cmd_views(args):
     plot = claim_file(args.plot, "views", overwrite=args.overwrite) if args.plot else contextlib.nullcontext()
     with output(args, "views"), plot:
         result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses, options=options,
-                             rig_source=rig_path, progress=not args.quiet, workers=args.workers or 1,
+                             progress=not args.quiet, workers=args.workers or 1,
                              scheduler=args.scheduler)
         if args.plot is not None:
             from mvtex.views.measure import path_plot
 
             result = replace(result, measured=path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
                                                         progress=not args.quiet))
-    emit(args, result, f"wrote {len(names)} view(s) x {len(result.poses)} pose(s) ({args.method}) to {args.out}")
+    emit(args, result, f"wrote {len(names)} view(s) x {len(result.poses)} pose(s) ({options.method}) to {args.out}")
 
 
 def cmd_preview(args):
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords
     from mvtex.views.cameras import parse_weights
-    from mvtex.views.preview import PreviewOptions, stereo_preview
+    from mvtex.views.preview import stereo_preview
 
-    options = PreviewOptions(ipd=args.ipd, method=args.method, path=args.path)
+    options = options_from(args, PreviewOptions)
     weights = parse_weights(args.weights) if args.weights else None
     dataset = load_dataset(args.dataset)
-    rig, rig_path = load_rig(rig_spec(args))
+    rig = rig_of(args)
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     with output(args, "preview"):
         result = stereo_preview(dataset, rig, tc, args.pose, args.out, weights=weights, options=options,
-                                rig_source=rig_path, progress=not args.quiet, overwrite=args.overwrite)
+                                progress=not args.quiet, overwrite=args.overwrite)
     left, right = result.eyes["left"].ssim, result.eyes["right"].ssim
     emit(args, result, f"pose {result.pose}: SSIM inferred -> texcoords: left {left[0]:.3f} -> {left[1]:.3f}, "
          f"right {right[0]:.3f} -> {right[1]:.3f}; wrote {args.out}")

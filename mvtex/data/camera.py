@@ -64,12 +64,12 @@ def check_camera_name(name) -> str:
     as a boolean or null (`YAML_NON_STRINGS`, without case): a rig file could not store it.
     """
     if not isinstance(name, str) or not CAMERA_NAME.fullmatch(name) or name.endswith("."):
-        raise OptionError(f"camera name {name!r} is not allowed: use 1-64 letters, digits, '_', '-' or '.', "
+        raise OptionError("camera", f"name {name!r} is not allowed: use 1-64 letters, digits, '_', '-' or '.', "
                           "starting with a letter or digit (it becomes a folder name)")
     if name.lower() in RESERVED_NAMES:
-        raise OptionError(f"camera name {name!r} is reserved (an mvtex output uses that file name)")
+        raise OptionError("camera", f"name {name!r} is reserved (an mvtex output uses that file name)")
     if name.lower() in YAML_NON_STRINGS:
-        raise OptionError(f"camera name {name!r} is not allowed: a rig file (YAML) would read it as "
+        raise OptionError("camera", f"name {name!r} is not allowed: a rig file (YAML) would read it as "
                           f"{'null' if name.lower() == 'null' else 'a boolean'}, not as a name")
     return name
 
@@ -79,22 +79,22 @@ def check_rotation(R: np.ndarray, what: str = "R") -> None:
     ROTATION_TOLERANCE entrywise) with determinant +1 (a reflection is not a camera)."""
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3) or not np.all(np.isfinite(R)):
-        raise OptionError(f"{what} must be a finite 3x3 rotation matrix, got shape {R.shape}")
+        raise OptionError(what, f"must be a finite 3x3 rotation matrix, got shape {R.shape}")
     error = float(np.abs(R @ R.T - np.eye(3)).max())
     det = float(np.linalg.det(R))
     if error > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
-        raise OptionError(f"{what} is not a rotation matrix (|R Rᵀ - I| = {error:.3g}, det {det:.6g}; "
+        raise OptionError(what, f"is not a rotation matrix (|R Rᵀ - I| = {error:.3g}, det {det:.6g}; "
                           f"needs orthonormal rows and det +1 within {ROTATION_TOLERANCE:g})")
 
 
 def _as_float_array(value, what: str) -> np.ndarray:
     """`value` as a float64 array; OptionError (naming `what`) for what is not numbers."""
     if isinstance(value, (str, bytes)) or value is None:
-        raise OptionError(f"{what} must be an array of numbers, got {type(value).__name__}")
+        raise OptionError(what, f"must be an array of numbers, got {type(value).__name__}")
     try:
         return np.array(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise OptionError(f"{what} must be an array of numbers, got {type(value).__name__}") from None
+        raise OptionError(what, f"must be an array of numbers, got {type(value).__name__}") from None
 
 
 def image_contains(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -141,7 +141,7 @@ class Camera:
             if isinstance(value, bool) or not isinstance(value, (numbers.Integral, numbers.Real)) \
                     or not np.isfinite(float(value)) or not float(value).is_integer() \
                     or not 1 <= value <= MAX_IMAGE_SIZE:
-                raise OptionError(f"camera {self.name!r}: {key} must be an integer in 1..{MAX_IMAGE_SIZE}, "
+                raise OptionError("camera", f"{self.name!r}: {key} must be an integer in 1..{MAX_IMAGE_SIZE}, "
                                   f"got {value!r}")
         for key, shape in (("K", (3, 3)), ("R", (3, 3)), ("t", (3,)), ("dist", (5,))):
             value = _as_float_array(getattr(self, key), f"camera {self.name!r}: {key}")
@@ -150,13 +150,13 @@ class Camera:
                 if key == "dist" and value.size < 5:
                     value = np.pad(value, (0, 5 - value.size))
             if value.shape != shape or not np.all(np.isfinite(value)):
-                raise OptionError(f"camera {self.name!r}: {key} must be finite with shape {shape}, got "
+                raise OptionError("camera", f"{self.name!r}: {key} must be finite with shape {shape}, got "
                                   f"{value.shape}{'' if np.all(np.isfinite(value)) else ' with NaN or infinite values'}")
             value.setflags(write=False)
             object.__setattr__(self, key, value)
         K = self.K
         if not (K[0, 0] > 0 and K[1, 1] > 0) or K[1, 0] != 0 or np.any(K[2] != (0, 0, 1)):
-            raise OptionError(f"camera {self.name!r}: K must be [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, "
+            raise OptionError("camera", f"{self.name!r}: K must be [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, "
                               f"got {K.tolist()}")
         check_rotation(self.R, f"camera {self.name!r}: R")
         object.__setattr__(self, "width", int(self.width))
@@ -268,28 +268,28 @@ def look_at(name: str, center: Sequence[float], target: Sequence[float], *, widt
     for key, value in (("center", center), ("target", target), ("up", up)):
         vec = _as_float_array(value, key)
         if vec.shape != (3,) or not np.all(np.isfinite(vec)):
-            raise OptionError(f"{key} must be 3 finite numbers (x, y, z), got {vec.tolist() if vec.size <= 9 else vec.shape}")
+            raise OptionError(key, f"must be 3 finite numbers (x, y, z), got {vec.tolist() if vec.size <= 9 else vec.shape}")
         vectors[key] = vec
     if isinstance(focal, bool) or not isinstance(focal, numbers.Real) or not 0 < float(focal) < float("inf"):
-        raise OptionError(f"focal must be a positive finite number of pixels, got {focal!r}")
+        raise OptionError("focal", f"must be a positive finite number of pixels, got {focal!r}")
     center = vectors["center"]
     z = vectors["target"] - center
     distance = float(np.linalg.norm(z))
     if not distance > 1e-12 * max(1.0, float(np.abs(center).max())):
-        raise OptionError(f"target must differ from center (the camera looks from center towards target), "
+        raise OptionError("target", f"must differ from center (the camera looks from center towards target), "
                           f"both are {center.tolist()}")
     z /= distance
     up_norm = float(np.linalg.norm(vectors["up"]))
     x = np.cross(z, vectors["up"])
     if not up_norm > 0 or np.linalg.norm(x) < 1e-9 * up_norm:
-        raise OptionError(f"up must not be parallel to the viewing direction target - center "
+        raise OptionError("up", f"must not be parallel to the viewing direction target - center "
                           f"({z.tolist()}), got {vectors['up'].tolist()}: choose another up vector")
     x /= np.linalg.norm(x)
     y = np.cross(z, x)  # image y points down: world up appears up
     R = np.stack([x, y, z])
     for key, value in (("width", width), ("height", height)):
         if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(float(value)):
-            raise OptionError(f"{key} must be an integer in 1..{MAX_IMAGE_SIZE}, got {value!r}")
+            raise OptionError(key, f"must be an integer in 1..{MAX_IMAGE_SIZE}, got {value!r}")
     K = np.array([[float(focal), 0.0, (width - 1) / 2.0], [0.0, float(focal), (height - 1) / 2.0], [0.0, 0.0, 1.0]])
     return Camera(name=name, width=width, height=height, K=K, R=R, t=-R @ center)
 
@@ -313,7 +313,7 @@ def undistorted_camera(camera: Camera, alpha: float | None = None) -> Camera:
         import cv2
 
         if not 0.0 <= float(alpha) <= 1.0:
-            raise OptionError(f"alpha must be in [0, 1], got {alpha}")
+            raise OptionError("alpha", f"must be in [0, 1], got {alpha}")
         size = (camera.width, camera.height)
         K, _ = cv2.getOptimalNewCameraMatrix(camera.K, camera.dist, size, float(alpha), size)
     return replace(camera, K=np.asarray(K, dtype=np.float64), dist=np.zeros(5))

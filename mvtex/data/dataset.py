@@ -119,7 +119,7 @@ def as_dataset(dataset: "Dataset | str | os.PathLike") -> Dataset:
     if isinstance(dataset, Dataset):
         return dataset
     if not isinstance(dataset, (str, os.PathLike)):
-        raise OptionError(f"dataset must be a Dataset or a dataset folder path, got {type(dataset).__name__}")
+        raise OptionError("dataset", f"must be a Dataset or a dataset folder path, got {type(dataset).__name__}")
     return load_dataset(dataset)
 
 
@@ -149,7 +149,13 @@ def content_fingerprint(dataset: Dataset) -> str:
     that they are never used with another dataset's content under the same path."""
     from mvtex.util.fingerprint import fingerprint
 
-    return fingerprint(dataset.gt, dataset.inferred, dataset.poses, *dataset.body_arrays())
+    # Computed once per loaded dataset: a command that checks a dataset and then uses it
+    # reads its arrays once.
+    cached = dataset.__dict__.get("_content_fingerprint")
+    if cached is None:
+        cached = fingerprint(dataset.gt, dataset.inferred, dataset.poses, *dataset.body_arrays())
+        object.__setattr__(dataset, "_content_fingerprint", cached)
+    return cached
 
 
 def default_split(num_poses: int, seed: int = 0) -> dict[str, list[int]]:
@@ -403,7 +409,7 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
 
     path = as_path(path, "path")
     if not isinstance(name, str):
-        raise OptionError(f"name must be a string, got {type(name).__name__}")
+        raise OptionError("name", f"must be a string, got {type(name).__name__}")
     faces, uv = as_array(faces, "faces", None), as_array(uv, "uv", None)
     gt = as_array(gt, "gt", np.float32)
     inferred = as_array(inferred, "inferred", np.float32)
@@ -411,29 +417,29 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
     try:
         validate_mesh(faces, uv, None)
     except InputError as err:
-        raise OptionError(f"faces/uv: {err.problem}") from None
+        raise OptionError(None, f"faces/uv: {err.problem}") from None
     if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3) or not len(gt):
-        raise OptionError(f"gt and inferred must both have shape (K,{len(uv)},3) with K ≥ 1, got {gt.shape} and "
+        raise OptionError("gt", f"and inferred must both have shape (K,{len(uv)},3) with K ≥ 1, got {gt.shape} and "
                           f"{inferred.shape}")
     if poses.ndim == 1 and len(poses) == len(gt):
         poses = poses[:, None]
     if poses.ndim != 2 or len(poses) != len(gt) or poses.shape[1] == 0:
-        raise OptionError(f"poses must have shape ({len(gt)},P), got {poses.shape}")
+        raise OptionError("poses", f"must have shape ({len(gt)},P), got {poses.shape}")
     for key, array in (("gt", gt), ("inferred", inferred), ("poses", poses)):
         if not np.all(np.isfinite(array)):
-            raise OptionError(f"{key} has NaN or infinite values (float32)")
+            raise OptionError(key, f"has NaN or infinite values (float32)")
     if rest is not None:
         rest = as_array(rest, "rest", np.float32)
         if rest.shape != (len(uv), 3) or not np.all(np.isfinite(rest)):
-            raise OptionError(f"rest must be finite with shape ({len(uv)},3), got {rest.shape}")
+            raise OptionError("rest", f"must be finite with shape ({len(uv)},3), got {rest.shape}")
     if split is not None:
         if not isinstance(split, dict) or not all(k in split for k in ("train", "val", "test")):
-            raise OptionError("split must be a dict with lists 'train', 'val' and 'test'")
+            raise OptionError("split", "must be a dict with lists 'train', 'val' and 'test'")
         from mvtex.util.checks import as_indices
 
         split = {k: as_indices(split[k], f"split[{k!r}]") for k in ("train", "val", "test")}
         if any(not 0 <= i < len(gt) for k in split for i in split[k]):
-            raise OptionError(f"split has a pose index outside [0, {len(gt)})")
+            raise OptionError("split", f"has a pose index outside [0, {len(gt)})")
     if body is not None:
         body = as_array(body, "body", np.float32)
     if body_faces is not None:
@@ -441,10 +447,10 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
     try:
         check_body_arrays(body_faces, body, len(gt), None)
     except InputError as err:
-        raise OptionError(f"body: {err.problem}") from None
+        raise OptionError(None, f"body: {err.problem}") from None
     check_body_arrays(body_faces, body, len(gt), path)
     if body is not None and not np.all(np.isfinite(body)):
-        raise OptionError("body positions have NaN or infinite values")
+        raise OptionError("body", "positions have NaN or infinite values")
     split = split or default_split(len(gt))
     meta = metadata(name, gt.shape[0], gt.shape[1], poses.shape[1], body_faces, body, **extra_meta)
     with atomic_path(path) as tmp:

@@ -159,7 +159,7 @@ def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
     for key, value in (("gt_glob", gt_glob), ("inferred_glob", inferred_glob), ("body_glob", body_glob),
                        ("name", name)):
         if value is not None and not isinstance(value, str) or value is None and key in ("gt_glob", "inferred_glob"):
-            raise OptionError(f"{key} must be a string, got {type(value).__name__}")
+            raise OptionError(key, f"must be a string, got {type(value).__name__}")
     gt_files = _sorted_glob(gt_glob, "gt")
     inf_files = _sorted_glob(inferred_glob, "inferred")
     if len(gt_files) != len(inf_files):

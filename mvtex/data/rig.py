@@ -7,7 +7,7 @@ the rigs shipped with mvtex (`stereo`, `square4`, `trapezoid12`).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -26,26 +26,36 @@ RIG_VERSION = 1
 class Rig:
     """An ordered set of at least one uniquely named camera (`Camera`).
 
+    Attributes:
+        cameras: the cameras, in order.
+        source: the rig file it was read from (`load_rig`), which errors about the rig
+            name; None for a rig made in code. Not part of equality.
+
     Raises:
         OptionError: `cameras` is not a sequence of `Camera`s, is empty, or names a camera
             twice (ignoring case).
     """
 
     cameras: tuple[Camera, ...]
+    source: Path | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         from mvtex.util.checks import as_list
 
         object.__setattr__(self, "cameras", tuple(as_list(self.cameras, "cameras", what="Camera")))
+        if self.source is not None:
+            if not isinstance(self.source, (str, os.PathLike)):
+                raise OptionError("source", f"must be a file path or None, got {type(self.source).__name__}")
+            object.__setattr__(self, "source", Path(self.source))
         wrong = [type(c).__name__ for c in self.cameras if not isinstance(c, Camera)]
         if wrong:
-            raise OptionError(f"cameras must be a sequence of Camera, got an element of type {wrong[0]}")
+            raise OptionError("cameras", f"must be a sequence of Camera, got an element of type {wrong[0]}")
         if not self.cameras:
-            raise OptionError("cameras must hold at least one camera, got none")
+            raise OptionError("cameras", "must hold at least one camera, got none")
         names = [c.name for c in self.cameras]
         # Unique without case too: the names become folders on case-insensitive file systems.
         if len({n.lower() for n in names}) != len(names):
-            raise OptionError(f"camera names must be unique (ignoring case), got {names}")
+            raise OptionError("camera", f"names must be unique (ignoring case), got {names}")
 
     def __iter__(self) -> Iterator[Camera]:
         return iter(self.cameras)
@@ -64,8 +74,9 @@ class Rig:
                 return cam
         raise UnknownCamera(name, self.names)
 
-    def select(self, names: Sequence[str] | None, source: str | os.PathLike | None = None) -> "Rig":
-        """The sub-rig with these camera names (all if None); unknown names raise InputError."""
+    def select(self, names: Sequence[str] | None) -> "Rig":
+        """The sub-rig with these camera names (all if None or empty), from the same source;
+        unknown names raise InputError naming the rig's file."""
         from mvtex.util.checks import as_list
 
         if names is None:
@@ -75,8 +86,9 @@ class Rig:
             return self
         unknown = [n for n in names if n not in self.names]
         if unknown:
-            raise InputError(source, f"no camera named {', '.join(unknown)} (the rig has {', '.join(self.names)})")
-        return Rig(tuple(self[n] for n in names))
+            raise InputError(self.source, f"no camera named {', '.join(unknown)} (the rig has "
+                             f"{', '.join(self.names)})")
+        return Rig(tuple(self[n] for n in names), self.source)
 
 
 class UnknownCamera(OptionError, KeyError):
@@ -110,9 +122,9 @@ def save_rig(rig: Rig, path: str | os.PathLike, *, overwrite: bool = False) -> N
     from mvtex.util.output import atomic_path, claim_file
 
     if not isinstance(rig, Rig):
-        raise OptionError(f"rig must be a Rig, got {type(rig).__name__}")
+        raise OptionError("rig", f"must be a Rig, got {type(rig).__name__}")
     if not isinstance(path, (str, os.PathLike)):
-        raise OptionError(f"path must be a file path, got {type(path).__name__}")
+        raise OptionError("path", f"must be a file path, got {type(path).__name__}")
     path = Path(path)
     with claim_file(path, "save_rig", overwrite=overwrite), atomic_path(path) as tmp:
         # FileStorage picks the format from the extension: keep ".yaml" on the temporary.
@@ -143,13 +155,13 @@ def _check_reads_back(rig: Rig, written: Path) -> None:
         loaded = load_rig(written)
     except InputError as err:
         written.unlink(missing_ok=True)
-        raise OptionError(f"rig: would be written as a file the rig reader refuses ({err.problem})") from None
+        raise OptionError("rig", f"would be written as a file the rig reader refuses ({err.problem})") from None
     for cam, back in zip(rig, loaded):
         same = (cam.name == back.name and (cam.width, cam.height) == (back.width, back.height)
                 and all(np.array_equal(getattr(cam, k), getattr(back, k)) for k in ("K", "R", "t", "dist")))
         if not same:
             written.unlink(missing_ok=True)
-            raise OptionError(f"rig: camera {cam.name!r} does not read back as written")
+            raise OptionError("rig", f"camera {cam.name!r} does not read back as written")
 
 
 def load_rig(path: str | os.PathLike) -> Rig:
@@ -159,7 +171,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
     import cv2
 
     if not isinstance(path, (str, os.PathLike)):
-        raise OptionError(f"rig must be a rig file path or a built-in rig name, got {type(path).__name__}")
+        raise OptionError("rig", f"must be a rig file path or a built-in rig name, got {type(path).__name__}")
     path = resolve_rig(path)
     if not path.is_file():
         raise InputError(path, "rig file not found")
@@ -186,7 +198,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
             except cv2.error as err:
                 raise InputError(path, f"camera {i}: malformed entry ({_opencv_detail(err)})") from None
         try:
-            return Rig(tuple(cameras))
+            return Rig(tuple(cameras), path)
         except ValueError as err:
             raise InputError(path, str(err)) from None
     finally:
@@ -242,13 +254,12 @@ def _camera_from_node(node, path: Path, index: int) -> Camera:
         raise InputError(path, f"camera {index}: {err}" if not str(err).startswith("camera ") else str(err)) from None
 
 
-def check_sees(rig: Rig, positions: np.ndarray, source: str | os.PathLike | None = None, *,
-               what: str = "the mesh") -> None:
-    """Refuse (InputError naming `source`, e.g. the rig file) a camera that sees none of the
-    points (..., 3): behind it or outside its image (a rig for another scene, wrong R, t or K)."""
+def check_sees(rig: Rig, positions: np.ndarray, *, what: str = "the mesh") -> None:
+    """Refuse (InputError naming the rig's file) a camera that sees none of the points
+    (..., 3): behind it or outside its image (a rig for another scene, wrong R, t or K)."""
     blind = [cam.name for cam in rig if not cam.sees(positions)]
     if blind:
-        raise InputError(source, f"camera {blind[0]!r} sees nothing of {what}: check its R, t and K")
+        raise InputError(rig.source, f"camera {blind[0]!r} sees nothing of {what}: check its R, t and K")
 
 
 def winding_numbers(points: np.ndarray, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -271,8 +282,8 @@ def winding_numbers(points: np.ndarray, positions: np.ndarray, faces: np.ndarray
     return out
 
 
-def check_outside_body(rig: Rig, dataset, poses: Sequence[int], source: str | os.PathLike | None = None) -> None:
-    """Refuse (InputError naming `source`, e.g. the rig file) a camera whose centre lies
+def check_outside_body(rig: Rig, dataset, poses: Sequence[int]) -> None:
+    """Refuse (InputError naming the rig's file) a camera whose centre lies
     inside the dataset's body at one of `poses`: it would see the body's inside only.
 
     Inside means a winding number above 1/2 (`winding_numbers`; exact for a closed body,
@@ -294,22 +305,22 @@ def check_outside_body(rig: Rig, dataset, poses: Sequence[int], source: str | os
         inside = np.abs(winding_numbers(centers[boxed], positions, body.faces)) > 0.5
         if inside.any():
             cam = rig.cameras[int(boxed[np.argmax(inside)])]
-            raise InputError(source, f"camera {cam.name!r} is inside the body of {dataset.path} at pose {int(k)} "
+            raise InputError(rig.source, f"camera {cam.name!r} is inside the body of {dataset.path} at pose {int(k)} "
                              f"(its centre {np.round(cam.center, 4).tolist()} lies within the body mesh): "
                              "check its R and t")
 
 
-def as_rig(rig: "Rig | str | os.PathLike") -> tuple[Rig, Path | None]:
-    """A `Rig` as is (source None), or a rig path / built-in rig name loaded: (rig, its file)."""
+def as_rig(rig: "Rig | str | os.PathLike") -> Rig:
+    """A `Rig` as is, or a rig path / built-in rig name loaded (`load_rig`, which records
+    the file as the rig's `source`)."""
     if isinstance(rig, Rig):
-        return rig, None
+        return rig
     if not isinstance(rig, (str, os.PathLike)):
-        raise OptionError(f"rig must be a Rig, a rig file path or a built-in rig name, got {type(rig).__name__}")
-    path = resolve_rig(rig)
-    return load_rig(path), path
+        raise OptionError("rig", f"must be a Rig, a rig file path or a built-in rig name, got {type(rig).__name__}")
+    return load_rig(rig)
 
 
-def builtin_rig_path(name: str) -> Path:
+def builtin_rig_file(name: str) -> Path:
     """Path of a rig shipped with mvtex (`stereo`, `square4`, `trapezoid12`)."""
     from mvtex.util.resources import resource_path
 
@@ -321,7 +332,7 @@ def resolve_rig(spec: str | os.PathLike) -> Path:
     path = Path(spec)
     if path.exists() or path.suffix in (".yaml", ".yml"):
         return path
-    builtin = builtin_rig_path(str(spec))
+    builtin = builtin_rig_file(str(spec))
     return builtin if builtin.is_file() else path
 
 

@@ -23,6 +23,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.data.mesh import apply_extension, extension_matrix
+from mvtex.data.limits import MAX_SUBDIV
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_row, read_rows
 from mvtex.util.output import atomic_path, writer
@@ -35,7 +36,6 @@ _LAYOUT = ["texcoords.json", "mesh.npz", "rig.yaml"]  # the files of a set besid
 VERSION = 1
 
 
-MAX_SUBDIV = 3
 
 
 MAX_DISPLACEMENT = 1.0
@@ -173,12 +173,12 @@ class TexcoordSet:
             raise InputError(header, f"was made from another dataset than {dataset.path} (its gt, inferred or pose "
                              "arrays differ): make the set again from this dataset")
 
-    def check_rig(self, rig, source: str | os.PathLike | None = None, cameras: Sequence[str] | None = None) -> None:
+    def check_rig(self, rig, cameras: Sequence[str] | None = None) -> None:
         """Refuse (InputError) a rig that lacks the set's cameras (or `cameras` of them), or
         whose cameras of those names differ from the ones the set was made with (where it
         records them: size, K, R, t to 1e-6)."""
         names = list(self.cameras if cameras is None else cameras)
-        where = f" {source}" if source else ""
+        where = f" {rig.source}" if rig.source else ""
         missing = [c for c in names if c not in rig.names]
         if missing:
             raise InputError(self.path, f"cameras {', '.join(missing)} of this texcoord set are not in the rig{where} "
@@ -360,7 +360,7 @@ def as_texcoords(texcoords: "TexcoordSet | str | os.PathLike", name: str = "texc
     if isinstance(texcoords, TexcoordSet):
         return texcoords
     if not isinstance(texcoords, (str, os.PathLike)):
-        raise OptionError(f"{name} must be a TexcoordSet or a texcoord set folder path, got {type(texcoords).__name__}")
+        raise OptionError(name, f"must be a TexcoordSet or a texcoord set folder path, got {type(texcoords).__name__}")
     return open_texcoords(texcoords)
 
 
@@ -535,13 +535,13 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
                                     displacement=displacement, assigned=assigned)
     if uncertainty is not None:
         if not isinstance(uncertainty, dict) or not set(uncertainty) <= set(cameras):
-            raise OptionError("uncertainty must be a dict: camera name (of displacement) -> (len(poses), n') array")
+            raise OptionError("uncertainty", "must be a dict: camera name (of displacement) -> (len(poses), n') array")
         for cam, u in uncertainty.items():
             u = _array(u, f"uncertainty[{cam!r}]")
             if u.shape != (len(poses), len(uv)) or u.dtype.kind not in "fiu" or not np.isfinite(u).all() or (u < 0).any():
-                raise OptionError(f"uncertainty[{cam!r}] must be finite numbers >= 0 with shape {(len(poses), len(uv))}")
+                raise OptionError(None, f"uncertainty[{cam!r}] must be finite numbers >= 0 with shape {(len(poses), len(uv))}")
     if not isinstance(path, (str, os.PathLike)):
-        raise OptionError(f"path must be a folder path, got {type(path).__name__}")
+        raise OptionError("path", f"must be a folder path, got {type(path).__name__}")
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.mkdir()
@@ -558,11 +558,11 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
 
 def _array(value, name: str, dtype=None) -> np.ndarray:
     if value is None or isinstance(value, (str, bytes, dict)):
-        raise OptionError(f"{name} must be an array, got {type(value).__name__}")
+        raise OptionError(name, f"must be an array, got {type(value).__name__}")
     try:
         return np.asarray(value) if dtype is None else np.asarray(value, dtype=dtype)
     except (TypeError, ValueError, OverflowError):
-        raise OptionError(f"{name} must be an array of numbers, got {type(value).__name__}") from None
+        raise OptionError(name, f"must be an array of numbers, got {type(value).__name__}") from None
 
 
 def check_texcoord_arrays(*, faces, uv, parent, source, subdiv, poses, displacement, assigned) -> list[str]:
@@ -581,39 +581,39 @@ def check_texcoord_arrays(*, faces, uv, parent, source, subdiv, poses, displacem
         try:
             check(*args)
         except InputError as err:
-            raise OptionError(f"{name}: {err.problem}") from None
+            raise OptionError(None, f"{name}: {err.problem}") from None
 
     faces, uv, parent = _array(faces, "faces"), _array(uv, "uv"), _array(parent, "parent")
     named("faces/uv", validate_mesh, faces, uv, None)
     named("parent", _check_parent, parent, len(uv), None)
     if not isinstance(source, str) or not source:
-        raise OptionError(f"source must be a non-empty string (\"ts\", \"tsnn\", ...), got {source!r}")
+        raise OptionError("source", f"must be a non-empty string (\"ts\", \"tsnn\", ...), got {source!r}")
     if isinstance(subdiv, bool) or not isinstance(subdiv, (int, np.integer)) or not 0 <= subdiv <= MAX_SUBDIV:
-        raise OptionError(f"subdiv must be an integer in 0..{MAX_SUBDIV}, got {subdiv!r}")
+        raise OptionError("subdiv", f"must be an integer in 0..{MAX_SUBDIV}, got {subdiv!r}")
     if isinstance(poses, (str, bytes)) or not hasattr(poses, "__len__"):
-        raise OptionError(f"poses must be a list of pose indices, got {type(poses).__name__}")
+        raise OptionError("poses", f"must be a list of pose indices, got {type(poses).__name__}")
     if not len(poses) or not all(isinstance(p, (int, np.integer)) and not isinstance(p, bool) and p >= 0
                                  for p in poses):
-        raise OptionError(f"poses must be a non-empty list of non-negative integer pose indices, got {poses!r}")
+        raise OptionError("poses", f"must be a non-empty list of non-negative integer pose indices, got {poses!r}")
     if len(set(int(p) for p in poses)) != len(poses):
-        raise OptionError("poses lists a pose twice")
+        raise OptionError("poses", "lists a pose twice")
     if not isinstance(displacement, dict) or not displacement:
-        raise OptionError("displacement must be a non-empty dict: camera name -> (len(poses), n', 2) array")
+        raise OptionError("displacement", "must be a non-empty dict: camera name -> (len(poses), n', 2) array")
     if not isinstance(assigned, dict) or set(assigned) != set(displacement):
-        raise OptionError("assigned must be a dict with the cameras of displacement: camera name -> "
+        raise OptionError("assigned", "must be a dict with the cameras of displacement: camera name -> "
                           "(len(poses), n') bool array")
     cameras = list(displacement)
     for cam in cameras:
         check_camera_name(cam)
     if len({c.lower() for c in cameras}) != len(cameras):
-        raise OptionError("displacement names a camera twice (ignoring case)")
+        raise OptionError("displacement", "names a camera twice (ignoring case)")
     shape = (len(poses), len(uv))
     for cam in cameras:
         d = _array(displacement[cam], f"displacement[{cam!r}]")
         a = _array(assigned[cam], f"assigned[{cam!r}]")
         if d.shape != shape + (2,) or d.dtype.kind not in "fiu":
-            raise OptionError(f"displacement[{cam!r}] must be numbers with shape {shape + (2,)}, got {d.shape} {d.dtype}")
+            raise OptionError(None, f"displacement[{cam!r}] must be numbers with shape {shape + (2,)}, got {d.shape} {d.dtype}")
         if a.shape != shape or a.dtype != np.bool_:
-            raise OptionError(f"assigned[{cam!r}] must be bool with shape {shape}, got {a.shape} {a.dtype}")
+            raise OptionError(None, f"assigned[{cam!r}] must be bool with shape {shape}, got {a.shape} {a.dtype}")
         named(f"displacement[{cam!r}]", _check_displacements, d.astype(np.float32), None)
     return cameras

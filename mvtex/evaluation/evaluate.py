@@ -431,7 +431,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
             baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
             the two meshes show different UV charts) and, when the dataset has `rest`, a
-            second row with the material error in millimetres (red >= 20 mm).
+            second row with the material error in millimeters (red >= 20 mm).
         progress: progress bar on stderr.
         workers: local processes (1: this process), see `mvtex.util.parallel.map_unordered`.
         scheduler: Dask scheduler address (overrides `workers`); its workers must read the
@@ -450,7 +450,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     poses = None if poses is None else as_indices(poses, "poses")
     if cameras is not None and (isinstance(cameras, (str, bytes)) or not hasattr(cameras, "__iter__")
                                 or not all(isinstance(c, str) for c in cameras)):
-        raise OptionError(f"cameras must be a list of camera names, got {cameras!r:.60}")
+        raise OptionError("cameras", f"must be a list of camera names, got {cameras!r:.60}")
     from tqdm import tqdm
 
     from mvtex.data.dataset import as_dataset
@@ -463,21 +463,21 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     workers = 1 if workers is None else workers
     ds = as_dataset(dataset)
     if not isinstance(texcoord_set, (TexcoordSet, str, os.PathLike)):
-        raise OptionError(f"texcoord_set must be a TexcoordSet or a texcoord set folder path, got "
+        raise OptionError("texcoord_set", f"must be a TexcoordSet or a texcoord set folder path, got "
                           f"{type(texcoord_set).__name__}")
     tc = texcoord_set if isinstance(texcoord_set, TexcoordSet) else open_texcoords(texcoord_set, ds.num_vertices)
     tc.check_dataset(ds)
-    rig, rig_source = as_rig(rig)
+    rig = as_rig(rig)
     if cameras is not None:
-        rig = rig.select(list(cameras), source=rig_source)
+        rig = rig.select(list(cameras))
     elif not set(rig.names) <= set(tc.cameras):
-        rig = rig.select(tc.cameras, source=rig_source)
-    tc.check_rig(rig, rig_source, cameras=rig.names)
+        rig = rig.select(tc.cameras)
+    tc.check_rig(rig, cameras=rig.names)
     poses = tc.poses if poses is None else [int(p) for p in poses]
     if poses:
-        check_sees(rig, read_row(ds.inferred, poses[0]), rig_source,
+        check_sees(rig, read_row(ds.inferred, poses[0]),
                    what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
-    check_outside_body(rig, ds, poses, rig_source)
+    check_outside_body(rig, ds, poses)
     for p in poses:
         tc.row(p)  # InputError for a pose the set does not have
     for name in rig.names:

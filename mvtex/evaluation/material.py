@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 
 
-MATERIAL_HEATMAP_MAX_MM = 20.0  # material error drawn fully red, millimetres
+MATERIAL_HEATMAP_MAX_MM = 20.0  # material error drawn fully red, millimeters
 
 
 class MaterialMap:
@@ -54,10 +54,10 @@ class MaterialMap:
         self.rest = as_array(rest, "rest")
         check_shape(self.rest, "rest", (len(self.uv), 3))
         if not np.all(np.isfinite(self.rest)):
-            raise OptionError("rest has NaN or infinite values")
+            raise OptionError("rest", "has NaN or infinite values")
         self.resolution = as_index(resolution, "resolution")
         if not 16 <= self.resolution <= 8192:
-            raise OptionError(f"resolution must be in 16..8192, got {self.resolution}")
+            raise OptionError("resolution", f"must be in 16..8192, got {self.resolution}")
         with context_or_new(ctx) as gl:
             self.ids = rasterize_uv(gl, self.uv, self.faces, self.resolution, self.resolution, attributes=False).tri_id
         m, n = len(self.faces), len(self.uv)

@@ -1,7 +1,7 @@
 """Which located observations a reconstruction trusts: steps 2 and 3 of
 `mvtex.recon.triangulate.reconstruct`.
 
-A hypothesis (`mvtex.recon.locate.Hypotheses`) is wrong by millimetres where T_N
+A hypothesis (`mvtex.recon.locate.Hypotheses`) is wrong by millimeters where T_N
 interpolates across a fold edge: the gt material jumps between two corners of the inferred
 triangle it was located in, so the interpolated material inside it belongs to neither side.
 Two independent rules catch such observations:

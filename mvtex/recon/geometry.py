@@ -47,7 +47,7 @@ def camera_arrays(cameras: Sequence[Camera]) -> tuple[np.ndarray, np.ndarray, np
     """Stacked intrinsics K (C,3,3), rotations R (C,3,3) and translations t (C,3), float64."""
     cameras = _cameras(cameras)
     if len(cameras) == 0:
-        raise OptionError("cameras must hold at least one camera, got 0")
+        raise OptionError("cameras", "must hold at least one camera, got 0")
     return (np.stack([c.K for c in cameras]), np.stack([c.R for c in cameras]), np.stack([c.t for c in cameras]))
 
 
@@ -121,7 +121,7 @@ def observed(pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """
     w = np.array(weights, dtype=np.float64)
     if not np.all(np.isfinite(w)) or np.any(w < 0):
-        raise OptionError("weights must be finite and ≥ 0 (0 where a camera does not observe the point)")
+        raise OptionError("weights", "must be finite and ≥ 0 (0 where a camera does not observe the point)")
     finite = np.all(np.isfinite(np.asarray(pixels, dtype=np.float64)), axis=-1)
     return np.where(finite & (w > 0), w, 0.0)
 
@@ -276,10 +276,10 @@ def triangulate_points(cameras: Sequence[Camera], pixels: np.ndarray, weights: n
             negative or not finite, iterations or min_angle_deg out of range.
     """
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or not 0 <= iterations <= 100:
-        raise OptionError(f"iterations must be an integer in 0..100, got {iterations!r}")
+        raise OptionError("iterations", f"must be an integer in 0..100, got {iterations!r}")
     if isinstance(min_angle_deg, bool) or not isinstance(min_angle_deg, (int, float, np.floating)) \
             or not 0 <= min_angle_deg < 180:
-        raise OptionError(f"min_angle_deg must be a number in [0, 180), got {min_angle_deg!r}")
+        raise OptionError("min_angle_deg", f"must be a number in [0, 180), got {min_angle_deg!r}")
     cameras = _cameras(cameras)
     pixels = _as_array(pixels, "pixels")
     weights = _as_array(weights, "weights")

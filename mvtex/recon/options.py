@@ -4,12 +4,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal
 
-from mvtex.util.checks import check_field_types
-from mvtex.util.errors import OptionError
-
-# Triangulation engines of `ReconOptions.engine`.
-ENGINES = ("mvtex", "pycolmap")
+from mvtex.util.options import Options, knob
 
 # consensus_scale of predicted texcoord sets (`ReconOptions.for_source`).
 PREDICTED_CONSENSUS_SCALE = 4.0
@@ -17,12 +14,9 @@ PREDICTED_CONSENSUS_SCALE = 4.0
 # shrink of predicted texcoord sets (`ReconOptions.for_source`): see docs/reconstruction.md.
 PREDICTED_SHRINK = 0.2
 
-# Shapes the harmonic fill of `ReconOptions.fill_shape` can be solved on.
-FILL_SHAPES = ("rest", "inferred")
-
 
 @dataclass(frozen=True)
-class ReconOptions:
+class ReconOptions(Options):
     """Options of the reconstruction (the `mvtex triangulate` flags mirror them).
 
     The observation rules (`max_stretch`, `consensus_px`, `consensus_scale`) were chosen on
@@ -31,7 +25,7 @@ class ReconOptions:
     Attributes:
         max_reprojection_px: an observation whose reprojection error exceeds this is dropped
             (while ≥ 3 remain); a point still above it is rejected ("reprojection").
-        max_surface_distance_m: a point farther than this from the inferred surface is
+        max_surface_distance: a point farther than this from the inferred surface is
             rejected ("surface_distance").
         max_stretch: an observation located in a triangle with an edge whose ‖ΔT_N‖ exceeds
             this times its ‖ΔT_G‖ is dropped ("stretched_triangle"): T_N there interpolates
@@ -83,50 +77,40 @@ class ReconOptions:
             `PREDICTED_SHRINK` for predicted texcoords (source "tsnn"), 0 for the others.
     """
 
-    max_reprojection_px: float = 2.0
-    max_surface_distance_m: float = 0.05
-    max_stretch: float | None = 1.75
-    consensus_px: float = 0.5
-    consensus_scale: float | None = None
-    fill_shape: str = "rest"
-    smooth: bool = False
-    smooth_iterations: int = 10
-    uv_resolution: int = 1024
-    depth_tolerance: float = 0.005
-    require_assigned: bool = True
-    max_combinations: int = 256
-    refine_iterations: int = 5
-    error_scale_m: float = 0.01
-    strain_scale: float = 0.1
-    engine: str = "mvtex"
-    use_uncertainty: bool = True
-    shrink: float | None = None
-
-    def __post_init__(self) -> None:
-        check_field_types(self)
-        positive = {"max_reprojection_px": self.max_reprojection_px,
-                    "max_surface_distance_m": self.max_surface_distance_m, "consensus_px": self.consensus_px,
-                    "depth_tolerance": self.depth_tolerance, "error_scale_m": self.error_scale_m,
-                    "strain_scale": self.strain_scale}
-        for name, value in positive.items():
-            if not value > 0 or value == float("inf"):
-                raise OptionError(f"{name} must be a positive finite number, got {value!r}")
-        if self.max_stretch is not None and not 1 < self.max_stretch < float("inf"):
-            raise OptionError(f"max_stretch must be > 1 and finite, or None, got {self.max_stretch!r}")
-        if self.consensus_scale is not None and not 0 <= self.consensus_scale < float("inf"):
-            raise OptionError(f"consensus_scale must be ≥ 0 and finite, or None, got {self.consensus_scale!r}")
-        if self.shrink is not None and not 0 <= self.shrink < float("inf"):
-            raise OptionError(f"shrink must be ≥ 0 and finite, or None, got {self.shrink!r}")
-        if self.fill_shape not in FILL_SHAPES:
-            raise OptionError(f"fill_shape must be one of {', '.join(FILL_SHAPES)}, got {self.fill_shape!r}")
-        for name, value, low, high in (("smooth_iterations", self.smooth_iterations, 0, 1000),
-                                       ("uv_resolution", self.uv_resolution, 16, 8192),
-                                       ("max_combinations", self.max_combinations, 1, 100000),
-                                       ("refine_iterations", self.refine_iterations, 0, 100)):
-            if int(value) != value or not low <= value <= high:
-                raise OptionError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
-        if self.engine not in ENGINES:
-            raise OptionError(f"engine must be one of {', '.join(ENGINES)}, got {self.engine!r}")
+    max_reprojection_px: float = knob(2.0, "drop observations and reject points above this reprojection error",
+                                      unit="px", low=0, low_open=True)
+    max_surface_distance: float = knob(0.05, "reject points farther than this from the inferred surface", unit="m",
+                                       low=0, low_open=True)
+    max_stretch: float | None = knob(1.75, "drop observations located in a triangle with an edge whose texcoords "
+                                     "stretch more than this times its material length", low=1, low_open=True,
+                                     metavar="R")
+    consensus_px: float = knob(0.5, "the cameras' vote: an observation agrees with a point within this", unit="px",
+                               low=0, low_open=True)
+    consensus_scale: float | None = knob(None, "grow the vote's threshold to this times the pose's median "
+                                         "reprojection error", low=0, auto="4 for predicted texcoords, 0 for slid ones",
+                                         metavar="S")
+    fill_shape: Literal["rest", "inferred"] = knob("rest", "the shape the displacement of untriangulated vertices "
+                                                  "is extended on")
+    smooth: bool = knob(False, "Taubin-smooth the reconstructed displacement (for noisy inputs such as predicted "
+                        "texcoords)")
+    smooth_iterations: int = knob(10, "Taubin passes of --smooth", low=0, high=1000)
+    uv_resolution: int = knob(1024, "texels per side of the UV lookup buffer", low=16, high=8192)
+    depth_tolerance: float = knob(0.005, "relative depth slack of the visibility test", low=0, low_open=True)
+    require_assigned: bool = knob(True, "drop hypotheses in triangles with an unassigned (filled) corner")
+    max_combinations: int = knob(256, "most hypothesis pairs tried per vertex", low=1, high=100000)
+    refine_iterations: int = knob(5, "Gauss-Newton steps after the DLT", low=0, high=100)
+    error_scale_m: float = knob(0.01, "the PLY's vertex colours run from blue (0) to red (at least this)", unit="m",
+                                low=0, low_open=True, flag=False)
+    strain_scale: float = knob(0.1, "kept for scripts that set it; comparison.png fits its strain scale to the "
+                               "data", low=0, low_open=True, flag=False)
+    engine: Literal["mvtex", "pycolmap"] = knob("mvtex", "who triangulates the tracks: mvtex (vectorised DLT + "
+                                                "Gauss-Newton, faster) or pycolmap (COLMAP's multi-view "
+                                                "triangulation + points-only bundle adjustment); the same points")
+    use_uncertainty: bool = knob(True, "weigh observations and trust points by the texcoord set's uncertainty.npy "
+                                 "where it has one (off: by the cameras' disagreement)")
+    shrink: float | None = knob(None, "trust in each point: keep tau2/(tau2 + K sigma2) of its displacement, sigma "
+                                "its standard deviation, tau2 the pose's mean squared displacement; 0 takes every "
+                                "point", low=0, auto="0.2 for predicted texcoords, 0 for slid ones", metavar="K")
 
     def for_source(self, source: str) -> "ReconOptions":
         """These options with consensus_scale and shrink decided for a texcoord set of this

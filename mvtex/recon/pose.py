@@ -55,7 +55,7 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     out = as_path(out, "out", optional=True)
     check_instance(options, ReconOptions, "options")
     dataset = as_dataset(dataset)
-    rig = as_rig(rig)[0]
+    rig = as_rig(rig)
     texcoords = as_texcoords(texcoords)
     if ctx is None:
         from mvtex.render.context import GLContext

@@ -27,7 +27,7 @@ def strain_energies(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) 
 
 @dataclass(frozen=True)
 class ErrorPair:
-    """An error of the inferred mesh and of the reconstruction, in metres."""
+    """An error of the inferred mesh and of the reconstruction, in meters."""
 
     inferred: float
     reconstructed: float

@@ -53,14 +53,14 @@ from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, camera_arrays, ob
                                   projection_jacobian, reprojection_errors, surface_distance, triangulate_points,
                                   triangulation_angles)
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
-from mvtex.recon.options import ENGINES, ReconOptions
+from mvtex.recon.options import ReconOptions
 from mvtex.util.checks import check_shape
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 
-# ReconOptions and ENGINES live in mvtex.recon.options; importing them from here keeps working.
-__all__ = ["ENGINES", "ReconOptions", "Reconstruction", "Triangulator", "accept_points", "consensus_threshold",
+# ReconOptions lives in mvtex.recon.options; importing it from here keeps working.
+__all__ = ["ReconOptions", "Reconstruction", "Triangulator", "accept_points", "consensus_threshold",
            "pool_and_fill", "reconstruct", "reconstruct_from_hypotheses", "taubin_smooth", "track_triangulator",
            "triangulate_observations"]
 
@@ -211,7 +211,7 @@ def trust_factors(displacement: np.ndarray, sigma: np.ndarray, shrink: float,
     their noise lets them keeps little of it, and a point far noisier than the pose's
     displacement keeps almost none. (A prior per pose rather than ‖δ‖² per point: a noisy
     point that happens to move far is not trusted for it.) A point with σ above max_sigma
-    (the reconstruction's `max_surface_distance_m`: it could be anywhere a point is
+    (the reconstruction's `max_surface_distance`: it could be anywhere a point is
     accepted) is not trusted at all, and not counted in τ².
 
     Args:
@@ -312,7 +312,7 @@ def accept_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
     A point observed by ≥ 2 cameras is rejected, in this order, if it is not finite or
     behind an observing camera ("cheirality"), if an observation's reprojection error
     exceeds options.max_reprojection_px ("reprojection"), or if it is farther than
-    options.max_surface_distance_m from the inferred surface ("surface_distance").
+    options.max_surface_distance from the inferred surface ("surface_distance").
     Vertices with fewer than 2 observations are "disagreement" where they had
     hypotheses in ≥ 2 cameras (`voting`) and "fewer_than_2_views" elsewhere.
 
@@ -320,7 +320,7 @@ def accept_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
         cameras: the C cameras.
         points: (N,3) from `triangulate_observations`; pixels (N,C,2); weights (N,C).
         inferred_positions: (n',3) X_N; faces: (m',3) the inferred mesh.
-        options: max_reprojection_px, max_surface_distance_m.
+        options: max_reprojection_px, max_surface_distance.
         voting: (N,) bool vertices with hypotheses in ≥ 2 cameras (None: none).
 
     Returns:
@@ -347,7 +347,7 @@ def accept_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
     rejected["reprojection"] = int((in_front & ~reproj_ok).sum())
     dist = np.full(len(rows), np.inf)
     dist[reproj_ok] = surface_distance(X[reproj_ok], inferred_positions, faces)
-    near = reproj_ok & (dist <= options.max_surface_distance_m)
+    near = reproj_ok & (dist <= options.max_surface_distance)
     rejected["surface_distance"] = int((reproj_ok & ~near).sum())
     accepted[rows[near]] = True
     return accepted, rejected
@@ -478,18 +478,18 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     from mvtex.util.errors import OptionError
 
     check_instance(options, ReconOptions, "options")
-    rig = as_rig(rig)[0]
+    rig = as_rig(rig)
     gt_uv = as_array(gt_uv, "gt_uv")
     X_N, faces = check_mesh(inferred_positions, faces, "inferred_positions", size="n'", faces_size="m'")
     faces = faces.astype(np.int64)
     uv = as_array(uv, "uv")
     if not isinstance(texcoords, dict) or not all(isinstance(k, str) for k in texcoords):
-        raise OptionError("texcoords must be a dict: camera name -> (n',2) T_N")
+        raise OptionError("texcoords", "must be a dict: camera name -> (n',2) T_N")
     texcoords = {c: as_array(t, f"texcoords[{c!r}]") for c, t in texcoords.items()}
     for c, t in texcoords.items():
         check_shape(t, f"texcoords[{c!r}]", (len(X_N), 2))
         if not np.all(np.isfinite(t)):
-            raise OptionError(f"texcoords[{c!r}] has NaN or infinite values")
+            raise OptionError(None, f"texcoords[{c!r}] has NaN or infinite values")
     if gt_faces is not None:
         gt_faces = as_array(gt_faces, "gt_faces", np.int64)
     if rest is not None:
@@ -500,27 +500,27 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     check_shape(faces, "faces", ("m'", 3), sizes)
     n = len(gt_uv)
     if len(X_N) < n:
-        raise OptionError(f"inferred_positions has {len(X_N)} vertices, fewer than the gt mesh's {n}")
+        raise OptionError("inferred_positions", f"has {len(X_N)} vertices, fewer than the gt mesh's {n}")
     if gt_faces is None:
         if len(X_N) != n:
-            raise OptionError("gt_faces is needed when the texcoord mesh is subdivided (n' > n)")
+            raise OptionError("gt_faces", "is needed when the texcoord mesh is subdivided (n' > n)")
         gt_faces = faces
     gt_faces = np.asarray(gt_faces, dtype=np.int64)
     check_shape(gt_faces, "gt_faces", ("m", 3))
     if gt_faces.size and (gt_faces.min() < 0 or gt_faces.max() >= n):
-        raise OptionError(f"gt_faces must index the {n} gt vertices")
+        raise OptionError("gt_faces", f"must index the {n} gt vertices")
     if assigned is not None and (not isinstance(assigned, dict) or not all(
             isinstance(a, np.ndarray) and a.dtype == np.bool_ and a.shape == (len(X_N),) for a in assigned.values())):
-        raise OptionError(f"assigned must be a dict: camera name -> ({len(X_N)},) bool array")
+        raise OptionError("assigned", f"must be a dict: camera name -> ({len(X_N)},) bool array")
     if body is not None:
         if not isinstance(body, (tuple, list)) or len(body) != 2:
-            raise OptionError("body must be (positions (nb,3), faces (mb,3))")
+            raise OptionError("body", "must be (positions (nb,3), faces (mb,3))")
         body = check_mesh(body[0], body[1], "body positions")
     if rest is not None:
         check_shape(rest, "rest", (n, 3))
     names = [c for c in rig.names if c in texcoords]
     if len(names) < 2:
-        raise OptionError(f"texcoords: reconstruction needs texcoords of ≥ 2 rig cameras, got {sorted(texcoords)}")
+        raise OptionError("texcoords", f"must hold texcoords of ≥ 2 rig cameras for a reconstruction, got {sorted(texcoords)}")
     cameras = [rig[c] for c in names]
     hypotheses, stats = collect_hypotheses(gt_uv, X_N, faces, texcoords, cameras, uv_resolution=options.uv_resolution,
                                            depth_tolerance=options.depth_tolerance, assigned=assigned,
@@ -595,7 +595,7 @@ def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], n
     if options.shrink:
         trust = np.zeros(n)
         trust[triangulated] = trust_factors(X[triangulated] - base[triangulated], sigma[triangulated], options.shrink,
-                                            options.max_surface_distance_m)
+                                            options.max_surface_distance)
         stats["mean_trust"] = float(trust[triangulated].mean()) if triangulated.any() else 0.0
     points, unsmoothed, counts = pool_and_fill(X, triangulated, base, gt_faces, options, rest, trust)
     stats.update(counts)

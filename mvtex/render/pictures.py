@@ -116,7 +116,7 @@ def _nice_up(x: float) -> float:
 class ColorScale:
     """A colour scale: values in [vmin, vmax] to a matplotlib colormap, clipped at both ends,
     linear or logarithmic; `title` and `unit` name its axis, values are shown times `factor`
-    (1e3 to show metres as millimetres).
+    (1e3 to show meters as millimeters).
 
     `fit_scale` chooses one from the data; `colorbar` draws it.
     """

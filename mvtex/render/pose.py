@@ -54,15 +54,14 @@ def pose_views(dataset: Dataset, pose: int, camera: str,
     return {"gt": gt, "inferred": inferred}
 
 
-def check_sees_mesh(raster, camera: Camera, rig_path, pose: int, what: str) -> None:
+def check_sees_mesh(raster, camera: Camera, rig: Rig, pose: int, what: str) -> None:
     if not np.any(raster.tri_id >= 0):
-        raise InputError(rig_path, f"camera {camera.name!r} sees nothing of the {what} mesh at pose {pose}")
+        raise InputError(rig.source, f"camera {camera.name!r} sees nothing of the {what} mesh at pose {pose}")
 
 
-@writer("render", inputs=lambda a: (a["dataset"], a["texcoord_set"], a["rig_path"]))
+@writer("render", inputs=lambda a: (a["dataset"], a["texcoord_set"], a["rig"]))
 def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *,
-                texcoord_set: TexcoordSet | None = None, raster: bool = False, rig_path: str | None = None,
-                progress: bool = True, ctx: GLContext | None = None, overwrite: bool = False) -> dict:
+                texcoord_set: TexcoordSet | None = None, raster: bool = False, progress: bool = True, ctx: GLContext | None = None, overwrite: bool = False) -> dict:
     """Render one pose from every camera of a rig into `out` (see module docstring); the
     dataset's body, if it has one, is drawn with the cloth (neutral matte) and is in the
     rasters' depth test.
@@ -84,8 +83,7 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
     from mvtex.util.checks import as_index, as_path
 
     dataset = as_dataset(dataset)
-    rig, source = as_rig(rig)
-    rig_path = rig_path if rig_path is not None else source
+    rig = as_rig(rig)
     texcoord_set = None if texcoord_set is None else as_texcoords(texcoord_set, "texcoord_set")
     pose = as_index(pose, "pose")
     out = as_path(out, "out")
@@ -94,24 +92,23 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
     for cam in rig:
-        cam.require_pinhole(rig_path)
+        cam.require_pinhole(rig.source)
     if texcoord_set is not None:
         texcoord_set.check_dataset(dataset)
-        texcoord_set.check_rig(rig, rig_path, cameras=rig.names)
-    check_sees(rig, read_row(dataset.inferred, pose), rig_path,
-               what=f"the inferred mesh of {dataset.path} at pose {pose}")
-    check_outside_body(rig, dataset, [pose], rig_path)
+        texcoord_set.check_rig(rig, cameras=rig.names)
+    check_sees(rig, read_row(dataset.inferred, pose), what=f"the inferred mesh of {dataset.path} at pose {pose}")
+    check_outside_body(rig, dataset, [pose])
     if ctx is None:
         with GLContext() as own:
             return render_pose(dataset, rig, pose, out, texcoord_set=texcoord_set, raster=raster,
-                               rig_path=rig_path, progress=progress, ctx=own)
+                               progress=progress, ctx=own)
     with atomic_path(out) as tmp:
         tmp.mkdir()
-        return _render_into(tmp, dataset, rig, pose, texcoord_set, raster, rig_path, progress, ctx)
+        return _render_into(tmp, dataset, rig, pose, texcoord_set, raster, progress, ctx)
 
 
 def _render_into(out: Path, dataset: Dataset, rig: Rig, pose: int, texcoord_set: TexcoordSet | None, raster: bool,
-                 rig_path: str | None, progress: bool, ctx: GLContext) -> dict:
+                 progress: bool, ctx: GLContext) -> dict:
     from tqdm import tqdm
 
     from mvtex.render import raster as gl
@@ -126,7 +123,7 @@ def _render_into(out: Path, dataset: Dataset, rig: Rig, pose: int, texcoord_set:
         zoom_cam = scaled_camera(cam, garment_box(views["gt"].positions, cam), cam.width, cam.height)
         for what, view in views.items():
             r = gl.rasterize(ctx, view.positions, view.faces, cam, occluder=body)
-            check_sees_mesh(r, cam, rig_path, pose, what)
+            check_sees_mesh(r, cam, rig, pose, what)
             image = render_textured(ctx, view.positions, view.faces, view.texcoords, cam, body=body)
             save_png(out / cam.name / f"{what}.png", image)
             files.append(f"{cam.name}/{what}.png")

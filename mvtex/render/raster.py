@@ -33,13 +33,13 @@ def check_mesh(positions, faces, name: str = "positions", dims: int = 3, size: s
     positions = as_array(positions, name)
     sizes = check_shape(positions, name, (size, dims))
     if not np.all(np.isfinite(positions)):
-        raise OptionError(f"{name} has NaN or infinite values")
+        raise OptionError(name, f"has NaN or infinite values")
     faces = as_array(faces, "faces", None)
     check_shape(faces, "faces", (faces_size, 3))
     if faces.dtype.kind not in "iu":
-        raise OptionError(f"faces must be integers, got {faces.dtype}")
+        raise OptionError("faces", f"must be integers, got {faces.dtype}")
     if faces.size and (faces.min() < 0 or faces.max() >= sizes[size]):
-        raise OptionError(f"faces index vertices outside [0, {sizes[size]})")
+        raise OptionError("faces", f"index vertices outside [0, {sizes[size]})")
     return positions, faces
 
 
@@ -52,7 +52,7 @@ def _check_draw(ctx, camera=False, occluder=None):
         check_instance(camera, Camera, "camera")
     if occluder is not None:
         if not isinstance(occluder, (tuple, list)) or len(occluder) != 2:
-            raise OptionError("occluder must be (positions (nb,3), faces (mb,3))")
+            raise OptionError("occluder", "must be (positions (nb,3), faces (mb,3))")
         return check_mesh(occluder[0], occluder[1], "occluder positions")
     return None
 
@@ -209,7 +209,7 @@ def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, 
     uv, faces = check_mesh(uv, faces, "uv", dims=2)
     width, height = as_index(width, "width"), as_index(height, "height")
     if not (1 <= width <= 8192 and 1 <= height <= 8192):
-        raise OptionError(f"width and height must be in 1..8192, got {width}x{height}")
+        raise OptionError("width", f"and height must be in 1..8192, got {width}x{height}")
     points = np.hstack([uv, np.zeros((len(uv), 1))])
     return _draw_ids(ctx, points, faces, width, height, _uv_clip(), False, attributes)
 
@@ -452,11 +452,11 @@ def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.nda
     faces = as_array(faces, "faces", None)
     check_shape(faces, "faces", ("m", 3))
     if faces.dtype.kind not in "iu" or (faces.size and (faces.min() < 0 or faces.max() >= len(values))):
-        raise OptionError(f"faces must be integer indices into the {len(values)} values")
+        raise OptionError("faces", f"must be integer indices into the {len(values)} values")
     if raster.tri_id.size and raster.tri_id.max() >= len(faces):
-        raise OptionError(f"raster names triangle {int(raster.tri_id.max())}, faces has {len(faces)}")
+        raise OptionError("raster", f"names triangle {int(raster.tri_id.max())}, faces has {len(faces)}")
     if raster.bary is None:
-        raise OptionError("raster: interpolate needs a raster with barycentrics (attributes=True)")
+        raise OptionError("raster", "has no barycentrics: interpolate needs a raster made with attributes=True")
     mask = raster.mask
     out = np.zeros(raster.tri_id.shape + (values.shape[1],), dtype=np.float32)
     f = np.asarray(faces)[raster.tri_id[mask]]

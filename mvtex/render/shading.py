@@ -19,7 +19,7 @@ def fabric_texture(size: int = 1024, seed: int = 7) -> np.ndarray:
     texel (r, c) has centre ((c + 0.5)/size, (r + 0.5)/size); flip rows to show v up).
 
     A printed plaid with fine threads (period 1/128 of the atlas), a coarser check and
-    small dots: dense enough that sliding by a fraction of a centimetre shows.
+    small dots: dense enough that sliding by a fraction of a centimeter shows.
     """
     rng = np.random.default_rng(seed)
     t = (np.arange(size) + 0.5) / size

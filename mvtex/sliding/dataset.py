@@ -149,12 +149,10 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     out = as_path(out, "out")
     check_instance(options, SlideOptions, "options")
     ds = as_dataset(dataset)
-    rig, rig_path = as_rig(rig)
-    rig = rig.select(cameras, source=rig_path)
+    rig = as_rig(rig).select(cameras)
     poses = ds.check_poses(poses)
-    check_sees(rig, read_row(ds.inferred, poses[0]), rig_path,
-               what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
-    check_outside_body(rig, ds, poses, rig_path)
+    check_sees(rig, read_row(ds.inferred, poses[0]), what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
+    check_outside_body(rig, ds, poses)
     out = Path(out)
     record = _slide_record(ds, rig, options)
     if _complete(out, record, poses, rig.names, options.subdiv):
@@ -214,8 +212,7 @@ def slide_complete(dataset, rig, out: str | os.PathLike, *, poses: list[int], op
     from mvtex.data.rig import as_rig
 
     ds = as_dataset(dataset)
-    rig, rig_path = as_rig(rig)
-    rig = rig.select(cameras, source=rig_path)
+    rig = as_rig(rig).select(cameras)
     poses = ds.check_poses(poses)
     return _complete(Path(out), _slide_record(ds, rig, options), poses, rig.names, options.subdiv)
 

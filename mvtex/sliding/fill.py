@@ -222,7 +222,7 @@ def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned:
     from mvtex.util.errors import InputError, OptionError
 
     if not isinstance(method, str) or method not in METHODS:
-        raise OptionError(f"method must be one of {', '.join(METHODS)}, got {method!r:.60}")
+        raise OptionError("method", f"must be one of {', '.join(METHODS)}, got {method!r:.60}")
     if system is None or not isinstance(values, np.ndarray) or values.ndim != 1:  # checked once, not per column
         positions = as_array(positions, "positions")
         sizes = check_shape(positions, "positions", ("n", 3))
@@ -230,25 +230,25 @@ def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned:
         try:
             validate_mesh(faces, np.zeros((len(positions), 2)), None)
         except InputError as err:
-            raise OptionError(f"faces: {err.problem}") from None
+            raise OptionError(None, f"faces: {err.problem}") from None
         if not np.all(np.isfinite(positions)):
-            raise OptionError("positions has NaN or infinite values")
+            raise OptionError("positions", "has NaN or infinite values")
         values = as_array(values, "values", None)
         if values.ndim not in (1, 2) or values.dtype.kind not in "biuf":
-            raise OptionError(f"values must be numbers with shape (n,) or (n,C), got {values.shape} {values.dtype}")
+            raise OptionError("values", f"must be numbers with shape (n,) or (n,C), got {values.shape} {values.dtype}")
         check_shape(values[:, None] if values.ndim == 1 else values, "values", ("n", "C"), sizes)
         if not np.all(np.isfinite(values[np.asarray(assigned, dtype=bool)] if np.shape(assigned) == (len(values),)
                                   else values)):
-            raise OptionError("values has NaN or infinite values where assigned")
+            raise OptionError("values", "has NaN or infinite values where assigned")
         assigned = as_array(assigned, "assigned", None)
         if assigned.dtype != np.bool_:
-            raise OptionError(f"assigned must be bool, got {assigned.dtype}")
+            raise OptionError("assigned", f"must be bool, got {assigned.dtype}")
         check_shape(assigned, "assigned", ("n",), sizes)
         if groups is not None:
             groups = as_array(groups, "groups", None)
             check_shape(groups, "groups", ("n",), sizes)
             if groups.dtype.kind not in "iu" or (len(groups) and groups.min() < 0):
-                raise OptionError("groups must be non-negative integers, one per vertex")
+                raise OptionError("groups", "must be non-negative integers, one per vertex")
     values = np.asarray(values)
     if values.ndim == 1:
         return fill(faces, positions, values[:, None], assigned, method, groups,

@@ -105,7 +105,7 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
     if topology is not None:
         check_instance(topology, SlideTopology, "topology")
     if body is not None and (not isinstance(body, (tuple, list)) or len(body) != 2):
-        raise OptionError("body must be (positions (nb,3), faces (mb,3))")
+        raise OptionError("body", "must be (positions (nb,3), faces (mb,3))")
     if body is not None:
         body = check_mesh(body[0], body[1], "body positions")
     faces = faces.astype(np.int64)

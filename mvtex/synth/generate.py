@@ -27,51 +27,8 @@ import numpy as np
 from mvtex.data.dataset import default_split
 from mvtex.data.mesh import edge_strain, edges
 from mvtex.synth.predictor import _CHUNK, fit_predictor
-from mvtex.util.checks import check_field_types, check_seed
-from mvtex.util.errors import OptionError
+from mvtex.synth.options import SynthOptions
 from mvtex.util.output import writer
-
-GARMENTS = ("shirt", "skirt")
-
-
-MAX_POSES = 100_000  # most poses one dataset holds (checked before anything is allocated)
-
-
-@dataclass(frozen=True)
-class SynthOptions:
-    """Options of `synthesize`.
-
-    Attributes:
-        num_poses: number of poses K (at least 3, one per split; at most MAX_POSES).
-        seed: seeds the poses and the 80/10/10 split.
-        pca_components: PCA components of the predictor (its capacity).
-        ridge: ridge penalty of the pose -> PCA-coefficient regression (bias unpenalized).
-        garment: "shirt" (a T-shirt on a mannequin: torso, neck and upper arms) or "skirt"
-            (a flared skirt on hips and legs whose hem swings and falls into flutes).
-        body: write the wearer as the dataset's body; off, the garment alone.
-    """
-
-    num_poses: int = 300
-    seed: int = 0
-    pca_components: int = 6
-    ridge: float = 1e-2
-    garment: str = "shirt"
-    body: bool = True
-
-    def __post_init__(self) -> None:
-        check_field_types(self)
-        if self.garment not in GARMENTS:
-            raise OptionError(f"garment must be one of {', '.join(GARMENTS)}, got {self.garment!r}")
-        if isinstance(self.num_poses, bool) or not isinstance(self.num_poses, (int, np.integer)) \
-                or not 3 <= self.num_poses <= MAX_POSES:
-            raise OptionError(f"num_poses must be an integer in 3..{MAX_POSES} (one pose per split at least), "
-                              f"got {self.num_poses!r}")
-        check_seed(self.seed)
-        if not (isinstance(self.pca_components, (int, np.integer)) and self.pca_components >= 1):
-            raise OptionError(f"pca_components must be an integer >= 1, got {self.pca_components!r}")
-        if not (np.isfinite(self.ridge) and self.ridge >= 0):
-            raise OptionError(f"ridge must be a finite number >= 0, got {self.ridge!r}")
-
 
 @dataclass(frozen=True)
 class _Garment:

@@ -55,7 +55,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     check_instance(options, TrainOptions, "options")
     if isinstance(cameras, (str, bytes)) or not hasattr(cameras, "__iter__") \
             or not all(isinstance(c, str) for c in cameras) or not list(cameras):
-        raise OptionError(f"cameras must be a non-empty list of camera names, got {cameras!r:.60}")
+        raise OptionError("cameras", f"must be a non-empty list of camera names, got {cameras!r:.60}")
     from mvtex.util.parallel import check_backend, map_unordered
 
     out = Path(out)
@@ -66,7 +66,7 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         raise InputError(texcoords.path, f"no camera {missing[0]!r} in this texcoord set "
                          f"(it has {', '.join(texcoords.cameras)})")
     if len(set(cameras)) != len(cameras):
-        raise OptionError(f"cameras lists a camera twice: {', '.join(cameras)}")
+        raise OptionError("cameras", f"lists a camera twice: {', '.join(cameras)}")
     texcoords.check_dataset(dataset)
     for c in cameras if texcoords.poses else []:  # reading a row checks the camera's whole arrays
         texcoords.displacement(c, texcoords.poses[0])
@@ -101,3 +101,44 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     arch = {m.arch for m in models.values()}
     return TrainedCameras(out=str(out), cameras=cameras, arch=arch.pop() if len(arch) == 1 else sorted(arch),
                           models={c: models[c] for c in cameras}, kept=[c for c in cameras if c not in todo])
+
+
+def train_models(dataset, texcoords, out: str | os.PathLike, cameras: Sequence[str] | None = None, *, rig=None,
+                 options: TrainOptions = TrainOptions(), workers: int = 1, scheduler: str | None = None,
+                 progress: bool = True, overwrite: bool = False) -> TrainResult | TrainedCameras:
+    """`mvtex train`: the models a texcoord set's cameras need, by how many are named.
+
+    - one camera: its model in `out` (`train` with `camera`; `gp` by default);
+    - several cameras: one model each in OUT/<camera>, side by side on `workers` or a Dask
+      `scheduler` (`train_cameras`);
+    - None: one network for every camera of the set, conditioned on the camera (`unet`),
+      which needs the set's rig: `rig`, else the rig the set records (TC/rig.yaml).
+
+    Raises:
+        OptionError: an empty camera list; `workers` above 1 or a `scheduler` with fewer
+            than two cameras; no rig for a network of every camera.
+    """
+    from mvtex.data.rig import load_rig
+    from mvtex.data.texcoords import as_texcoords, recorded_rig
+    from mvtex.util.checks import as_list
+
+    texcoords = as_texcoords(texcoords)
+    names = None if cameras is None else as_list(cameras, "cameras", str, "camera names")
+    if names is not None and not names:
+        raise OptionError("cameras", "needs a camera name or a list of them, got none")
+    if (workers not in (None, 1) or scheduler is not None) and (names is None or len(names) < 2):
+        raise OptionError("workers", "above 1 and a scheduler train several cameras side by side: name two or "
+                          "more cameras")
+    if names is not None and len(names) > 1:
+        return train_cameras(dataset, texcoords, names, out, options, workers=workers or 1, scheduler=scheduler,
+                             progress=progress, overwrite=overwrite)
+    if names is not None:
+        return train(dataset, texcoords, out, camera=names[0], options=options, progress=progress,
+                     overwrite=overwrite)
+    if rig is None:
+        recorded = recorded_rig(texcoords.path)
+        if recorded is None:
+            raise OptionError("rig", "is needed for one network of every camera (the texcoord set records no rig); "
+                              "or name a camera for its own model")
+        rig = load_rig(recorded)
+    return train(dataset, texcoords, out, rig=rig, options=options, progress=progress, overwrite=overwrite)

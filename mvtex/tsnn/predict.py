@@ -26,7 +26,8 @@ from mvtex.data.texcoords import MAX_DISPLACEMENT, RIG_FILE, dataset_record, rig
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
-from mvtex.tsnn.train import MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH
+from mvtex.data.limits import MAX_SUBDIV
+from mvtex.tsnn.options import MAX_RESOLUTION, MAX_WIDTH
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import create_npy, read_json, write_npy_rows
 from mvtex.util.output import atomic_path, writer
@@ -317,11 +318,11 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
 
     dataset = as_dataset(dataset)
     out = as_path(out, "out")
-    rig = None if rig is None else as_rig(rig)[0]
+    rig = None if rig is None else as_rig(rig)
     if isinstance(models, (str, os.PathLike)):
         models = [models]
     if not hasattr(models, "__iter__") or isinstance(models, (bytes, dict)):
-        raise OptionError(f"models must be a list of model folder paths, got {type(models).__name__}")
+        raise OptionError("models", f"must be a list of model folder paths, got {type(models).__name__}")
     models = [as_path(m, "models") for m in models]
     from tqdm import tqdm
 

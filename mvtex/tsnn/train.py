@@ -47,141 +47,33 @@ import numpy as np
 
 from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _write_model, mesh_fingerprint,
                                  rebuild_mesh)
-from mvtex.util.checks import check_field_types, check_seed
+from mvtex.tsnn.options import TrainOptions
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.output import writer
 
-ARCHS = ("gp", "mlp", "unet", "paper")
 
+def resolve_options(options: TrainOptions) -> TrainOptions:
+    """`options` with device, resolution, widths and the other automatic values filled in for
+    the device that runs them."""
+    import torch
 
-MAX_RESOLUTION = 2048  # atlas image size: 2·R² floats per pose and per batch item
+    device = options.device
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    gpu = device.startswith("cuda")
+    if gpu and not torch.cuda.is_available():
+        raise OptionError("device", f"{device!r} requested but CUDA is not available")
 
+    def given(value, default):
+        return default if value is None else value
 
-MAX_WIDTH = 1024  # channels of the first stage
-
-
-MAX_SUBDIV = 3
-_DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d{1,3})?)$")
-
-
-@dataclass(frozen=True)
-class TrainOptions:
-    """Options of `train`.
-
-    Attributes:
-        arch: "gp" (Gaussian processes of the pose on the principal components of d; one
-            camera), "mlp" (an ensemble of MLPs of the pose on the same components; one
-            camera), "unet" (geometry images of X_N + pose, a U-Net; the only one that
-            conditions on the camera) or "paper" (pose only; one camera). None: "gp" for
-            one camera, "unet" for all cameras. On the built-in garment's test poses `gp` is
-            the most accurate at every size measured, 120 to 960 training poses (README,
-            benchmarks/tsnn_learning_curve.py).
-        components: principal components of d that `gp` (each its own GP) and `mlp` model.
-        widths: channels per U-Net level (None: (8, 16, 32, 64)).
-        epochs: most passes over the training poses.
-        resolution: atlas image size R; None: 64 on CPU, 512 on CUDA. d is smooth over the
-            atlas, and on the built-in shirt 64² generalises as well as 128² (test MSE of d
-            1.11e-5 vs 1.13e-5) at about 0.6x the training time.
-        batch_size: samples ((pose, camera) pairs) per optimiser step (None: 16 for `paper`,
-            8 for `unet`, which learns per step and is cheap per sample).
-        lr: Adam learning rate (the paper's 1e-3).
-        device: "cpu", "cuda", "cuda:1", ... or "auto" (CUDA when available).
-        seed: seeds weight initialisation and batch order.
-        patience: stop after this many epochs without a better validation loss.
-        weight_assigned: loss weight of vertices whose d came from the ray (unassigned,
-            extrapolated vertices weigh 1); above 1 favours what the camera sees.
-        width: channels of the first decoder stage of `paper` (None: 256 on CPU and CUDA);
-            hidden units of each layer of an `mlp` member (None: 128).
-        min_width: fewest channels of any decoder stage (None: 8 on CPU, 16 on CUDA).
-        lr_min_factor: the learning rate decays along a cosine from lr to lr * this factor
-            over `epochs` (1.0: constant).
-        dilation: texels each chart is extended by in atlas images (see AtlasSampler).
-        weight_decay: decoupled weight decay (AdamW) on all parameters (0: the paper's plain Adam).
-        pose_noise: std of Gaussian noise added to training poses, in units of each pose
-            component's training std (augmentation; 0: off).
-        dropout: dropout probability on the pose embedding (the first stage's input; 0: off).
-        deterministic: use deterministic algorithms (always on CPU; on CUDA the bilinear
-            sampling backward has no deterministic kernel, so it is off there by default).
-        members: networks of an `mlp` ensemble (its hidden layers have `width` units, its
-            outputs are `components` principal components of d).
-    """
-
-    arch: str | None = None
-    components: int = 32
-    widths: tuple[int, ...] | None = None
-    epochs: int = 60
-    resolution: int | None = None
-    batch_size: int | None = None
-    lr: float = 1e-3
-    device: str = "auto"
-    seed: int = 0
-    patience: int = 15
-    weight_assigned: float = 1.0
-    width: int | None = None
-    min_width: int | None = None
-    lr_min_factor: float = 0.05
-    dilation: int = 2
-    deterministic: bool | None = None
-    weight_decay: float = 0.0
-    pose_noise: float = 0.0
-    dropout: float = 0.0
-    members: int = 5
-
-    def __post_init__(self) -> None:
-        check_field_types(self)
-        if self.widths is not None and (isinstance(self.widths, (str, bytes)) or not hasattr(self.widths, "__iter__")
-                                        or not all(isinstance(w, int) and not isinstance(w, bool) and w >= 1
-                                                   for w in self.widths)):
-            raise OptionError(f"widths must be a tuple of positive integers or None, got {self.widths!r:.60}")
-
-    def resolved(self) -> "TrainOptions":
-        """A copy with device, resolution and widths filled in for the device that runs it."""
-        import torch
-
-        device = self.device
-        if device == "auto":
-            device = "cuda" if torch.cuda.is_available() else "cpu"
-        gpu = device.startswith("cuda")
-        if gpu and not torch.cuda.is_available():
-            raise OptionError(f"device {device!r} requested but CUDA is not available")
-        def given(value, default):
-            return default if value is None else value
-
-        return replace(self, device=device,
-                       resolution=given(self.resolution, (512 if self.arch == "paper" else 256) if gpu else 64),
-                       widths=tuple(self.widths) if self.widths else (8, 16, 32, 64),
-                       batch_size=given(self.batch_size, 16 if self.arch == "paper" else 8),
-                       width=given(self.width, 128 if self.arch == "mlp" else 256),
-                       min_width=given(self.min_width, 16 if gpu else 8),
-                       deterministic=(not gpu) if self.deterministic is None else self.deterministic)
-
-    def validate(self) -> None:
-        if not isinstance(self.device, str) or not _DEVICE.match(self.device):
-            raise OptionError(f"device must be auto, cpu, mps, cuda or cuda:N, got {self.device!r}")
-        if self.resolution is not None and (not 8 <= self.resolution <= MAX_RESOLUTION
-                                            or self.resolution & (self.resolution - 1)):
-            raise OptionError(f"resolution must be a power of two in 8..{MAX_RESOLUTION}, got {self.resolution}")
-        if self.width is not None and not 1 <= self.width <= MAX_WIDTH:
-            raise OptionError(f"width must be in 1..{MAX_WIDTH}, got {self.width}")
-        if self.arch is not None and self.arch not in ARCHS:
-            raise OptionError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
-        check_seed(self.seed)
-        if self.arch == "unet" and self.resolution is not None:  # one halving per level
-            levels = len(self.widths) if self.widths else 4
-            if self.resolution < 2 ** levels:
-                raise OptionError(f"resolution must be at least {2 ** levels} for the unet ({levels} levels), "
-                                  f"got {self.resolution}")
-        if not 1 <= self.components <= 256:
-            raise OptionError(f"components must be in 1..256, got {self.components}")
-        for name in ("epochs", "batch_size", "patience"):
-            if getattr(self, name) < 1:
-                raise OptionError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if not self.lr > 0 or not 0 < self.lr_min_factor <= 1 or not self.weight_assigned > 0 or self.weight_decay < 0:
-            raise OptionError("lr and weight_assigned must be positive, weight_decay >= 0, lr_min_factor in (0, 1]")
-        if not 1 <= self.members <= 32:
-            raise OptionError(f"members must be in 1..32, got {self.members}")
-        if self.pose_noise < 0 or not 0 <= self.dropout < 1:
-            raise OptionError("pose_noise must be >= 0 and dropout in [0, 1)")
+    return replace(options, device=device,
+                   resolution=given(options.resolution, (512 if options.arch == "paper" else 256) if gpu else 64),
+                   widths=tuple(options.widths) if options.widths else (8, 16, 32, 64),
+                   batch_size=given(options.batch_size, 16 if options.arch == "paper" else 8),
+                   width=given(options.width, 128 if options.arch == "mlp" else 256),
+                   min_width=given(options.min_width, 16 if gpu else 8),
+                   deterministic=(not gpu) if options.deterministic is None else options.deterministic)
 
 
 def _check_texcoord_mesh(dataset, texcoords) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -302,8 +194,7 @@ def _resolve(options: TrainOptions, camera: str | None) -> TrainOptions:
     every camera (`unet`), then `TrainOptions.resolved`; ValueError if invalid."""
     if options.arch is None:
         options = replace(options, arch="gp" if camera is not None else "unet")
-    options = options.resolved()
-    options.validate()
+    options = resolve_options(options)
     return options
 
 
@@ -374,10 +265,10 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
     dataset = as_dataset(dataset)
     texcoords = as_texcoords(texcoords)
     out = as_path(out, "out")
-    rig = None if rig is None else as_rig(rig)[0]
+    rig = None if rig is None else as_rig(rig)
     check_instance(options, TrainOptions, "options")
     if camera is not None and not isinstance(camera, str):
-        raise OptionError(f"camera must be a camera name or None, got {type(camera).__name__}")
+        raise OptionError("camera", f"must be a camera name or None, got {type(camera).__name__}")
     import torch
 
     out = Path(out)
@@ -389,9 +280,9 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         cameras = [camera]
     else:
         if options.arch in ("paper", "gp", "mlp"):
-            raise OptionError(f"arch {options.arch} maps the pose alone: train it per camera (give a camera name)")
+            raise OptionError("arch", f"{options.arch} maps the pose alone: train it per camera (give a camera name)")
         if rig is None:
-            raise OptionError("rig: a network for every camera needs the rig the texcoord set was made with")
+            raise OptionError("rig", "is needed for a network of every camera: the rig the texcoord set was made with")
         cameras = list(texcoords.cameras) if cameras is None else [str(c) for c in cameras]
         absent = [c for c in cameras if c not in texcoords.cameras]
         if absent or not cameras:
@@ -409,7 +300,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         keep = {int(p) for p in train_poses}
         split["train"] = [p for p in split["train"] if p in keep]
         if not split["train"]:
-            raise OptionError("train_poses: none of them is a training pose of the texcoord set")
+            raise OptionError("train_poses", "holds no training pose of the texcoord set")
     device = torch.device(options.device)
     t0 = time.perf_counter()
 

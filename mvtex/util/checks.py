@@ -20,7 +20,7 @@ def check_seed(seed) -> int:
         OptionError: "seed must be an integer in 0..4294967295, got -1".
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
-        raise OptionError(f"seed must be an integer in 0..{MAX_SEED}, got {seed!r}")
+        raise OptionError("seed", f"must be an integer in 0..{MAX_SEED}, got {seed!r}")
     return int(seed)
 
 
@@ -55,72 +55,27 @@ def check_shape(array: np.ndarray, name: str, spec: Sequence[int | str],
                 ok = False
     if not ok:
         known = ", ".join(f"{k}={v}" for k, v in sizes.items() if k in spec)
-        raise OptionError(f"{name} must have shape ({','.join(map(str, spec))}){' with ' + known if known else ''}, "
+        raise OptionError(name, f"must have shape ({','.join(map(str, spec))}){' with ' + known if known else ''}, "
                          f"got {tuple(shape)}")
     sizes.update(bound)
     return sizes
-
-
-def _kinds(annotation: str) -> set[str] | None:
-    """The simple kinds an annotation string allows ("float | None" -> {"float", "None"}),
-    None when it is not made of simple kinds only."""
-    kinds = {part.strip() for part in str(annotation).split("|")}
-    simple = {"int", "float", "str", "bool", "None"}
-    return kinds if kinds <= simple else None
-
-
-def check_field_types(options) -> None:
-    """Check the fields of an options dataclass against their simple annotations (`int`,
-    `float`, `str`, `bool` and `X | None`): an int is an integer (not a bool), a float a
-    finite real number (an int will do), a str a string, a bool True or False (or 0/1).
-    Other annotations are left to the class's own checks.
-
-    Raises:
-        OptionError: "name must be a finite number, got 'abc'", naming the field.
-    """
-    import dataclasses
-    import numbers
-
-    for f in dataclasses.fields(options):
-        kinds = _kinds(f.type if isinstance(f.type, str) else getattr(f.type, "__name__", ""))
-        if kinds is None:
-            continue
-        value = getattr(options, f.name)
-        if value is None:
-            if "None" in kinds:
-                continue
-        elif "bool" in kinds and isinstance(value, (bool, np.bool_)):
-            continue
-        elif "int" in kinds and isinstance(value, (numbers.Integral, np.integer)) and not isinstance(value, bool):
-            continue
-        elif "float" in kinds and isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
-            if np.isfinite(float(value)):
-                continue
-        elif "str" in kinds and isinstance(value, str):
-            continue
-        elif "bool" in kinds and isinstance(value, (numbers.Integral, np.integer)) and value in (0, 1):
-            continue
-        want = {"int": "an integer", "float": "a finite number", "str": "a string", "bool": "True or False",
-                "None": "None"}
-        raise OptionError(f"{f.name} must be {' or '.join(want[k] for k in sorted(kinds, key=list(want).index))}, "
-                          f"got {value!r:.60}")
 
 
 def as_array(value, name: str, dtype=np.float64) -> np.ndarray:
     """`value` as a NumPy array of `dtype`; OptionError naming `name` when it is not an array
     of numbers (None, text, a ragged list, a dict)."""
     if value is None or isinstance(value, (str, bytes, dict, set)):
-        raise OptionError(f"{name} must be an array of numbers, got {type(value).__name__}")
+        raise OptionError(name, f"must be an array of numbers, got {type(value).__name__}")
     try:
         array = np.asarray(value) if not isinstance(value, np.ndarray) else value
     except (TypeError, ValueError, OverflowError):  # ragged nested lists
-        raise OptionError(f"{name} must be an array of numbers (a regular shape), got {type(value).__name__}") from None
+        raise OptionError(name, f"must be an array of numbers (a regular shape), got {type(value).__name__}") from None
     if array.dtype.kind not in "biuf":
-        raise OptionError(f"{name} must be an array of numbers, got {array.dtype} values")
+        raise OptionError(name, f"must be an array of numbers, got {array.dtype} values")
     try:
         return np.asarray(array, dtype=dtype)
     except (TypeError, ValueError, OverflowError):
-        raise OptionError(f"{name} must be an array of {np.dtype(dtype).name} values") from None
+        raise OptionError(name, f"must be an array of {np.dtype(dtype).name} values") from None
 
 
 def as_path(value, name: str, *, optional: bool = False):
@@ -132,20 +87,20 @@ def as_path(value, name: str, *, optional: bool = False):
     if value is None and optional:
         return None
     if not isinstance(value, (str, os.PathLike)) or isinstance(value, bytes):
-        raise OptionError(f"{name} must be a file or folder path, got {type(value).__name__}")
+        raise OptionError(name, f"must be a file or folder path, got {type(value).__name__}")
     try:
         path = Path(value)
     except TypeError:
-        raise OptionError(f"{name} must be a file or folder path, got {type(value).__name__}") from None
+        raise OptionError(name, f"must be a file or folder path, got {type(value).__name__}") from None
     if "\x00" in str(path):
-        raise OptionError(f"{name} must be a path without NUL characters, got {str(path)!r}")
+        raise OptionError(name, f"must be a path without NUL characters, got {str(path)!r}")
     return path
 
 
 def check_instance(value, cls, name: str):
     """Return `value` if it is a `cls`, else raise OptionError naming `name`."""
     if not isinstance(value, cls):
-        raise OptionError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+        raise OptionError(name, f"must be a {cls.__name__}, got {type(value).__name__}")
     return value
 
 
@@ -155,11 +110,11 @@ def as_index(value, name: str) -> int:
     import numbers
 
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, numbers.Real)):
-        raise OptionError(f"{name} must be an integer, got {value!r:.60}")
+        raise OptionError(name, f"must be an integer, got {value!r:.60}")
     if isinstance(value, numbers.Integral):
         return int(value)
     if not np.isfinite(float(value)) or not float(value).is_integer():
-        raise OptionError(f"{name} must be an integer, got {value!r:.60}")
+        raise OptionError(name, f"must be an integer, got {value!r:.60}")
     return int(value)
 
 
@@ -179,5 +134,5 @@ def as_list(values, name: str, kind: type | tuple[type, ...] | None = None, what
     except TypeError:
         out = None
     if out is None or (kind is not None and not all(isinstance(v, kind) and not isinstance(v, bool) for v in out)):
-        raise OptionError(f"{name} must be a list of {what}, got {values!r:.60}")
+        raise OptionError(name, f"must be a list of {what}, got {values!r:.60}")
     return out

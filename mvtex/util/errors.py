@@ -24,16 +24,27 @@ class InputError(ValueError):
 
 
 class OptionError(InputError):
-    """A bad argument value (an option of a stage, a count, a weight). The message starts
-    with the argument's name, "resolution must be a power of two in 8..2048, got 100", so
-    that the command line can say which flag it was. It is an `InputError` (exit code 2 from
-    the CLI) and therefore a `ValueError`."""
+    """A bad argument value (an option of a stage, a count, a weight).
 
-    def __init__(self, problem: str):
-        super().__init__(None, problem)
+    `OptionError("resolution", "must be a power of two in 8..2048, got 100")`: `argument`
+    names the argument (a field of an options class, a parameter of a function) and
+    `detail` says what is wrong with it; `str(err)` joins them, "resolution must be ...".
+    The command line reports it in the words of the flag that sets the argument
+    ("--resolution must be ..."). It is an `InputError` (exit code 2 from the CLI) and
+    therefore a `ValueError`.
+
+    Attributes:
+        argument: the argument's name, or None for a problem of several arguments together.
+        detail: the problem, without the argument's name.
+    """
+
+    def __init__(self, argument: str | None, detail: str):
+        self.argument = argument
+        self.detail = " ".join(str(detail).split())
+        super().__init__(None, self.detail if argument is None else f"{argument} {self.detail}")
 
     def __reduce__(self):
-        return type(self), (self.problem,)
+        return type(self), (self.argument, self.detail)
 
 
 class OutputError(InputError):

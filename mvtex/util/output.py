@@ -37,7 +37,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Mapping, ParamSpec, TypeVar
 
 from mvtex.util.errors import InputError, OptionError, OutputError
 
@@ -590,7 +590,8 @@ def _locked(path: Path, command: str) -> Iterator[None]:
 def input_paths(*sources) -> list[str]:
     """The files and folders behind a writer's inputs: paths that exist, `.path` of opened
     datasets, texcoord sets and models, the files of memory-mapped arrays; lists are
-    walked, anything else (a `Rig` object, a built-in rig's name) is skipped."""
+    walked, the file a `Rig` was read from is one; anything else (a rig made in code, a
+    built-in rig's name) is skipped."""
     import numpy as np
 
     out: list[str] = []
@@ -608,10 +609,17 @@ def input_paths(*sources) -> list[str]:
             out.extend(input_paths(*source.values()))
         elif isinstance(getattr(source, "path", None), (str, os.PathLike)):
             out.append(os.fspath(source.path))
+        elif isinstance(getattr(source, "source", None), (str, os.PathLike)):  # a Rig read from a file
+            out.extend(input_paths(source.source))
     return out
 
 
-def writer(command: str, *, out: str = "out", inputs=None, in_place: bool = False, file: bool = False):
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def writer(command: str, *, out: str = "out", inputs: Callable[[Mapping[str, Any]], Any] | None = None,
+           in_place: bool = False, file: bool = False) -> Callable[[Callable[_P, _R]], Callable[_P, _R]]:
     """Make a public function that writes `out` go through the writer policy.
 
     The decorated function takes an `overwrite` argument (default False) and its output
@@ -622,13 +630,13 @@ def writer(command: str, *, out: str = "out", inputs=None, in_place: bool = Fals
     import functools
     import inspect
 
-    def wrap(function):
+    def wrap(function: Callable[_P, _R]) -> Callable[_P, _R]:
         signature = inspect.signature(function)
         if "overwrite" not in signature.parameters:
             raise TypeError(f"{function.__qualname__} must take an overwrite argument")
 
         @functools.wraps(function)
-        def run(*args, **kwargs):
+        def run(*args: _P.args, **kwargs: _P.kwargs) -> _R:
             bound = signature.bind(*args, **kwargs)
             bound.apply_defaults()
             arguments = bound.arguments
@@ -636,7 +644,7 @@ def writer(command: str, *, out: str = "out", inputs=None, in_place: bool = Fals
             if path is None:
                 return function(*args, **kwargs)
             if not isinstance(path, (str, os.PathLike)):
-                raise OptionError(f"{out} must be a path, got {type(path).__name__}")
+                raise OptionError(out, f"must be a path, got {type(path).__name__}")
             sources = input_paths(inputs(arguments)) if inputs is not None else []
             overwrite = bool(arguments.get("overwrite", False))
             if file:

@@ -50,20 +50,20 @@ def check_backend(workers: int | None = None, scheduler: str | None = None, *,
 
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or not 1 <= workers <= MAX_WORKERS):
-        raise OptionError(f"workers must be an integer in 1..{MAX_WORKERS}, got {workers!r}")
+        raise OptionError("workers", f"must be an integer in 1..{MAX_WORKERS}, got {workers!r}")
     if scheduler is None:
         return
     if not isinstance(scheduler, str):
-        raise OptionError(f"scheduler must be a Dask scheduler address tcp://HOST:PORT, got {type(scheduler).__name__}")
+        raise OptionError("scheduler", f"must be a Dask scheduler address tcp://HOST:PORT, got {type(scheduler).__name__}")
     match = re.fullmatch(r"(?:(?:tcp|tls)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9._-]+):(\d{1,5})/?", str(scheduler).strip())
     if not match or not 0 < int(match.group(2)) < 65536:
-        raise OptionError(f"scheduler must be a Dask scheduler address tcp://HOST:PORT, got {scheduler!r}")
+        raise OptionError("scheduler", f"must be a Dask scheduler address tcp://HOST:PORT, got {scheduler!r}")
     host, port = match.group(1).strip("[]"), int(match.group(2))
     timeout = SCHEDULER_TIMEOUT_S if timeout is None else float(timeout)
     try:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as err:
-        raise OptionError(f"scheduler: nothing accepts a connection at {host}:{port} ({err.strerror or err}); "
+        raise OptionError("scheduler", f"{host}:{port}: nothing accepts a connection there ({err.strerror or err}); "
                           "start one with `dask scheduler`") from None
     if not str(scheduler).strip().startswith("tls://"):  # TLS needs the user's certificates: connect only
         _check_dask_scheduler(f"tcp://{match.group(1)}:{port}", timeout)
@@ -101,10 +101,10 @@ def _check_dask_scheduler(address: str, timeout: float) -> None:
         except Exception as err:  # whatever answers there, it is not a scheduler: a timeout, garbage frames
             detail = f"no answer to Dask's handshake within {timeout:g} s" if isinstance(err, TimeoutError) \
                 else f"its reply to Dask's handshake is not Dask's: {type(err).__name__}"
-            raise OptionError(f"scheduler: {address} accepts connections but is not a Dask scheduler ({detail})") \
+            raise OptionError("scheduler", f"{address} accepts connections but is not a Dask scheduler ({detail})") \
                 from None
     if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
-        raise OptionError(f"scheduler: {address} is a Dask {reply.get('type') if isinstance(reply, dict) else '?'}, "
+        raise OptionError("scheduler", f"{address} is a Dask {reply.get('type') if isinstance(reply, dict) else '?'}, "
                           "not a scheduler")
 
 

@@ -32,42 +32,42 @@ def parse_weights(text: str) -> dict[str, float]:
         except ValueError:
             w = float("nan")
         if not name or not sep or not np.isfinite(w):
-            raise OptionError(f"weights: {item!r} is not NAME=NUMBER (e.g. \"left=0.5,right=0.5\")")
+            raise OptionError("weights", f"hold {item!r}, which is not NAME=NUMBER (e.g. \"left=0.5,right=0.5\")")
         if name in weights:
-            raise OptionError(f"weights: camera {name!r} given twice")
+            raise OptionError("weights", f"name camera {name!r} twice")
         weights[name] = w
     if not weights:
-        raise OptionError("weights: no camera given")
+        raise OptionError("weights", "name no camera")
     return weights
 
 
-def check_weights(weights: Mapping[str, float], rig: Rig, source: str | os.PathLike | None = None) -> dict[str, float]:
+def check_weights(weights: Mapping[str, float], rig: Rig) -> dict[str, float]:
     """Weights of a view, validated: a mapping camera name -> number, known cameras, finite,
     ≥ 0, summing to 1 (±1e-6)."""
     import numbers
 
     if not isinstance(weights, Mapping) or not weights:
-        raise OptionError(f"weights must map camera names to numbers, got {weights!r:.60}")
+        raise OptionError("weights", f"must map camera names to numbers, got {weights!r:.60}")
     if not all(isinstance(k, str) for k in weights) or not all(
             isinstance(w, numbers.Real) and not isinstance(w, bool) for w in weights.values()):
-        raise OptionError(f"weights must map camera names to numbers, got {dict(weights)!r:.80}")
-    rig.select(list(weights), source)  # InputError naming unknown cameras
+        raise OptionError("weights", f"must map camera names to numbers, got {dict(weights)!r:.80}")
+    rig.select(list(weights))  # InputError naming unknown cameras
     values = np.array([float(w) for w in weights.values()], np.float64)
     if not np.all(np.isfinite(values)):
-        raise OptionError(f"weights must be finite numbers, got {dict(weights)}")
+        raise OptionError("weights", f"must be finite numbers, got {dict(weights)}")
     if np.any(values < 0):
-        raise OptionError(f"weights must be >= 0, got {dict(weights)}")
+        raise OptionError("weights", f"must be >= 0, got {dict(weights)}")
     if abs(values.sum() - 1.0) > WEIGHT_TOLERANCE:
-        raise OptionError(f"weights must sum to 1 (within {WEIGHT_TOLERANCE:g}), they sum to {values.sum():.9g}")
+        raise OptionError("weights", f"must sum to 1 (within {WEIGHT_TOLERANCE:g}), they sum to {values.sum():.9g}")
     return {str(k): float(v) for k, v in weights.items()}
 
 
 def between_weights(a: str, b: str, steps: int) -> list[dict[str, float]]:
     """`steps` views evenly along the segment a -> b, both ends included (t = i/(steps-1))."""
     if int(steps) < 2 or int(steps) > MAX_VIEWS:
-        raise OptionError(f"steps must be in 2..{MAX_VIEWS}, got {steps}")
+        raise OptionError("steps", f"must be in 2..{MAX_VIEWS}, got {steps}")
     if a == b:
-        raise OptionError(f"between needs two different cameras, got {a},{b}")
+        raise OptionError("between", f"needs two different cameras, got {a},{b}")
     out = []
     for i in range(int(steps)):
         t = i / (int(steps) - 1)
@@ -83,9 +83,9 @@ def grid_weights(a: str, b: str, c: str, d: str, steps: int) -> list[dict[str, f
     t = i/(steps-1) along a->c.
     """
     if int(steps) < 2 or int(steps) ** 2 > MAX_VIEWS:
-        raise OptionError(f"steps must be in 2..{int(MAX_VIEWS ** 0.5)} (steps x steps views), got {steps}")
+        raise OptionError("steps", f"must be in 2..{int(MAX_VIEWS ** 0.5)} (steps x steps views), got {steps}")
     if len({a, b, c, d}) != 4:
-        raise OptionError(f"grid needs four different cameras, got {a},{b},{c},{d}")
+        raise OptionError("grid", f"needs four different cameras, got {a},{b},{c},{d}")
     out = []
     n = int(steps)
     for i in range(n):
@@ -98,9 +98,9 @@ def grid_weights(a: str, b: str, c: str, d: str, steps: int) -> list[dict[str, f
 
 def plan_views(*, weights: str | Mapping[str, float] | None = None, between: Sequence[str] | None = None,
                grid: Sequence[str] | None = None, steps: int | None = None,
-               name: str = "view") -> tuple[list[dict[str, float]], list[str]]:
+               name: str | None = None) -> tuple[list[dict[str, float]], list[str]]:
     """The weights and names of the views `mvtex views` makes: one view of `weights`
-    ("A=0.3,B=0.7" or a mapping) named `name`; `steps` views along `between` (two cameras);
+    ("A=0.3,B=0.7" or a mapping) named `name` (default "view"); `steps` views along `between` (two cameras);
     or `steps` x `steps` views over `grid` (four cameras, row-major from the first), named
     view_000, view_001, ... Exactly one of weights, between and grid.
 
@@ -110,17 +110,17 @@ def plan_views(*, weights: str | Mapping[str, float] | None = None, between: Seq
     """
     given = [k for k, v in (("weights", weights), ("between", between), ("grid", grid)) if v is not None]
     if len(given) != 1:
-        raise OptionError(f"weights, between or grid: give exactly one, got {', '.join(given) or 'none'}")
+        raise OptionError(None, f"weights, between or grid: give exactly one, got {', '.join(given) or 'none'}")
     if weights is not None:
         if steps is not None:
-            raise OptionError("steps goes with between or grid, not with weights")
-        return [parse_weights(weights) if isinstance(weights, str) else dict(weights)], [name]
+            raise OptionError("steps", "goes with between or grid, not with weights")
+        return [parse_weights(weights) if isinstance(weights, str) else dict(weights)], [name or "view"]
     corners = list(between if between is not None else grid)
     kind, count = ("between", 2) if between is not None else ("grid", 4)
     if steps is None:
-        raise OptionError(f"steps: {kind} needs a number of steps")
+        raise OptionError("steps", f"is needed with {kind} (the number of views along it)")
     if len(corners) != count:
-        raise OptionError(f"{kind} needs {count} camera names, got {corners}")
+        raise OptionError(kind, f"needs {count} camera names, got {corners}")
     views = between_weights(*corners, steps) if count == 2 else grid_weights(*corners, steps)
     return views, view_names(len(views))
 
@@ -156,7 +156,7 @@ def interpolate_camera(rig: Rig, weights: Mapping[str, float], name: str) -> Cam
     from mvtex.data.camera import check_camera_name
     from mvtex.data.rig import as_rig
 
-    rig = as_rig(rig)[0]
+    rig = as_rig(rig)
     check_camera_name(name)
     weights = check_weights(weights, rig)
     one = _single(weights)

@@ -33,7 +33,6 @@ class _ViewSpec:
     rig: Rig
     texcoords: str
     options: ViewOptions
-    rig_source: str | None
     cameras: tuple
     weights: tuple
     key: str  # one run: a worker keeps its synthesizer between the run's tasks
@@ -50,8 +49,7 @@ def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
 
     configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
-    return ViewSynthesizer(ds, spec.rig, open_texcoords(spec.texcoords, ds.num_vertices), spec.options,
-                           spec.rig_source)
+    return ViewSynthesizer(ds, spec.rig, open_texcoords(spec.texcoords, ds.num_vertices), spec.options)
 
 
 def _views_of_poses(synth: "ViewSynthesizer", cameras: Sequence[Camera], weights: Sequence[Mapping[str, float]],
@@ -104,11 +102,11 @@ class NovelViews:
         return out
 
 
-@writer("views", inputs=lambda a: (a["dataset"], a["texcoords"], a["rig_source"]))
+@writer("views", inputs=lambda a: (a["dataset"], a["texcoords"], a["rig"]))
 def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: Sequence[Mapping[str, float]],
                 names: Sequence[str], *, poses: Sequence[int] | None = None, options: ViewOptions = ViewOptions(),
-                rig_source: str | os.PathLike | None = None, progress: bool = True, workers: int = 1,
-                scheduler: str | None = None, overwrite: bool = False) -> dict:
+                progress: bool = True, workers: int = 1,
+                scheduler: str | None = None, overwrite: bool = False) -> NovelViews:
     """`mvtex views`: a texcoord set whose cameras are novel views of an array.
 
     Args:
@@ -134,16 +132,15 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     from mvtex.util.checks import as_indices, as_path, check_instance
 
     dataset = as_dataset(dataset)
-    rig, source = as_rig(rig)
-    rig_source = rig_source if rig_source is not None else source
+    rig = as_rig(rig)
     texcoords = as_texcoords(texcoords)
     out = as_path(out, "out")
     poses = None if poses is None else as_indices(poses, "poses")
     check_instance(options, ViewOptions, "options")
     if isinstance(weights, (str, bytes, dict)) or not hasattr(weights, "__iter__"):
-        raise OptionError(f"weights must be a list of camera -> weight mappings, got {type(weights).__name__}")
+        raise OptionError("weights", f"must be a list of camera -> weight mappings, got {type(weights).__name__}")
     if isinstance(names, (str, bytes)) or not hasattr(names, "__iter__"):
-        raise OptionError(f"names must be a list of view names, got {type(names).__name__}")
+        raise OptionError("names", f"must be a list of view names, got {type(names).__name__}")
     weights, names = list(weights), list(names)
     from tqdm import tqdm
 
@@ -153,16 +150,16 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
 
     check_backend(workers, scheduler)
     if len(weights) != len(names) or not names:
-        raise OptionError("names: one name per view is needed")
+        raise OptionError("names", "must hold one name per view")
     if len(set(names)) != len(names):
-        raise OptionError(f"names must be unique, got {list(names)}")
+        raise OptionError("names", f"must be unique, got {list(names)}")
     for name in names:  # they become folder names
         try:
             check_camera_name(name)
         except ValueError as err:
-            raise OptionError(f"name: {err}") from None
-    weights = [check_weights(w, rig, rig_source) for w in weights]
-    synth = ViewSynthesizer(dataset, rig, texcoords, options, rig_source)
+            raise OptionError("names", f"holds a name that is not allowed: {err}") from None
+    weights = [check_weights(w, rig) for w in weights]
+    synth = ViewSynthesizer(dataset, rig, texcoords, options)
     for w in weights:
         absent = [c for c in w if c not in texcoords.cameras]
         if absent:
@@ -170,8 +167,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
                              f"(it has {', '.join(texcoords.cameras)})")
     cameras = [interpolate_camera(rig, w, name) for w, name in zip(weights, names)]
     poses = texcoords.poses if poses is None else [int(p) for p in poses]
-    check_outside_body(rig, dataset, poses, rig_source)
-    check_outside_body(Rig(tuple(cameras)), dataset, poses, "the novel views")
+    check_outside_body(rig, dataset, poses)
+    check_outside_body(Rig(tuple(cameras), "the novel views"), dataset, poses)
     for p in poses:
         texcoords.row(p)
     if poses:  # reading a row checks the camera's whole arrays: here, before any worker starts
@@ -214,7 +211,7 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
 
             spec = _ViewSpec(dataset=str(Path(dataset.path).resolve()), rig=rig,
                              texcoords=str(Path(texcoords.path).resolve()), options=options,
-                             rig_source=None if rig_source is None else str(rig_source), cameras=tuple(cameras),
+                             cameras=tuple(cameras),
                              weights=tuple(dict(w) for w in weights), key=uuid.uuid4().hex)
             tasks = [(spec, start, poses[start:start + size]) for start in starts]
             for start, disp, asg in map_unordered(_view_block, tasks, workers=workers, scheduler=scheduler):

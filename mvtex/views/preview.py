@@ -36,35 +36,11 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig, check_outside_body
-from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.output import writer
+from mvtex.views.options import PreviewOptions
 
 BACKGROUND = (40, 40, 46)
-
-
-@dataclass(frozen=True)
-class PreviewOptions:
-    """Options of `stereo_preview` (the `mvtex preview` flags mirror them).
-
-    Attributes:
-        ipd: distance between the eyes (m).
-        method: "blend" or "reconstruct" (as in `mvtex.views.synthesizer`).
-        path: also write path.gif.
-        frames_per_segment: GIF frames between two consecutive array cameras.
-        margin: pixels added around the garment's bounding box for SSIM/PSNR.
-    """
-
-    ipd: float = 0.064
-    method: str = "reconstruct"
-    path: bool = False
-    frames_per_segment: int = 6
-    margin: int = 4
-
-    def __post_init__(self) -> None:
-        check_field_types(self)
-        if not (np.isfinite(self.ipd) and 0 <= self.ipd < 10):
-            raise OptionError(f"ipd must be in [0, 10) m, got {self.ipd!r}")
 
 
 @dataclass(frozen=True)
@@ -219,11 +195,11 @@ def _path_weights(names: list[str], per_segment: int) -> list[dict[str, float]]:
     return out
 
 
-@writer("preview", inputs=lambda a: (a["dataset"], a["texcoords"], a["rig_source"]))
+@writer("preview", inputs=lambda a: (a["dataset"], a["texcoords"], a["rig"]))
 def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLike, *,
                    weights: Mapping[str, float] | None = None, options: PreviewOptions = PreviewOptions(),
-                   rig_source: str | os.PathLike | None = None, progress: bool = True,
-                   overwrite: bool = False) -> dict:
+                   progress: bool = True,
+                   overwrite: bool = False) -> Preview:
     """`mvtex preview`: the stereo pair of one pose (see the module docstring).
 
     Args:
@@ -244,8 +220,7 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     from mvtex.util.checks import as_index, as_path, check_instance
 
     dataset = as_dataset(dataset)
-    rig, source = as_rig(rig)
-    rig_source = rig_source if rig_source is not None else source
+    rig = as_rig(rig)
     texcoords = as_texcoords(texcoords)
     pose = as_index(pose, "pose")
     out = as_path(out, "out")
@@ -259,13 +234,13 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} is outside [0, {dataset.num_poses})")
     texcoords.row(pose)
-    texcoords.check_rig(rig, rig_source)
+    texcoords.check_rig(rig)
     texcoords.check_dataset(dataset)
     out = Path(out)
     array = [c for c in rig.names if c in texcoords.cameras]
     if weights is None:
         weights = {c: 1.0 / len(array) for c in array}
-    weights = check_weights(weights, rig, rig_source)
+    weights = check_weights(weights, rig)
     absent = [c for c in weights if c not in texcoords.cameras]
     if absent:
         raise InputError(texcoords.path, f"no texcoords for camera {', '.join(absent)} in this set")
@@ -273,12 +248,12 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
         raise InputError(texcoords.path, "method reconstruct needs texcoords of at least 2 rig cameras")
     viewpoint = interpolate_camera(rig, weights, "viewpoint")
     left, right = eye_cameras(viewpoint, options.ipd)
-    check_outside_body(rig, dataset, [pose], rig_source)
-    check_outside_body(Rig((left, right)), dataset, [pose], "the preview's eyes")
+    check_outside_body(rig, dataset, [pose])
+    check_outside_body(Rig((left, right), "the preview's eyes"), dataset, [pose])
     cloth = np.asarray(dataset.inferred[pose], np.float64)
     for eye in (left, right):
         if not eye.sees(cloth):  # scores of two empty pictures would say "identical"
-            raise OptionError(f"ipd: the {eye.name} eye, {options.ipd:g} m from the other, sees none of the cloth of "
+            raise OptionError("ipd", f"{options.ipd:g} m puts the {eye.name} eye where it sees none of the cloth of "
                               f"pose {pose}; give a smaller ipd or another viewpoint")
     eyes = _Eyes(dataset, rig, texcoords, pose, options.method, array, progress)
     try:

@@ -29,12 +29,11 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.checks import check_field_types
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import read_row
 from mvtex.views.cameras import _single
+from mvtex.views.options import METHODS, ViewOptions
 
-METHODS = ("blend", "reconstruct")
 
 
 
@@ -42,24 +41,6 @@ METHODS = ("blend", "reconstruct")
 # A point counts as seen by an array camera when it is no deeper than the farthest
 # reconstructed surface around its projection, with this relative slack (4 mm at 2 m).
 _VISIBILITY_TOLERANCE = 2e-3
-
-
-@dataclass(frozen=True)
-class ViewOptions:
-    """Options of `novel_views` (the `mvtex views` flags mirror them).
-
-    Attributes:
-        method: "blend" or "reconstruct" (see the module docstring).
-        uv_resolution: texels per side of the UV lookup that finds the hit triangle.
-    """
-
-    method: str = "reconstruct"
-    uv_resolution: int = 1024
-
-    def __post_init__(self) -> None:
-        check_field_types(self)
-        if self.method not in METHODS:
-            raise OptionError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
 
 
 def blend_displacement(displacements: Mapping[str, np.ndarray], assigned: Mapping[str, np.ndarray],
@@ -116,12 +97,10 @@ class ViewSynthesizer:
         rig: the array's rig (must hold the texcoord set's cameras).
         texcoords: a `TexcoordSet` of the array.
         options: ViewOptions.
-        rig_source: the rig's path, for error messages.
     """
 
-    def __init__(self, dataset, rig: Rig, texcoords, options: ViewOptions = ViewOptions(),
-                 rig_source: str | os.PathLike | None = None, ctx=None):
-        texcoords.check_rig(rig, rig_source)
+    def __init__(self, dataset, rig: Rig, texcoords, options: ViewOptions = ViewOptions(), ctx=None):
+        texcoords.check_rig(rig)
         texcoords.check_dataset(dataset)
         from mvtex.render.context import GLContext
 

@@ -299,9 +299,9 @@ def test_rig_undistort_and_alpha(tmp_path):
 def test_rig_colmap_round_trip(tmp_path, capsys):
     import pycolmap
 
-    from mvtex.data.rig import builtin_rig_path
+    from mvtex.data.rig import builtin_rig_file
 
-    rig = load_rig(builtin_rig_path("square4"))
+    rig = load_rig(builtin_rig_file("square4"))
     model = tmp_path / "model"
     _run_json(["rig", "square4", "--to-colmap", str(model), "--json"])
     rec = pycolmap.Reconstruction(str(model))
@@ -327,9 +327,9 @@ def test_rig_colmap_round_trip(tmp_path, capsys):
 
 
 def test_rig_summary_and_plot(tmp_path):
-    from mvtex.data.rig import builtin_rig_path
+    from mvtex.data.rig import builtin_rig_file
 
-    rig = load_rig(builtin_rig_path("stereo"))
+    rig = load_rig(builtin_rig_file("stereo"))
     summary = _run_json(["rig", "stereo", "--json"])
     baseline = np.linalg.norm(rig.cameras[0].center - rig.cameras[1].center)
     assert summary["num_cameras"] == 2 and abs(summary["baseline_m"]["max"] - baseline) < 1e-12

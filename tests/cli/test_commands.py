@@ -180,29 +180,16 @@ def test_slide_flags_reach_the_options(tmp_path, tiny_dataset, rig_file, gl, cap
         assert not (tmp_path / "bad").exists()
 
 
-@pytest.mark.gl
-def test_old_spellings_work_with_a_deprecation_warning(tmp_path, tiny_dataset, rig_file, capsys):
-    """Renamed flags keep working for one minor version: the same result, one warning line
-    each on stderr naming the new spelling."""
-    code, _, err = run(capsys, "synth", tmp_path / "old", "--poses", 10, "--json")
-    assert code == 0 and "OUT as a positional argument is deprecated" in err and "use --num-poses N" in err
-    assert run(capsys, "synth", "--out", tmp_path / "new", "--num-poses", 10, "--json")[0] == 0
-    for name in ("gt.npy", "inferred.npy", "poses.npy"):
-        assert (tmp_path / "old" / name).read_bytes() == (tmp_path / "new" / name).read_bytes()
-    base = ["slide", tiny_dataset, "--rig", rig_file, "--poses", "1", "--subdiv", 0, "--quiet"]
-    code, _, err = run(capsys, *base, "--out", tmp_path / "a", "--break-ratio", "off", "--cross-chart", "on")
-    assert code == 0 and "use --no-break-ratio" in err and "--cross-chart on is deprecated" in err
-    assert run(capsys, *base, "--out", tmp_path / "b", "--no-break-ratio", "--cross-chart")[0] == 0
-    for cam in ("a", "b"):
-        assert (tmp_path / "a" / cam / "displacement.npy").read_bytes() == \
-            (tmp_path / "b" / cam / "displacement.npy").read_bytes()
-    assert json.loads((tmp_path / "a" / "texcoords.json").read_text())["options"] == \
-        json.loads((tmp_path / "b" / "texcoords.json").read_text())["options"]
-    faces, uv, rest = grid_mesh(6, 5)
-    for k in range(2):
-        write_obj(tmp_path / f"g{k}.obj", wave(rest, 0.01, k), uv, faces)
-    (tmp_path / "poses.txt").write_text("0 1\n1 0\n")
-    code, _, err = run(capsys, "import", tmp_path / "imp", "--gt", tmp_path / "g*.obj", "--inferred",
-                       tmp_path / "g*.obj", "--poses", tmp_path / "poses.txt", "--quiet")
-    assert code == 0 and "use --pose-vectors FILE" in err
-    assert np.load(tmp_path / "imp" / "poses.npy").tolist() == [[0, 1], [1, 0]]
+def test_spellings_removed_in_0_4_are_refused(tmp_path, tiny_dataset, rig_file, capsys):
+    """The spellings renamed in 0.2.0 (kept with a warning until 0.3) are gone: each is one
+    usage line naming the argument, exit 2, nothing written."""
+    for argv in (["synth", tmp_path / "old", "--num-poses", 10],
+                 ["synth", "--out", tmp_path / "old", "--poses", 10],
+                 ["slide", tiny_dataset, "--rig", rig_file, "--out", tmp_path / "old", "--break-ratio", "off"],
+                 ["slide", tiny_dataset, "--rig", rig_file, "--out", tmp_path / "old", "--cross-chart", "on"],
+                 ["import", "--out", tmp_path / "old", "--gt", "*.obj", "--inferred", "*.obj", "--poses", "p.txt"],
+                 ["demo", "--out", tmp_path / "old", "--epochs", 3],
+                 ["train", tiny_dataset, "--texcoords", tmp_path, "--camera", "a", "--out", tmp_path / "old"]):
+        code, out, err = run(capsys, *argv, "--quiet")
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (argv, err)
+        assert not (tmp_path / "old").exists()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mvtex.data.camera import Camera, look_at
-from mvtex.data.rig import Rig, builtin_rig_path, load_rig, save_rig
+from mvtex.data.rig import Rig, builtin_rig_file, load_rig, save_rig
 from mvtex.util.errors import InputError
 
 
@@ -67,12 +67,12 @@ def test_rig_yaml_round_trip_is_lossless(tmp_path):
 
 def test_builtin_rigs_frame_the_origin():
     for name, count in (("stereo", 2), ("square4", 4), ("trapezoid12", 12)):
-        rig = load_rig(builtin_rig_path(name))
+        rig = load_rig(builtin_rig_file(name))
         assert len(rig) == count
         for cam in rig:
             pix, depth = cam.project(np.zeros(3))
             assert depth > 1.5 and 0 <= pix[0] < cam.width and 0 <= pix[1] < cam.height
-    stereo = load_rig(builtin_rig_path("stereo"))
+    stereo = load_rig(builtin_rig_file("stereo"))
     a, b = (cam.center / np.linalg.norm(cam.center) for cam in stereo)
     assert 25 < np.degrees(np.arccos(a @ b)) < 35
 
@@ -82,7 +82,7 @@ def test_colmap_round_trip_and_pixel_convention(tmp_path):
 
     from mvtex.formats.colmap import read_rig, rig_reconstruction, write_rig
 
-    rig = load_rig(builtin_rig_path("square4"))
+    rig = load_rig(builtin_rig_file("square4"))
     write_rig(rig, tmp_path / "model")
     back = read_rig(tmp_path / "model")
     assert back.names == rig.names
@@ -121,7 +121,7 @@ def test_missing_rig_file(tmp_path):
 @pytest.mark.parametrize("name", ["stereo", "square4"])
 def test_every_truncation_of_a_rig_file_loads_or_names_the_file(tmp_path, name):
     """A rig file cut anywhere (a copy interrupted) is read or refused in one line, never an OpenCV assertion."""
-    text = builtin_rig_path(name).read_text()
+    text = builtin_rig_file(name).read_text()
     path = tmp_path / "rig.yaml"
     refused = 0
     for end in range(0, len(text), 7):

@@ -307,7 +307,7 @@ def test_evaluate_equals_separate_renders_on_the_shirt(gl, tmp_path):
 
     write_synth(tmp_path / "d", SynthOptions(num_poses=3, body=False))
     ds = load_dataset(tmp_path / "d")
-    rig = as_rig("trapezoid12")[0].select(["cam00", "cam05"])
+    rig = as_rig("trapezoid12").select(["cam00", "cam05"])
     tc = open_texcoords(slide_dataset(ds, rig, tmp_path / "tc", poses=[1], options=SlideOptions(subdiv=1),
                                       progress=False, ctx=gl), ds.num_vertices)
     order = np.random.default_rng(0).permutation(len(tc.faces))

@@ -214,7 +214,7 @@ def test_compiled_candidate_search_equals_numpy_search(gl, oblique, radius):
     faces, uv, gt, inferred = folded_sheet()
     cases = [(gt, inferred, faces, uv, gt, cam) for cam in (oblique, close)]
     shirt = synthesize(SynthOptions(num_poses=3, seed=1))
-    rig = as_rig("trapezoid12")[0]
+    rig = as_rig("trapezoid12")
     for cam in (rig.cameras[0], rig.cameras[5], rig.cameras[11]):
         cases.append((shirt["gt"][0].astype(np.float64), shirt["inferred"][0].astype(np.float64), shirt["faces"],
                       shirt["uv"], shirt["rest"].astype(np.float64), cam))

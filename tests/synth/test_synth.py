@@ -205,7 +205,7 @@ def test_fold_statistics(data):
     assert 0.01 <= stats["fold_depth_m"] <= 0.03
     assert 0.04 <= stats["fold_wavelength_m"] <= 0.10
     assert stats["max_fold_angle_deg"] > 90  # some folds overhang
-    # Independently: gt differs from the smooth fit by folds of centimetre scale...
+    # Independently: gt differs from the smooth fit by folds of centimeter scale...
     gt, inferred = data["gt"].astype(np.float64), data["inferred"].astype(np.float64)
     peak = np.linalg.norm(gt - inferred, axis=-1).max(axis=1)
     assert np.median(peak) > 0.01
@@ -251,7 +251,7 @@ def _bending(rest: np.ndarray, faces: np.ndarray):
     return bending
 
 
-def test_inferred_is_smooth_and_off_by_centimetres(data):
+def test_inferred_is_smooth_and_off_by_centimeters(data):
     gt, inferred, split = data["gt"], data["inferred"], data["split"]
     test = split["test"]
     rmse = np.sqrt(np.mean(np.sum((inferred[test].astype(np.float64) - gt[test]) ** 2, axis=-1)))
@@ -299,7 +299,7 @@ def _clearance_poses(pose_dim: int) -> np.ndarray:
 @pytest.mark.parametrize("garment", ["shirt", "skirt"])
 def test_gt_never_cuts_into_the_body(garment):
     """An exact point-to-triangle search (and a ray-cast inside test) against the body
-    mesh: the gt cloth keeps a few millimetres clear of the body in every pose; the
+    mesh: the gt cloth keeps a few millimeters clear of the body in every pose; the
     inferred meshes of the same poses are only checked to be measurable."""
     import trimesh
 
@@ -486,7 +486,7 @@ def test_skirt_seam_copies_share_positions(skirt):
         assert np.array_equal(skirt[key][:, pairs[:, 0]], skirt[key][:, pairs[:, 1]]), key
 
 
-def test_skirt_keeps_lengths_and_folds_by_centimetres_with_overhangs(skirt):
+def test_skirt_keeps_lengths_and_folds_by_centimeters_with_overhangs(skirt):
     rest, gt, inferred, faces = (skirt[k].astype(np.float64) if k != "faces" else skirt[k]
                                  for k in ("rest", "gt", "inferred", "faces"))
     edges = _edges(faces)
@@ -504,7 +504,7 @@ def test_skirt_keeps_lengths_and_folds_by_centimetres_with_overhangs(skirt):
     stats = skirt["stats"]
     assert 0.01 <= stats["fold_depth_m"] <= 0.035 and 0.04 <= stats["fold_wavelength_m"] <= 0.12
     assert stats["max_fold_angle_deg"] > 90 and 0.0 < stats["overhanging_pose_fraction"] < 1.0
-    # Independently: flutes put gt centimetres off the smooth fit near the hem, and
+    # Independently: flutes put gt centimeters off the smooth fit near the hem, and
     # overhanging ones turn faces against it.
     assert np.median(np.linalg.norm(gt - inferred, axis=-1).max(axis=1)) > 0.01
     agree = np.einsum("kij,kij->ki", _face_normals(gt, faces), _face_normals(inferred, faces))

@@ -472,10 +472,10 @@ def test_cli_resolution_limit_is_the_training_limit(tiny_dataset, slid_sheet0, t
     """The command line has no limit of its own: the training options' rule, in the flag's name."""
     from helpers import one_line_error, run
 
-    from mvtex.tsnn.train import MAX_RESOLUTION, TrainOptions
+    from mvtex.tsnn.options import MAX_RESOLUTION, TrainOptions
 
-    with pytest.raises(ValueError, match="resolution must be a power of two") as raised:
-        TrainOptions(resolution=2 * MAX_RESOLUTION).validate()
+    with pytest.raises(ValueError, match="^resolution must be an integer in") as raised:
+        TrainOptions(resolution=2 * MAX_RESOLUTION)
     code, _, err = run(capsys, "train", tiny_dataset, "--texcoords", slid_sheet0, "--cameras", "a", "--arch", "paper",
                        "--resolution", 2 * MAX_RESOLUTION, "--out", tmp_path / "m", "--quiet")
     assert one_line_error(code, err).endswith("--" + str(raised.value))

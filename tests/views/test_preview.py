@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import held_elsewhere, run
 
-from mvtex.data.rig import builtin_rig_path, load_rig
+from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.views.cameras import interpolate_camera
 from mvtex.views.preview import anaglyph, eye_cameras, garment_box, image_scores
 
@@ -17,7 +17,7 @@ from mvtex.views.preview import anaglyph, eye_cameras, garment_box, image_scores
 def test_eyes_are_ipd_apart_and_see_the_expected_disparity():
     import cv2
 
-    rig = load_rig(builtin_rig_path("stereo"))
+    rig = load_rig(builtin_rig_file("stereo"))
     view = interpolate_camera(rig, {"left": 0.5, "right": 0.5}, "v")
     left, right = eye_cameras(view, 0.064)
     assert np.linalg.norm(left.center - right.center) == pytest.approx(0.064, abs=1e-12)

@@ -8,7 +8,7 @@ import pytest
 from helpers import run
 from scipy.spatial.transform import Rotation, Slerp
 
-from mvtex.data.rig import builtin_rig_path, load_rig, save_rig
+from mvtex.data.rig import builtin_rig_file, load_rig, save_rig
 from mvtex.views.cameras import between_weights, grid_weights, interpolate_camera
 from mvtex.views.synthesizer import blend_displacement
 
@@ -25,7 +25,7 @@ def garment(tmp_path_factory, gl):
     write_synth(root / "shirt", SynthOptions(num_poses=12, seed=0))
     ds = load_dataset(root / "shirt")
     poses = ds.split["test"][:1] + ds.split["val"][:1]
-    slide_dataset(ds, load_rig(builtin_rig_path("stereo")), root / "ts", poses=poses, options=SlideOptions(subdiv=1),
+    slide_dataset(ds, load_rig(builtin_rig_file("stereo")), root / "ts", poses=poses, options=SlideOptions(subdiv=1),
                   workers=1, progress=False)
     return ds, root / "ts", poses
 
@@ -55,7 +55,7 @@ def test_midpoint_camera_is_slerp_and_mean(tmp_path, sheet_set, capsys):
 
 
 def test_four_camera_average_matches_scipy_mean():
-    rig = load_rig(builtin_rig_path("square4"))
+    rig = load_rig(builtin_rig_file("square4"))
     w = {"tl": 0.1, "tr": 0.2, "bl": 0.3, "br": 0.4}
     cam = interpolate_camera(rig, w, "v")
     expected = Rotation.from_matrix([rig[n].R for n in w]).mean(weights=list(w.values())).as_matrix()
@@ -122,7 +122,7 @@ def test_reconstruct_beats_blend_at_the_stereo_midpoint(tmp_path, garment):
     ds, ts, poses = garment
     from mvtex.data.texcoords import open_texcoords
 
-    rig = load_rig(builtin_rig_path("stereo"))
+    rig = load_rig(builtin_rig_file("stereo"))
     measured = measure_views(ds, rig, open_texcoords(ts, ds.num_vertices), [{"left": 0.5, "right": 0.5}], ["mid"],
                              progress=False)
     same = {k: v[0] for k, v in measured["sqrt_mse_same_chart"].items()}
