@@ -98,7 +98,7 @@ class UnknownCamera(OptionError, KeyError):
     def __init__(self, name, names: Sequence[str] = ()):
         self.name = name
         self.names = list(names)
-        OptionError.__init__(self, f"camera: no camera named {name!r} (the rig has {', '.join(self.names)})")
+        OptionError.__init__(self, None, f"camera: no camera named {name!r} (the rig has {', '.join(self.names)})")
 
     def __str__(self) -> str:  # KeyError would quote the message
         return self.args[0]

@@ -249,11 +249,11 @@ def test_reconstruct_input_errors():
         reconstruct(uv, rest, faces, uv, {"a": uv}, rig)
     with pytest.raises(ValueError, match="engine must be one of mvtex, pycolmap, got 'ceres'"):
         ReconOptions(engine="ceres")
-    with pytest.raises(ValueError, match=r"max_stretch must be > 1 and finite, or None, got 1.0"):
+    with pytest.raises(ValueError, match=r"max_stretch must be a finite number > 1 or None, got 1.0"):
         ReconOptions(max_stretch=1.0)
-    with pytest.raises(ValueError, match="consensus_px must be a (positive )?finite number, got nan"):
+    with pytest.raises(ValueError, match=r"consensus_px must be a finite number > 0 \(px\), got nan"):
         ReconOptions(consensus_px=float("nan"))
-    with pytest.raises(ValueError, match="consensus_scale must be ≥ 0 and finite, or None, got -1"):
+    with pytest.raises(ValueError, match="consensus_scale must be a finite number ≥ 0 or None, got -1"):
         ReconOptions(consensus_scale=-1)
     with pytest.raises(ValueError, match="fill_shape must be one of rest, inferred, got 'gt'"):
         ReconOptions(fill_shape="gt")

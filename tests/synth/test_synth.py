@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from helpers import mesh_distance
 
-from mvtex.synth.generate import MAX_POSES, SynthOptions, synthesize, write_synth
+from mvtex.synth.generate import synthesize, write_synth
+from mvtex.synth.options import MAX_POSES, SynthOptions
 from mvtex.synth.predictor import fit_predictor
 from mvtex.synth.shirt import POSE_DIM, deform, make_body, make_garment, pose_body, sample_poses
 
@@ -598,7 +599,7 @@ def test_cli_synth_records_the_garment(tmp_path):
 
     from mvtex.cli import main
 
-    assert main(["synth", str(tmp_path / "s"), "--poses", "10", "--garment", "skirt", "--json"]) == 0
+    assert main(["synth", "--out", str(tmp_path / "s"), "--num-poses", "10", "--garment", "skirt", "--json"]) == 0
     meta = json.loads((tmp_path / "s" / "dataset.json").read_text())
     assert meta["garment"] == "skirt" and meta["name"] == "skirt"
     assert main(["synth", str(tmp_path / "t"), "--poses", "10", "--garment", "scarf"]) == 2
