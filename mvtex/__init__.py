@@ -56,7 +56,7 @@ _API = {
     # novel views and previews
     "ViewOptions": "mvtex.views.synthesizer", "interpolate_camera": "mvtex.views.cameras",
     "novel_views": "mvtex.views.novel", "PreviewOptions": "mvtex.views.preview",
-    "stereo_preview": "mvtex.views.preview",
+    "stereo_preview": "mvtex.views.preview", "ExportOptions": "mvtex.views.scene", "export_scene": "mvtex.views.scene",
     # calibration
     "BoardSpec": "mvtex.calibration.board", "parse_board_spec": "mvtex.calibration.board",
     "write_board_png": "mvtex.calibration.board", "CalibrateOptions": "mvtex.calibration.calibrate",

@@ -1,7 +1,9 @@
-"""`mvtex views` and `mvtex preview`: novel views between array cameras and stereo previews."""
+"""`mvtex views`, `mvtex preview` and `mvtex export`: novel views between array cameras, stereo
+previews, and a pose as a glTF scene with a viewer."""
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, load_rig, output, rig_spec
@@ -43,6 +45,20 @@ def register(sub) -> None:
     p.add_argument("--path", action="store_true", help="also write path.gif: the viewpoint moving across the array")
     add_common(p)
     p.set_defaults(run=cmd_preview)
+
+    p = sub.add_parser("export", help="a pose as a glTF scene (every camera's texcoords, the cameras, the body) "
+                                      "+ viewer.html that blends them as you turn the view")
+    p.add_argument("dataset", type=Path, help="dataset directory (no ground truth needed)")
+    p.add_argument("--texcoords", type=Path, required=True, help="the cameras' texcoord set (slide, predict or views)")
+    add_rig(p, "the set's cameras", from_texcoords=True)
+    p.add_argument("--pose", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
+    p.add_argument("--out", type=Path, required=True, help="output folder: scene.glb, viewer.html, export.json")
+    p.add_argument("--texture-size", type=int, default=1024,
+                   help="pixels per side of the fabric texture in the scene (64..4096, default 1024)")
+    p.add_argument("--viewer", action=argparse.BooleanOptionalAction, default=True,
+                   help="write viewer.html (default; --no-viewer: the scene alone)")
+    add_common(p)
+    p.set_defaults(run=cmd_export)
 
 
 def cmd_views(args):
@@ -98,3 +114,19 @@ def cmd_preview(args):
     left, right = result.eyes["left"].ssim, result.eyes["right"].ssim
     emit(args, result, f"pose {result.pose}: SSIM inferred -> texcoords: left {left[0]:.3f} -> {left[1]:.3f}, "
          f"right {right[0]:.3f} -> {right[1]:.3f}; wrote {args.out}")
+
+
+def cmd_export(args):
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.views.scene import ExportOptions, export_scene
+
+    options = ExportOptions(texture_size=args.texture_size, viewer=args.viewer)
+    dataset = load_dataset(args.dataset)
+    rig, rig_path = load_rig(rig_spec(args))
+    tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
+    with output(args, "export"):
+        result = export_scene(dataset, tc, args.pose, args.out, rig=rig, options=options, rig_source=rig_path,
+                              overwrite=args.overwrite)
+    emit(args, result, f"pose {result.pose}: {result.num_vertices} vertices, texcoords of "
+         f"{', '.join(result.cameras)}; wrote {', '.join(result.files)} to {args.out}")
