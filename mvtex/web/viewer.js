@@ -35,9 +35,12 @@
     });
   }
 
-  function setStatus(state, detail) {
-    document.documentElement.setAttribute('data-viewer', state);
-    if (detail !== undefined) document.documentElement.setAttribute('data-viewer-detail', String(detail));
+  /** Record on the viewer's element (and, for a page of its own, on <html>) what a headless
+   * browser's test reads: data-viewer = loading | ready | error, data-weights, data-camera. */
+  function setAttributes(targets, values) {
+    targets.forEach(function (t) {
+      Object.keys(values).forEach(function (k) { t.setAttribute(k, String(values[k])); });
+    });
   }
 
   function rowsToMatrix4(rows) {
@@ -176,7 +179,8 @@
     '.mvtex-viewer .mv-bar{flex:0 0 44px;height:44px;box-sizing:border-box;display:flex;gap:8px;align-items:center;padding:0 8px;background:#1c1c20;overflow:hidden;white-space:nowrap}',
     '.mvtex-viewer button{background:#3a3a44;color:#eee;border:1px solid #55555f;border-radius:4px;padding:4px 8px;cursor:pointer;font:inherit}',
     '.mvtex-viewer button[aria-pressed="true"]{background:#5a6fa8;border-color:#8ea2dc}',
-    '.mvtex-viewer .mv-weights{color:#aab;overflow:hidden;text-overflow:ellipsis}',
+    '.mvtex-viewer .mv-weights{color:#aab;overflow:hidden;text-overflow:ellipsis;flex:1 1 auto}',
+    '.mvtex-viewer .mv-hint{color:#778;flex:0 0 auto}',
     '.mvtex-viewer .mv-label{position:absolute;transform:translate(-50%,-100%);background:rgba(0,0,0,.6);color:#fff;padding:1px 6px;border-radius:3px;pointer-events:none;font-weight:600}',
     '.mvtex-viewer .mv-error{padding:1em;color:#f99}'].join('\n');
 
@@ -197,28 +201,32 @@
   }
 
   /** The scene viewer in `container` for a scene.glb given as base64 text. `params`: a
-   * URLSearchParams (default: the page's). Resolves to the viewer's state. */
-  function openScene(container, base64, params) {
+   * URLSearchParams (default: the page's address). options.page (default true): the viewer is
+   * the page, so it keeps the page's address up to date with the view and records its state
+   * on <html> too. Resolves to the viewer's state. */
+  function openScene(container, base64, params, options) {
     T.ColorManagement.enabled = false;
     injectStyle();
-    params = params || new URLSearchParams(root.location ? root.location.search : '');
+    var page = !options || options.page !== false;
+    params = params || new URLSearchParams(page && root.location ? root.location.search : '');
     container.classList.add('mvtex-viewer');
     var stage = el('div', { class: 'mv-stage' });
     var bar = el('div', { class: 'mv-bar' });
     container.appendChild(stage);
     container.appendChild(bar);
-    setStatus('loading');
+    var targets = page ? [container, document.documentElement] : [container];
+    setAttributes(targets, { 'data-viewer': 'loading' });
     return parseGLB(decodeBase64(base64)).then(function (gltf) {
-      return buildScene(container, stage, bar, gltf, params);
+      return buildScene(container, stage, bar, gltf, params, targets, page);
     }).catch(function (err) {
       stage.appendChild(el('div', { class: 'mv-error' }, 'mvtex viewer: ' + (err && err.message || err)));
-      setStatus('error', err && err.message || err);
+      setAttributes(targets, { 'data-viewer': 'error', 'data-viewer-detail': err && err.message || err });
       console.error(err);
       throw err;
     });
   }
 
-  function buildScene(container, stage, bar, gltf, params) {
+  function buildScene(container, stage, bar, gltf, params, targets, page) {
     var json = gltf.parser.json;
     var info = (json.scenes[json.scene || 0].extras || {}).mvtex;
     if (!info || info.format !== 'mvtex-scene') throw new Error('scene.glb: not an mvtex scene (no extras.mvtex)');
@@ -346,7 +354,7 @@
 
     var urlTimer = null;
     function writeURL(cam) {
-      if (!root.history || !root.history.replaceState || !root.location) return;
+      if (!page || !root.history || !root.history.replaceState || !root.location) return;
       clearTimeout(urlTimer);
       urlTimer = setTimeout(function () {
         var q = new URLSearchParams(root.location.search);
@@ -390,21 +398,23 @@
       buttons.texcoords.textContent = state.texcoords === 'blend' ? 'texture sliding: blended' : 'texture sliding: off (T_G)';
       if (buttons.body) buttons.body.setAttribute('aria-pressed', String(state.body));
       buttons.stereo.setAttribute('aria-pressed', String(state.stereo));
-      var shown = Object.keys(current.weights).filter(function (k) { return current.weights[k] > 5e-4; });
-      readout.textContent = state.texcoords === 'blend'
-        ? 'weights: ' + shown.map(function (k) { return k + ' ' + current.weights[k].toFixed(3); }).join(', ')
-        : 'the inferred mesh with its own texture coordinates';
-      var root_ = document.documentElement;
-      root_.setAttribute('data-weights', JSON.stringify(current.weights));
-      root_.setAttribute('data-camera', M.formatCamera(cam));
+      function listed(w) {
+        return Object.keys(w).filter(function (k) { return w[k] > 5e-4; })
+          .map(function (k) { return k + ' ' + w[k].toFixed(3); }).join(', ');
+      }
+      readout.textContent = state.texcoords !== 'blend' ? 'the inferred mesh with its own texture coordinates (T_G)'
+        : state.stereo ? 'weights: left eye ' + listed(current.eyes[0]) + '; right eye ' + listed(current.eyes[1])
+          : 'weights: ' + listed(current.weights);
+      setAttributes(targets, { 'data-weights': JSON.stringify(current.weights), 'data-camera': M.formatCamera(cam) });
       if (fromUser) writeURL(cam);
     }
 
     controls.addEventListener('change', function () { update(true); });
     if (root.addEventListener) root.addEventListener('resize', function () { layout(); update(false); });
+    bar.appendChild(el('span', { class: 'mv-hint' }, 'drag to turn, right-drag to move, scroll to zoom'));
     layout();
     update(false);
-    setStatus('ready');
+    setAttributes(targets, { 'data-viewer': 'ready' });
     return { names: names, cameras: cameras, current: current, state: state, update: update, renderer: renderer,
              camera: cam3, controls: controls };
   }

@@ -3,7 +3,8 @@
 //   "url", "width", "height", "scale" (device pixel ratio), "wait": "viewer" | "load",
 //   "actions": [{"drag": [dx, dy]} | {"click": selector} | {"wheel": dy}],
 //   "screenshot": PNG path, "element": CSS selector to screenshot (default: the page)}]}
-// Prints [{ "console": [...], "errors": [...], "attributes": {...}, "url": final URL }] as JSON.
+// Prints [{ "console": [...], "errors": [...], "attributes": {<html>'s, "viewers": [each viewer element's]},
+//   "url": final URL }] as JSON.
 import { chromium } from 'playwright-core';
 import fs from 'fs';
 
@@ -53,7 +54,11 @@ try {
     const attributes = await page.evaluate(() => {
       const out = {};
       for (const a of document.documentElement.attributes) out[a.name] = a.value;
-      out.viewers = [...document.querySelectorAll('[data-viewer]')].map((e) => e.getAttribute('data-viewer'));
+      out.viewers = [...document.querySelectorAll('body [data-viewer]')].map((e) => {
+        const v = {};
+        for (const a of e.attributes) v[a.name] = a.value;
+        return v;
+      });
       return out;
     });
     results.push({ console: consoleMessages, errors, attributes, url: page.url() });

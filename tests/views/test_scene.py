@@ -23,7 +23,9 @@ SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 def read_glb(path) -> tuple[dict, bytes]:
     """A GLB's JSON and binary chunks, by the container's layout (glTF 2.0 §4.4)."""
-    data = open(path, "rb").read()
+    from pathlib import Path
+
+    data = Path(path).read_bytes()
     magic, version, length = struct.unpack_from("<4sII", data, 0)
     assert magic == b"glTF" and version == 2 and length == len(data)
     size, kind = struct.unpack_from("<I4s", data, 12)
@@ -92,7 +94,9 @@ def test_the_scene_holds_the_mesh_every_cameras_texcoords_and_the_cameras(tmp_pa
         x, y, z = gl[:, 0], -gl[:, 1], -gl[:, 2]  # OpenCV axes from glTF's camera axes
         pixels = np.stack([K[0, 0] * x / z + K[0, 2], K[1, 1] * y / z + K[1, 2]], axis=1)
         cam = rig[name]
-        f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731
+        def f64(a):
+            return np.ascontiguousarray(a, np.float64)
+
         reference, _ = cv2.projectPoints(f64(points), cv2.Rodrigues(f64(cam.R))[0], f64(cam.t), f64(cam.K), np.zeros(5))
         assert np.abs(pixels - reference.reshape(-1, 2)).max() < 1e-6
         persp = tree["cameras"][node["camera"]]["perspective"]
