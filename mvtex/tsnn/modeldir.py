@@ -102,7 +102,7 @@ def rebuild_mesh(faces: np.ndarray, uv: np.ndarray, subdiv: int) -> tuple[np.nda
 
 
 # The loss plots' axes: what each architecture's history holds per epoch.
-LOSS_AXIS = {"mlp": "squared error of d per vertex, within the PCA basis (uv²)",
+LOSS_AXIS = {"mlp": "squared error of d per vertex (uv²)",  # within the PCA basis: said in the title
              "paper": "weighted squared error of d per vertex (uv²)",
              "unet": "weighted squared error of d per vertex (uv²)"}
 
@@ -183,6 +183,8 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
         else:
             arch = meta["architecture"]["arch"]
             _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
-                       f"{arch} model of {meta['camera'] or 'all cameras'} "
+                       f"{arch} model of {'camera ' + meta['camera'] if meta['camera'] else 'all cameras'} "
                        + (f"({meta['architecture']['resolution']}², " if "resolution" in meta["architecture"] else "(")
-                       + f"best epoch {meta['best_epoch']})", axis=LOSS_AXIS.get(arch, LOSS_AXIS["paper"]))
+                       + f"best epoch {meta['best_epoch']})"
+                       + ("\nthe error of d within its principal components" if arch == "mlp" else ""),
+                       axis=LOSS_AXIS.get(arch, LOSS_AXIS["paper"]))
