@@ -263,9 +263,13 @@ def test_the_viewer_turns_shares_its_view_and_toggles(tmp_path, shirt_scenes):
                         {**base, "url": scene.as_uri() + "?view=left&texcoords=tg", "screenshot": str(tmp_path / "tg.png")},
                         {**base, "url": scene.as_uri() + "?view=left&body=0", "screenshot": str(tmp_path / "nobody.png")},
                         {**base, "width": 1024, "url": scene.as_uri() + "?view=left=0.5,right=0.5&stereo=1",
-                         "screenshot": str(tmp_path / "stereo.png")}], tmp_path)
+                         "screenshot": str(tmp_path / "stereo.png")},
+                        {**base, "url": (shirt_scenes[1]["trapezoid12"] / "viewer.html").as_uri()
+                         + "?view=cam06=0.5,cam07=0.5"}], tmp_path)
     for result in first:
         assert console_errors(result) == [] and result["attributes"]["data-viewer"] == "ready"
+    twelve = json.loads(first[5]["attributes"]["data-weights"])  # 12 cameras, 13 texcoord sets
+    assert len(twelve) == 12 and twelve["cam06"] == pytest.approx(0.5) and twelve["cam07"] == pytest.approx(0.5)
     turned_url = first[0]["url"]
     assert "camera=" in turned_url and "view=" not in turned_url
     again = open_pages([{**base, "url": turned_url, "screenshot": str(tmp_path / "again.png")}], tmp_path)[0]
