@@ -21,7 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.formats.glb import export_glb
-from mvtex.views.scene import SCRIPTS, script_path
+from mvtex.views.scene import SCRIPTS, glb_element, script_path
 
 VIEWER_FILES = tuple(SCRIPTS) + (("vendor", "three.LICENSE"),)
 # The order of the meshes in the comparison picture and in the 3-D view, with their labels.
@@ -65,11 +65,6 @@ def png_data_uri(image: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(data.tobytes()).decode("ascii")
 
 
-def _glb_block(glb: Path, element_id: str) -> str:
-    data = base64.b64encode(Path(glb).read_bytes()).decode("ascii")
-    return f'<script type="application/octet-stream" id="{element_id}">{data}</script>'
-
-
 def model_view(glb: Path, caption: str, *, frame: dict, legend_png: str | None = None,
                labels: dict[str, str] | None = None, element_id: str = "meshes") -> str:
     """The 3-D view of a GLB of meshes side by side (`export_glb`), in vertex colours.
@@ -85,7 +80,7 @@ def model_view(glb: Path, caption: str, *, frame: dict, legend_png: str | None =
     call = (f"mvtexViewer.openMeshes(document.getElementById('{element_id}'), "
             f"document.getElementById('{element_id}-glb').textContent, {json.dumps(frame)}, {json.dumps(labels or {})});")
     return (f'<figure><div style="display:flex;gap:0"><div id="{element_id}" style="flex:1 1 auto;height:440px">'
-            f'</div>{side}</div>{_glb_block(glb, element_id + "-glb")}<script>{call}</script>'
+            f'</div>{side}</div>{glb_element(glb, element_id + "-glb")}<script>{call}</script>'
             f'<figcaption>{html.escape(caption)} (drag to turn, scroll to zoom; the file: '
             f'<a href="{html.escape(glb.name)}">{html.escape(glb.name)}</a>)</figcaption></figure>')
 
@@ -96,7 +91,7 @@ def scene_view(folder: Path, out: Path, caption: str, element_id: str = "scene")
     rel = folder.relative_to(out)
     call = (f"mvtexViewer.openScene(document.getElementById('{element_id}'), "
             f"document.getElementById('{element_id}-glb').textContent, new URLSearchParams(''), {{page: false}});")
-    return (f'<figure><div id="{element_id}" style="height:600px"></div>{_glb_block(folder / "scene.glb", element_id + "-glb")}'
+    return (f'<figure><div id="{element_id}" style="height:600px"></div>{glb_element(folder / "scene.glb", element_id + "-glb")}'
             f'<script>{call}</script><figcaption>{html.escape(caption)} (the files: '
             f'<a href="{html.escape(str(rel / "scene.glb"))}">scene.glb</a>, '
             f'<a href="{html.escape(str(rel / "viewer.html"))}">viewer.html</a>)</figcaption></figure>')

@@ -173,8 +173,9 @@ def export_scene(dataset, texcoords, pose: int, out: str | os.PathLike, *, rig: 
     return result
 
 
-def scene_element(glb: Path, element_id: str) -> str:
-    """The scene as a base64 data block of a page (browsers refuse `fetch` from file://)."""
+def glb_element(glb: Path, element_id: str) -> str:
+    """A GLB as a base64 data block of a page, for the viewer to read (browsers refuse `fetch` from
+    file://)."""
     data = base64.b64encode(Path(glb).read_bytes()).decode("ascii")
     return f'<script type="application/octet-stream" id="{html.escape(element_id)}">{data}</script>'
 
@@ -195,7 +196,7 @@ def write_viewer_page(path: Path, glb: Path, title: str) -> Path:
     text = (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
             '<meta name="viewport" content="width=device-width,initial-scale=1">'
             '<style>html,body{margin:0;height:100%;background:#28282e}#viewer{height:100vh}</style>'
-            f'{inline_scripts()}</head><body><div id="viewer"></div>{scene_element(glb, "scene")}'
+            f'{inline_scripts()}</head><body><div id="viewer"></div>{glb_element(glb, "scene")}'
             '<script>mvtexViewer.openScene(document.getElementById("viewer"), '
             'document.getElementById("scene").textContent);</script></body></html>\n')
     with atomic_path(path) as tmp:

@@ -53,7 +53,6 @@
     var pose = M.worldFromGLCamera(cam.R, cam.t);
     cam3.matrixAutoUpdate = true;
     rowsToMatrix4(pose).decompose(cam3.position, cam3.quaternion, cam3.scale);
-    cam3.up.set(-cam.R[1][0], -cam.R[1][1], -cam.R[1][2]);
     cam3.updateMatrixWorld(true);
     setProjection(cam3, cam, near, far);
   }
@@ -305,6 +304,8 @@
     var cam3 = new T.PerspectiveCamera();
     var range = depthRange(viewpoint, sphere);
     applyCamera(cam3, viewpoint, range.near, range.far);
+    // The view turns about the first camera's up (its image's -y): the controls keep it upright.
+    cam3.up.set(-viewpoint.R[1][0], -viewpoint.R[1][1], -viewpoint.R[1][2]);
     var controls = new T.OrbitControls(cam3, renderer.domElement);
     var axis = new T.Vector3(viewpoint.R[2][0], viewpoint.R[2][1], viewpoint.R[2][2]);
     var eye0 = new T.Vector3().fromArray(M.cameraCentre(viewpoint.R, viewpoint.t));
