@@ -125,6 +125,11 @@ def targets(sb: Sandbox) -> dict:
                                         progress=False),
                            {"dataset": NOT_TEXT, "rig": NOT_TEXT, "texcoords": NOT_TEXT, "pose": HOSTILE,
                             "out": NOT_TEXT, "weights": NOT_TEXT, "options": HOSTILE}),
+        "export_scene": (mvtex.export_scene,
+                         lambda: dict(dataset=ds, texcoords=tc, pose=0, out=sb.out("scene"), rig=rig,
+                                      options=mvtex.ExportOptions(texture_size=64, viewer=False)),
+                         {"dataset": NOT_TEXT, "texcoords": NOT_TEXT, "pose": HOSTILE, "out": NOT_TEXT,
+                          "rig": NOT_TEXT, "options": HOSTILE, "rig_source": NOT_TEXT}),
         "render_pose": (mvtex.render_pose, lambda: dict(dataset=ds, rig=rig, pose=0, out=sb.out("render"),
                                                         progress=False),
                         {"dataset": NOT_TEXT, "rig": NOT_TEXT, "pose": HOSTILE, "out": NOT_TEXT,
@@ -201,6 +206,7 @@ OPTIONS = {
                      "error_scale_m", "strain_scale", "engine"),
     "ViewOptions": ("method", "uv_resolution"),
     "PreviewOptions": ("ipd", "method", "path", "frames_per_segment", "margin"),
+    "ExportOptions": ("texture_size", "viewer"),
     "TrainOptions": ("arch", "components", "widths", "epochs", "resolution", "batch_size", "lr", "device", "seed",
                      "patience", "weight_assigned"),
     "DemoOptions": ("num_poses", "seed", "tsnn"),
@@ -234,7 +240,7 @@ def sandbox(tmp_path, tiny_dataset, front_rig, slid_sheet, gl, monkeypatch):
 NAMES = ["Camera", "look_at", "Rig", "load_rig", "save_rig", "load_dataset", "save_dataset", "open_texcoords",
          "save_texcoords", "project_points", "triangulate_points", "interpolate_camera", "parse_board_spec",
          "write_board_png", "fill", "load_model", "slide_dataset", "evaluate", "triangulate_pose", "novel_views",
-         "stereo_preview", "render_pose", "train", "train_cameras", "predict", "run_bench", "run_demo",
+         "stereo_preview", "export_scene", "render_pose", "train", "train_cameras", "predict", "run_bench", "run_demo",
          "write_synth", "synthesize", "import_sequences", "calibrate_folder", "calibrate", "rasterize",
          "render_textured", "rasterize_uv", "interpolate", "MaterialMap", "slide_pose", "reconstruct"]
 
