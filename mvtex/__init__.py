@@ -62,10 +62,11 @@ if TYPE_CHECKING:
     from mvtex.recon.pose import triangulate_pose
     from mvtex.recon.geometry import project_points, triangulate_points
     # novel views and previews
-    from mvtex.views.options import ViewOptions, PreviewOptions
+    from mvtex.views.options import ViewOptions, PreviewOptions, ExportOptions
     from mvtex.views.cameras import interpolate_camera
     from mvtex.views.novel import novel_views
     from mvtex.views.preview import stereo_preview
+    from mvtex.views.scene import export_scene
     # calibration
     from mvtex.calibration.board import BoardSpec, parse_board_spec, write_board_png
     from mvtex.calibration.options import CalibrateOptions
@@ -127,9 +128,11 @@ __all__ = [
     "triangulate_points",
     "ViewOptions",
     "PreviewOptions",
+    "ExportOptions",
     "interpolate_camera",
     "novel_views",
     "stereo_preview",
+    "export_scene",
     "BoardSpec",
     "parse_board_spec",
     "write_board_png",

@@ -1,12 +1,15 @@
 """`mvtex demo`: the whole pipeline on the built-in garment, with pictures to look at.
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
-          -> train the TSNN of camera left (gp: Gaussian processes of the pose) -> predict -> eval
-          -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
+          -> a gp model of camera left (Gaussian processes of the pose) -> predict -> eval
+          -> novel views (two-camera plot, four-camera map) -> stereo preview
+          -> export (the reconstruction's pose as a glTF scene with its viewer) -> report.html
 
-Each step writes into OUT and is skipped when its output is already there, so an
-interrupted demo resumes where it stopped. OUT/demo.json records the options; a rerun with
-other options is refused (or, with `overwrite`, starts over) instead of reporting the old run.
+Numbers are over the dataset's test split (the poses no model was fitted to). Each step
+writes into OUT and is skipped when its output is already there (evaluations keep their
+numbers in OUT/eval/), so an interrupted demo resumes where it stopped and a finished one
+reruns in seconds. OUT/demo.json records the options; a rerun with other options is refused
+(or, with `overwrite`, starts over) instead of reporting the old run.
 """
 
 from __future__ import annotations
@@ -25,6 +28,19 @@ def _step(name: str, progress: bool) -> float:
 
         print(f"[demo] {name}", file=sys.stderr, flush=True)
     return time.perf_counter()
+
+
+def _evaluated(out: Path, name: str, compute) -> dict:
+    """The headline numbers of evaluation `name`: read from OUT/eval/<name>.json when an
+    earlier run wrote them, else `compute()` (an `Evaluation`) summarised and written there."""
+    from mvtex.util.files import read_json, write_json
+
+    path = out / "eval" / f"{name}.json"
+    if path.is_file():
+        return read_json(path)
+    result = _short(compute())
+    write_json(path, result)
+    return result
 
 
 @writer("demo", in_place=True)
@@ -50,8 +66,8 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     from mvtex.sliding.dataset import slide_dataset
     from mvtex.sliding.options import SlideOptions
     from mvtex.synth.generate import SynthOptions, write_synth
-
-    from mvtex.util.files import write_json
+    from mvtex.util.files import read_json, write_json
+    from mvtex.views.scene import export_scene
 
     out = Path(out)
     _check_resume(out, options, overwrite)
@@ -64,18 +80,20 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
         write_synth(data, SynthOptions(num_poses=options.num_poses, seed=options.seed), progress=progress)
     dataset = load_dataset(data)
     timings["synth"] = time.perf_counter() - t
-    test_pose = dataset.split["test"][0]
+    test = dataset.split["test"]
+    test_pose = test[0]
     summary["dataset"] = {"path": str(data), "num_poses": dataset.num_poses, "num_vertices": dataset.num_vertices,
-                          "test_pose": test_pose}
+                          "test_pose": test_pose, "split": {k: len(v) for k, v in dataset.split.items()}}
 
     stereo = load_rig(builtin_rig_file("stereo"))
     square = load_rig(builtin_rig_file("square4"))
 
     t = _step(f"rendering pose {test_pose} from the stereo rig", progress)
-    render_pose(dataset, stereo, test_pose, out / "render", progress=progress)
+    if not (out / "render" / "render.json").is_file():
+        render_pose(dataset, stereo, test_pose, out / "render", progress=progress)
     timings["render"] = time.perf_counter() - t
 
-    poses = dataset.select("all")
+    poses = dataset.select("all")  # slid on every pose: the model learns from the training split's
     results = {}
     for rig_name, rig in (("stereo", stereo), ("square4", square)):
         t = _step(f"texture sliding, {rig_name} rig, {len(poses)} poses, 1 subdivision", progress)
@@ -83,39 +101,49 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
         if not (tc_path / "texcoords.json").exists():
             slide_dataset(dataset, rig, tc_path, poses=poses, options=SlideOptions(subdiv=1), progress=progress)
         timings[f"slide_{rig_name}"] = time.perf_counter() - t
-        t = _step(f"evaluating TS on the {rig_name} rig", progress)
-        heat = out / "heatmaps" / rig_name if rig_name == "stereo" else None
+        t = _step(f"evaluating texture sliding on the {rig_name} rig, test split ({len(test)} poses)", progress)
         tc = open_texcoords(tc_path, dataset.num_vertices)
-        results[rig_name] = evaluate(dataset, rig, tc, poses=poses, heatmaps=None, progress=progress)
-        if heat is not None:
+        results[rig_name] = _evaluated(out, f"ts_{rig_name}", lambda rig=rig, tc=tc: evaluate(
+            dataset, rig, tc, poses=test, progress=progress))
+        heat = out / "heatmaps" / rig_name
+        if rig_name == "stereo" and not heat.is_dir():
             evaluate(dataset, rig, tc, poses=[test_pose], heatmaps=heat, progress=False)
         timings[f"eval_{rig_name}"] = time.perf_counter() - t
-    summary["texture_sliding"] = {k: _short(v) for k, v in results.items()}
+    summary["texture_sliding"] = results
 
     t = _step(f"triangulating pose {test_pose} from the square4 rig", progress)
     tc = open_texcoords(out / "ts_square4", dataset.num_vertices)
-    summary["reconstruction"] = triangulate_pose(dataset, square, tc, test_pose, out / "reconstruction",
-                                                 ReconOptions(), progress=progress).to_json()
+    if (out / "reconstruction" / "report.json").is_file():
+        summary["reconstruction"] = read_json(out / "reconstruction" / "report.json")
+    else:
+        summary["reconstruction"] = triangulate_pose(dataset, square, tc, test_pose, out / "reconstruction",
+                                                     ReconOptions(), progress=progress).to_json()
     timings["triangulate"] = time.perf_counter() - t
 
     if options.tsnn:
         from mvtex.tsnn.predict import predict
         from mvtex.tsnn.train import TrainOptions, train
 
-        t = _step("training the texture sliding network of camera 'left'", progress)
-        model = out / "tsnn_left"
+        t = _step("fitting a gp model of camera left (Gaussian processes of the pose) to the training split",
+                  progress)
+        model = out / "gp_left"
         train_opts = TrainOptions(seed=options.seed)  # the per-camera default: gp
         if not (model / "config.json").exists():
             train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
                   options=train_opts, progress=progress)
         timings["train"] = time.perf_counter() - t
-        t = _step("predicting texcoords for the test poses and evaluating", progress)
-        pred = out / "tsnn_pred"
-        predict(dataset, [model], pred, poses=dataset.split["test"], rig=stereo.select(["left"]), progress=progress)
-        tc_pred = open_texcoords(pred, dataset.num_vertices)
-        summary["tsnn"] = _short(evaluate(dataset, stereo.select(["left"]), tc_pred, progress=progress,
-                                          heatmaps=out / "heatmaps" / "tsnn"))
-        summary["tsnn"]["train_poses"] = len(dataset.split["train"])
+        t = _step("predicting texcoords for the test split with the gp model and evaluating", progress)
+        pred = out / "gp_pred"
+        if not (pred / "texcoords.json").is_file():
+            predict(dataset, [model], pred, poses=test, rig=stereo.select(["left"]), progress=progress)
+        heat = out / "heatmaps" / "gp_left"
+
+        def evaluate_model():
+            return evaluate(dataset, stereo.select(["left"]), open_texcoords(pred, dataset.num_vertices),
+                            progress=progress, heatmaps=None if heat.is_dir() else heat)
+
+        summary["tsnn"] = {**_evaluated(out, "gp_left", evaluate_model), "arch": "gp",
+                           "train_poses": len(dataset.split["train"])}
         timings["tsnn_predict_eval"] = time.perf_counter() - t
 
     from mvtex.apps.report import demo_novel_views, demo_preview
@@ -126,6 +154,12 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     t = _step(f"stereo preview of pose {test_pose}", progress)
     summary["preview"] = demo_preview(dataset, stereo, out, test_pose, progress=progress)
     timings["preview"] = time.perf_counter() - t
+    t = _step(f"exporting pose {test_pose} with the square4 texture sliding as a glTF scene", progress)
+    if (out / "scene" / "export.json").is_file():
+        summary["scene"] = read_json(out / "scene" / "export.json")
+    else:
+        summary["scene"] = export_scene(dataset, tc, test_pose, out / "scene", rig=square).to_json()
+    timings["export"] = time.perf_counter() - t
 
     summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     summary["pictures"] = sorted(str(p.relative_to(out)) for p in out.rglob("*.png")
@@ -167,9 +201,9 @@ def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
 
 
 def _short(result) -> dict:
-    """The headline numbers of an `Evaluation`, rounded for the summary."""
+    """The headline numbers of an `Evaluation`, rounded for the summary (split: "test")."""
     s, c, m, a = result.sqrt_mse, result.sqrt_mse_same_chart, result.material_rmse_m, result.material_rmse_assigned_m
-    return {"num_images": result.num_images,
+    return {"split": "test", "num_images": result.num_images,
             "material_inferred_mm": round(m.inferred.mean * 1e3, 3),
             "material_texcoords_mm": round(m.texcoords.mean * 1e3, 3),
             "ratio_material": round(result.ratio_material, 2),
@@ -186,44 +220,56 @@ def _short(result) -> dict:
 
 def _pair(r: dict, indent: str = "  ") -> str:
     """The lines of one evaluation: the material error first (all pixels, then the assigned
-    triangles), the paper's uv error last."""
-    lines = [f"material error {r['material_inferred_mm']:.2f} -> {r['material_texcoords_mm']:.2f} mm "
-             f"(ratio {r['ratio_material']:.1f}, all pixels)"]
+    triangles), the uv error last (all pixels, then the same-chart pixels)."""
+    lines = [(f"material error {r['material_inferred_mm']:.2f} -> {r['material_texcoords_mm']:.2f} mm "
+              f"(ratio {r['ratio_material']:.1f}, all pixels)")]
     if r["assigned_share"] < 1:
         lines.append(f"material error, assigned triangles ({100 * r['assigned_share']:.1f} % of pixels) "
                      f"{r['material_assigned_inferred_mm']:.2f} -> {r['material_assigned_texcoords_mm']:.2f} mm "
                      f"(ratio {r['ratio_material_assigned']:.1f})")
-    lines.append(f"uv error (the paper's SqrtMSE, e-3) {r['inferred_e3']:.2f} -> {r['texcoords_e3']:.2f} "
-                 f"(ratio {r['ratio']:.2f}); same chart {r['same_chart_inferred_e3']:.2f} -> "
-                 f"{r['same_chart_texcoords_e3']:.2f} (ratio {r['ratio_same_chart']:.1f})")
+    lines.append(f"uv error (e-3) {r['inferred_e3']:.2f} -> {r['texcoords_e3']:.2f} (ratio {r['ratio']:.2f}, all "
+                 f"pixels); same chart {r['same_chart_inferred_e3']:.2f} -> {r['same_chart_texcoords_e3']:.2f} "
+                 f"(ratio {r['ratio_same_chart']:.1f})")
     return "".join(f"\n{indent}{line}" for line in lines)
 
 
 def _text(summary: dict) -> str:
+    d = summary["dataset"]
+    split = d.get("split", {})
     lines = [f"mvtex demo -> {summary['out']}",
-             f"dataset: {summary['dataset']['num_poses']} poses, {summary['dataset']['num_vertices']} vertices"]
+             (f"dataset: {d['num_poses']} poses ({split.get('train', '?')} train, {split.get('val', '?')} validation, "
+              f"{split.get('test', '?')} test), {d['num_vertices']} vertices; numbers below are over the test split"),
+             ("  (inferred -> texcoords; material error: mm on the garment between the material a pixel shows and the "
+              "one it should; uv error: the paper's per-pixel texture-coordinate error; same chart: over the pixels "
+              "where both meshes show one UV chart, pattern piece)")]
     for rig, r in summary["texture_sliding"].items():
-        lines.append(f"texture sliding from ground truth ({rig}, 1 subdivision, {r['num_images']} images):{_pair(r)}")
+        lines.append(f"texture sliding from ground truth ({rig}, 1 subdivision, test split, {r['num_images']} "
+                     f"images):{_pair(r)}")
     rec = summary["reconstruction"]
-    lines.append(f"reconstruction from ground-truth sliding (square4, pose {rec['pose']}): RMSE to gt "
+    lines.append(f"reconstruction from ground-truth sliding (square4, test pose {rec['pose']}): RMSE to gt "
                  f"{rec['rmse_triangulated_m']['inferred']*1e3:.2f} -> {rec['rmse_triangulated_m']['reconstructed']*1e3:.2f} mm "
                  f"on the {rec['num_triangulated']} triangulated vertices, "
                  f"{rec['rmse_m']['inferred']*1e3:.2f} -> {rec['rmse_m']['reconstructed']*1e3:.2f} mm "
                  f"on all {rec['num_vertices']}")
     if "tsnn" in summary:
         r = summary["tsnn"]
-        lines.append(f"model of camera left, no ground truth at run time ({r['num_images']} test poses, "
-                     f"trained on {r['train_poses']} poses):{_pair(r)}")
+        lines.append(f"gp model of camera left, no ground truth at run time (test split, {r['num_images']} images; "
+                     f"fitted to the {r['train_poses']} training poses):{_pair(r)}")
         lines.append("  a model's accuracy grows with its training poses (docs/tsnn.md)")
     if "views" in summary:
         v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
-        lines.append("novel view at the stereo midpoint, uv error, same chart (e-3): " +
-                     ", ".join(f"{k} {x:.3f}" for k, x in v.items()))
+        names = {"baseline": "inferred (T_G)",
+                 "direct TS": "direct TS (texture sliding from gt at the view itself, the upper bound)"}
+        lines.append("novel view at the stereo midpoint, uv error on same-chart pixels (e-3): " +
+                     ", ".join(f"{names.get(k, k)} {x:.3f}" for k, x in v.items()))
     if "preview" in summary:
         e = summary["preview"]["eyes"]
-        lines.append(f"stereo preview SSIM (inferred -> texcoords): left {e['left']['ssim']['inferred']:.3f} -> "
-                     f"{e['left']['ssim']['texcoords']:.3f}, right {e['right']['ssim']['inferred']:.3f} -> "
+        lines.append(f"stereo preview SSIM against gt (inferred -> texcoords): left {e['left']['ssim']['inferred']:.3f} "
+                     f"-> {e['left']['ssim']['texcoords']:.3f}, right {e['right']['ssim']['inferred']:.3f} -> "
                      f"{e['right']['ssim']['texcoords']:.3f}")
+    if "scene" in summary:
+        lines.append(f"scene of test pose {summary['scene']['pose']} to look around in: "
+                     f"{Path(summary['out']) / 'scene' / 'viewer.html'}")
     if "report" in summary:
         lines.append(f"report: {summary['report']}")
     lines.append("pictures: " + ", ".join(summary["pictures"][:8]) + (" ..." if len(summary["pictures"]) > 8 else ""))

@@ -1,16 +1,18 @@
 """A static HTML report of a demo run (`OUT/report.html`), readable offline.
 
 One page: every stage's numbers as tables and its pictures (relative links to the PNG/GIF
-files in OUT), and the reconstruction beside the gt and inferred meshes as an interactive
-3-D view. The 3-D view is `@google/model-viewer` (vendored in `mvtex/vendor`, copied to
-OUT/viewer/) showing a GLB written with trimesh; the GLB is also embedded in the page as a
-data URI, because browsers refuse `fetch` of local files opened from `file://`.
+files in OUT), and two interactive 3-D views drawn by mvtex's viewer on three.js (vendored in
+`mvtex/vendor`, the viewer's own scripts in `mvtex/web`, all copied to OUT/viewer/): the scene
+of `mvtex export` for the reconstruction's pose (the cameras' texture sliding blended by the eye),
+and gt, the inferred mesh and the reconstruction side by side. The GLBs are also embedded in the
+page, because browsers refuse `fetch` of local files opened from `file://`.
 """
 
 from __future__ import annotations
 
 import base64
 import html
+import json
 import os
 import shutil
 from pathlib import Path
@@ -19,20 +21,23 @@ from typing import Any, Sequence
 import numpy as np
 
 from mvtex.formats.glb import export_glb
+from mvtex.views.scene import SCRIPTS, glb_element, script_path
 
-VIEWER_JS = "model-viewer-umd.min.js"
+VIEWER_FILES = tuple(SCRIPTS) + (("vendor", "three.LICENSE"),)
+# The order of the meshes in the comparison picture and in the 3-D view, with their labels.
+MESH_ORDER = (("gt", "gt"), ("inferred", "inferred"), ("reconstruction", "reconstruction"))
 
 
 def copy_viewer(out: str | os.PathLike) -> Path:
-    """Copy the vendored model-viewer script to OUT/viewer/; returns its path."""
-    src = Path(__file__).resolve().parents[1] / "vendor" / VIEWER_JS
+    """Copy the viewer's scripts (three.js and its licence, mvtex's viewer) to OUT/viewer/;
+    returns that folder."""
     from mvtex.util.output import atomic_path
 
-    dst = Path(out) / "viewer" / VIEWER_JS
-    for source, target in ((src, dst), (src.with_name("model-viewer.LICENSE"), dst.with_name("model-viewer.LICENSE"))):
-        with atomic_path(target) as tmp:  # written whole, and recorded in the demo's manifest
-            shutil.copyfile(source, tmp)
-    return dst
+    folder = Path(out) / "viewer"
+    for where, name in VIEWER_FILES:
+        with atomic_path(folder / name) as tmp:  # written whole, and recorded in the demo's manifest
+            shutil.copyfile(script_path(where, name), tmp)
+    return folder
 
 
 def table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
@@ -60,24 +65,36 @@ def png_data_uri(image: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(data.tobytes()).decode("ascii")
 
 
-def model_view(glb: Path, caption: str, *, frame: dict | None = None, legend_png: str | None = None) -> str:
-    """The 3-D view of a GLB. frame: {"target": (x, y, z), "radius": r, "fov_deg": f} (meters,
-    the GLB's axes): the camera looks at target from r away (else model-viewer frames the
-    whole scene). legend_png: a picture (URI) shown beside the view."""
-    data = base64.b64encode(Path(glb).read_bytes()).decode("ascii")
-    framing = 'camera-orbit="0deg 80deg auto"'
-    if frame is not None:
-        x, y, z = frame["target"]
-        framing = (f'camera-target="{x:.4f}m {y:.4f}m {z:.4f}m" camera-orbit="0deg 85deg {frame["radius"]:.4f}m" '
-                   f'field-of-view="{frame["fov_deg"]:.1f}deg" min-camera-orbit="auto auto {frame["radius"] / 4:.4f}m"')
-    viewer = (f'<model-viewer src="data:model/gltf-binary;base64,{data}" camera-controls '
-              f'shadow-intensity="0.6" exposure="1.1" {framing} '
-              f'style="flex:1 1 auto;height:440px;background:#202024" alt="{html.escape(caption)}"></model-viewer>')
+def model_view(glb: Path, caption: str, *, frame: dict, legend_png: str | None = None,
+               labels: dict[str, str] | None = None, element_id: str = "meshes") -> str:
+    """The 3-D view of a GLB of meshes side by side (`export_glb`), in vertex colours.
+
+    Args:
+        frame: {"target": (x, y, z), "radius": r, "fov_deg": f} (meters, the GLB's axes): the
+            camera looks at target from r away (`garments_frame`).
+        legend_png: a picture (URI) shown beside the view.
+        labels: node name -> the label written above that mesh.
+    """
     side = (f'<img src="{legend_png}" alt="colour scale of the 3-D view" style="height:440px;flex:0 0 auto">'
             if legend_png else "")
-    return (f'<figure><div style="display:flex;gap:0">{viewer}{side}</div>'
+    call = (f"mvtexViewer.openMeshes(document.getElementById('{element_id}'), "
+            f"document.getElementById('{element_id}-glb').textContent, {json.dumps(frame)}, {json.dumps(labels or {})});")
+    return (f'<figure><div style="display:flex;gap:0"><div id="{element_id}" style="flex:1 1 auto;height:440px">'
+            f'</div>{side}</div>{glb_element(glb, element_id + "-glb")}<script>{call}</script>'
             f'<figcaption>{html.escape(caption)} (drag to turn, scroll to zoom; the file: '
             f'<a href="{html.escape(glb.name)}">{html.escape(glb.name)}</a>)</figcaption></figure>')
+
+
+def scene_view(folder: Path, out: Path, caption: str, element_id: str = "scene") -> str:
+    """The viewer of an `mvtex export` folder (its scene.glb embedded), opening at the
+    default viewpoint (equal weights over the cameras); it leaves the page's address alone."""
+    rel = folder.relative_to(out)
+    call = (f"mvtexViewer.openScene(document.getElementById('{element_id}'), "
+            f"document.getElementById('{element_id}-glb').textContent, new URLSearchParams(''), {{page: false}});")
+    return (f'<figure><div id="{element_id}" style="height:600px"></div>{glb_element(folder / "scene.glb", element_id + "-glb")}'
+            f'<script>{call}</script><figcaption>{html.escape(caption)} (the files: '
+            f'<a href="{html.escape(str(rel / "scene.glb"))}">scene.glb</a>, '
+            f'<a href="{html.escape(str(rel / "viewer.html"))}">viewer.html</a>)</figcaption></figure>')
 
 
 _STYLE = """
@@ -91,17 +108,17 @@ code{background:#f4f4f6;padding:0 0.2em}
 """
 
 
-# After loading, the page records on <html> how many images failed to load and whether the
-# 3-D viewer is defined: a headless browser's DOM dump then tells whether the page is whole.
+# After loading, the page records on <html> how many images failed to load: a headless
+# browser's DOM dump then tells whether the page is whole (the 3-D views record their own state
+# in their elements' data-viewer).
 _CHECK = """<script>window.addEventListener('load', function () {
   var broken = Array.prototype.filter.call(document.images, function (i) { return !i.complete || !i.naturalWidth; });
   document.documentElement.setAttribute('data-broken-images', String(broken.length));
-  document.documentElement.setAttribute('data-viewer', window.customElements && customElements.get('model-viewer') ? 'ready' : 'absent');
 });</script>"""
 
 
 def page(title: str, sections: Sequence[tuple[str, str]], viewer: bool) -> str:
-    script = (f'<script src="viewer/{VIEWER_JS}"></script>' if viewer else "") + _CHECK
+    script = ("".join(f'<script src="viewer/{name}"></script>' for _, name in SCRIPTS) if viewer else "") + _CHECK
     body = "".join(f"<h2>{html.escape(h)}</h2>{content}" for h, content in sections)
     return (f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
             f"<style>{_STYLE}</style>{script}</head><body><h1>{html.escape(title)}</h1>{body}</body></html>\n")
@@ -190,13 +207,22 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
     out = Path(out)
     sections: list[tuple[str, str]] = []
     d = summary["dataset"]
-    sections.append(("Dataset and renders", table(["poses", "vertices", "test pose shown"],
-                                                  [[d["num_poses"], d["num_vertices"], d["test_pose"]]]) +
+    split = d.get("split", {})
+    sections.append(("Dataset and renders", table(["poses", "train / validation / test", "vertices", "test pose shown"],
+                                                  [[d["num_poses"], " / ".join(str(split.get(k, "?")) for k in
+                                                                               ("train", "val", "test")),
+                                                    d["num_vertices"], d["test_pose"]]]) +
                      (figure("render/overview.png", "gt and inferred cloth from the stereo rig: textured (rows 1-2), "
                                                     "and the untextured geometry under a key light, zoomed on the "
                                                     "garment (rows 3-4), where the folds gt has and the inferred "
                                                     "mesh lacks show")
                       if (out / "render" / "overview.png").is_file() else "")))
+    measures = ("<p>Every number is over the test split (the poses no model was fitted to), per image, mean. "
+                "<b>Material error</b>: the distance on the garment (mm) between the material a pixel shows and the "
+                "one it should show. <b>uv error</b>: the paper's per-pixel texture-coordinate error (SqrtMSE), "
+                "×10⁻³ uv units. <b>Same chart</b>: over the pixels where both meshes show one UV chart (pattern "
+                "piece); where they show different charts the uv difference is a distance across the atlas, not on "
+                "the cloth. <b>Assigned triangles</b>: pixels of triangles whose corners the rays assigned.</p>")
 
     def ts_tables(items) -> str:
         """Two tables: the material error (all pixels, assigned triangles), the uv error."""
@@ -207,73 +233,98 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
                      None if r.get("assigned_share") is None else 100 * r["assigned_share"]] for name, r in items]
         uv = [[name, r["inferred_e3"], r["texcoords_e3"], r["ratio"], r["same_chart_inferred_e3"],
                r["same_chart_texcoords_e3"], r["ratio_same_chart"]] for name, r in items]
-        return (table(["", "images", "material error: inferred mm", "texcoords mm", "ratio",
+        return (table(["", "test images", "material error: inferred mm", "texcoords mm", "ratio",
                        "assigned triangles: inferred mm", "texcoords mm", "ratio", "% of pixels"], material)
                 + table(["", "uv error: inferred e-3", "texcoords e-3", "ratio", "same chart: inferred e-3",
                          "texcoords e-3", "ratio"], uv))
 
     ts = summary.get("texture_sliding", {})
-    heat = '<div class="row">' + "".join(figure(p, f"error heatmaps {Path(p).stem}: inferred | TS; top uv error, bottom material error, each row on the logarithmic scale of its colour bar; the legend names the other colours")
-                                         for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
-    sections.append(("Texture sliding from ground truth (material error in mm, uv error = the paper's SqrtMSE; per image, mean)", ts_tables(ts.items()) + heat))
+    heat = '<div class="row">' + "".join(
+        figure(p, f"heatmaps of test pose {d['test_pose']}, camera {Path(p).stem.split('_')[-1]}: the inferred mesh "
+                  "(T_G) | texture sliding; top the uv error on same-chart pixels, bottom the material error, each on "
+                  "one logarithmic scale in every heatmap; the legend names the other colours")
+        for p in _pictures(out, "heatmaps/stereo", 2)) + "</div>"
+    sections.append(("Texture sliding from ground truth", measures + ts_tables(ts.items()) + heat))
 
     rec = summary.get("reconstruction")
     if rec:
         rows = [["all vertices", rec["rmse_m"]["inferred"] * 1e3, rec["rmse_m"]["reconstructed"] * 1e3],
                 ["triangulated vertices", rec["rmse_triangulated_m"]["inferred"] * 1e3,
                  rec["rmse_triangulated_m"]["reconstructed"] * 1e3]]
-        content = (f"<p>pose {rec['pose']}, square4 rig: {rec['num_triangulated']} of {rec['num_vertices']} vertices "
-                   f"triangulated, mean reprojection error {rec['mean_reprojection_error_px'] or float('nan'):.3f} px.</p>"
+        content = (f"<p>test pose {rec['pose']}, square4 rig: {rec['num_triangulated']} of {rec['num_vertices']} "
+                   f"vertices triangulated, mean reprojection error "
+                   f"{rec['mean_reprojection_error_px'] or float('nan'):.3f} px.</p>"
                    + table(["RMSE vs gt (mm)", "inferred", "reconstructed"], rows))
         ply = out / "reconstruction" / "reconstruction.ply"
         if ply.is_file():
             glb, frame, scale = _reconstruction_glb(out, ply, dataset, int(rec["pose"]))
             from mvtex.render.pictures import colorbar
 
-            content += model_view(glb, "left to right: gt (green: triangulated vertices, grey: not), reconstruction, "
-                                       "inferred, coloured by the distance to gt on the scale of comparison.png (the "
-                                       "bar beside the view)", frame=frame,
-                                  legend_png=png_data_uri(colorbar(440, scale, width=120)))
+            content += model_view(glb, "left to right as in comparison.png: gt (green: triangulated vertices, grey: "
+                                       "not), inferred, reconstruction; coloured by the distance to gt on the scale of "
+                                       "comparison.png (the bar beside the view)", frame=frame,
+                                  legend_png=png_data_uri(colorbar(440, scale, width=120)),
+                                  labels=dict(MESH_ORDER))
         if (out / "reconstruction" / "comparison.png").is_file():
-            content += figure("reconstruction/comparison.png", "gt / inferred / reconstruction: texture; the geometry "
+            content += figure("reconstruction/comparison.png", "gt | inferred | reconstruction: texture; the geometry "
                               "under a key light, and zoomed where gt's folds and the inferred mesh's differ most; "
                               "strain; distance to gt (each with its colour bar; legend below)", width="90%")
         sections.append(("Reconstruction", content))
 
+    scene = summary.get("scene")
+    if scene and (out / "scene" / "scene.glb").is_file():
+        sections.append(("The scene to look around in", (
+            f"<p>Test pose {scene['pose']} as <code>mvtex export</code> writes it: the inferred mesh with one set of "
+            f"texture coordinates per square4 camera ({', '.join(scene['cameras'])}), from texture sliding. As the "
+            "view turns, the page blends the cameras' texture coordinates with the weights <code>mvtex preview</code> "
+            "gives the eye's position; at a camera's own viewpoint it shows that camera's texture sliding. The "
+            "buttons switch to the mesh's own texture coordinates (T_G), hide the body, or show a stereo pair.</p>"
+            + scene_view(out / "scene", out, "the scene viewer (scene.glb, three.js)"))))
+
     if "tsnn" in summary:
         r = summary["tsnn"]
-        sections.append(("Texture sliding network (camera left, test poses)",
-                         f"<p>trained on {r.get('train_poses')} poses.</p>" + ts_tables([("TSNN", r)]) +
-                         "".join(figure(p, f"TSNN error heatmaps {Path(p).stem}: inferred | TSNN", width="60%")
-                                 for p in _pictures(out, "heatmaps/tsnn", 1))))
+        sections.append(("A gp model of camera left (no ground truth at run time)",
+                         f"<p>Gaussian processes of the pose on the principal components of the displacements, "
+                         f"fitted to the {r.get('train_poses')} training poses; evaluated on the test split.</p>"
+                         + ts_tables([("gp model", r)]) +
+                         "".join(figure(p, f"heatmaps of test pose {Path(p).stem.split('_')[1].lstrip('0') or '0'}, "
+                                           "camera left: the inferred mesh (T_G) | the gp model's prediction, on the "
+                                           "scales of the heatmaps above", width="60%")
+                                 for p in _pictures(out, "heatmaps/gp_left", 1))))
 
     views = summary.get("views")
     if views:
         two = views["two_camera"]
         curves = list(two["midpoint_same_chart_e3"])
-        rows = [[c, two["cameras_same_chart_e3"][c], two["midpoint_same_chart_e3"][c],
+        names = {"baseline": "inferred (T_G)"}
+        rows = [[names.get(c, c), two["cameras_same_chart_e3"][c], two["midpoint_same_chart_e3"][c],
                  two["sqrt_mse"][c][2] * 1e3] for c in curves]
-        content = ("<p>Views between the stereo cameras (t = 0 left, 1 right): blend is the paper's "
-                   "T_N(v) = Σ w_p T_N(v_p); reconstruct triangulates the pose from the array and reads the material "
-                   "where each view's ray meets it; direct TS slides at the view with gt (the upper bound).</p>" +
-                   table(["SqrtMSE e-3", "at the cameras (same chart)", "midpoint (same chart)", "midpoint (all pixels)"],
-                         rows) + figure(two["picture"], "SqrtMSE along the path between the stereo cameras"))
+        content = ("<p>Views between the stereo cameras (t = 0 left, 1 right): <b>blend</b> is the paper's "
+                   "T_N(v) = Σ w_p T_N(v_p); <b>reconstruct</b> triangulates the pose from the array and reads the "
+                   "material where each view's ray meets it; <b>direct TS</b> is texture sliding from ground truth at "
+                   "the view itself (the upper bound, not available at run time); inferred (T_G) is the mesh's own "
+                   "texture coordinates.</p>" +
+                   table(["uv error e-3", "at the cameras (same chart)", "midpoint (same chart)", "midpoint (all pixels)"],
+                         rows) + figure(two["picture"], "uv error along the path between the stereo cameras"))
         four = views.get("four_camera")
         if four:
-            content += table(["3x3 views over square4", "mean same-chart SqrtMSE e-3"],
+            content += table(["3x3 views over square4", "mean uv error, same chart, e-3"],
                              [[c, v] for c, v in four["mean_same_chart_e3"].items()])
-            content += figure(four["picture"], "four-camera map: same-chart SqrtMSE of 3x3 views over square4")
+            content += figure(four["picture"], "four-camera map: uv error on same-chart pixels of 3x3 views over square4")
         sections.append(("Novel views", content))
 
     prev = summary.get("preview")
     if prev:
         rows = [[eye, s["ssim"]["inferred"], s["ssim"]["texcoords"], s["psnr"]["inferred"], s["psnr"]["texcoords"]]
                 for eye, s in prev["eyes"].items()]
-        content = (f"<p>pose {prev['pose']}, viewpoint {prev['viewpoint']['weights']}, ipd {prev['ipd']} m, method "
+        shift = prev.get("convergence", {})
+        content = (f"<p>test pose {prev['pose']}, viewpoint {prev['viewpoint']['weights']}, ipd {prev['ipd']} m, method "
                    f"{prev['method']}; scores over the garment's bounding box against the gt render.</p>" +
                    table(["eye", "SSIM inferred", "SSIM texcoords", "PSNR inferred (dB)", "PSNR texcoords (dB)"], rows) +
                    '<div class="row">' + figure("preview/stereo.png", "stereo pair (left | right)") +
-                   figure("preview/anaglyph.png", "red-cyan anaglyph") + "</div>" +
+                   figure("preview/anaglyph.png", "red-cyan anaglyph" + (
+                       f", converged at the garment ({shift['depth_m']:.2f} m: each eye shifted by "
+                       f"{shift['shift_px'] / 2:.1f} px)" if shift else "")) + "</div>" +
                    '<div class="row">' + figure("preview/comparison.png", "gt / inferred with T_G / with the eyes' texcoords") +
                    (figure("preview/path.gif", "the viewpoint moving through the array")
                     if (out / "preview" / "path.gif").is_file() else "") + "</div>")
@@ -287,7 +338,8 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
 
 
 def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):
-    """OUT/reconstruction.glb: gt, reconstruction and inferred side by side, coloured as the
+    """OUT/reconstruction.glb: gt, inferred and reconstruction side by side (`MESH_ORDER`, as in
+    comparison.png), coloured as the
     reconstruction's comparison.png (gt: triangulated vertices green; the others: distance
     to gt on the comparison's error scale, read from reconstruction/comparison.json). Returns
     (path, frame for `model_view`, the error `ColorScale`)."""
@@ -316,9 +368,10 @@ def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):
         triangulated = np.zeros(len(gt), bool)
     gt_colors = np.where(triangulated[:, None], np.array([TRIANGULATED_RGB]),
                          np.array([NOT_TRIANGULATED_RGB])).astype(np.uint8)
-    meshes = [("gt", gt, dataset.faces, gt_colors),
-              ("reconstruction", rec, dataset.faces, scale.colors(np.linalg.norm(rec - gt, axis=1))),
-              ("inferred", inferred, dataset.faces, scale.colors(np.linalg.norm(inferred - gt, axis=1)))]
+    colours = {"gt": gt_colors, "inferred": scale.colors(np.linalg.norm(inferred - gt, axis=1)),
+               "reconstruction": scale.colors(np.linalg.norm(rec - gt, axis=1))}
+    positions = {"gt": gt, "inferred": inferred, "reconstruction": rec}
+    meshes = [(name, positions[name], dataset.faces, colours[name]) for name, _ in MESH_ORDER]
     body = None
     if dataset.body is not None:
         from mvtex.render.shading import BODY_RGB

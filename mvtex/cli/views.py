@@ -1,4 +1,5 @@
-"""`mvtex views` and `mvtex preview`: novel views between array cameras and stereo previews."""
+"""`mvtex views`, `mvtex preview` and `mvtex export`: novel views between array cameras, stereo
+previews, and a pose as a glTF scene with a viewer."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from pathlib import Path
 
 from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, output, rig_of
 from mvtex.cli.options import add_options, options_from
-from mvtex.views.options import PreviewOptions, ViewOptions
+from mvtex.views.options import ExportOptions, PreviewOptions, ViewOptions
 
 
 def register(sub) -> None:
@@ -41,6 +42,17 @@ def register(sub) -> None:
     add_options(p, PreviewOptions)
     add_common(p)
     p.set_defaults(run=cmd_preview)
+
+    p = sub.add_parser("export", help="a pose as a glTF scene (every camera's texcoords, the cameras, the body) "
+                                      "+ viewer.html that blends them as you turn the view")
+    p.add_argument("dataset", type=Path, help="dataset directory (no ground truth needed)")
+    p.add_argument("--texcoords", metavar="TC", type=Path, required=True, help="the cameras' texcoord set (slide, predict or views)")
+    add_rig(p, "the set's cameras", from_texcoords=True)
+    p.add_argument("--pose", metavar="K", type=int, required=True, help="dataset pose index (one of the texcoord set's poses)")
+    p.add_argument("--out", type=Path, required=True, help="output folder: scene.glb, viewer.html, export.json")
+    add_options(p, ExportOptions)
+    add_common(p)
+    p.set_defaults(run=cmd_export)
 
 
 def cmd_views(args):
@@ -95,3 +107,18 @@ def cmd_preview(args):
     left, right = result.eyes["left"].ssim, result.eyes["right"].ssim
     emit(args, result, f"pose {result.pose}: SSIM inferred -> texcoords: left {left[0]:.3f} -> {left[1]:.3f}, "
          f"right {right[0]:.3f} -> {right[1]:.3f}; wrote {args.out}")
+
+
+def cmd_export(args):
+    from mvtex.data.dataset import load_dataset
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.views.scene import export_scene
+
+    options = options_from(args, ExportOptions)
+    dataset = load_dataset(args.dataset)
+    rig = rig_of(args)
+    tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
+    with output(args, "export"):
+        result = export_scene(dataset, tc, args.pose, args.out, rig=rig, options=options, overwrite=args.overwrite)
+    emit(args, result, f"pose {result.pose}: {result.num_vertices} vertices, texcoords of "
+         f"{', '.join(result.cameras)}; wrote {', '.join(result.files)} to {args.out}")

@@ -345,13 +345,37 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
     return _open_eval_state(ds, tc, GLContext(), True)
 
 
-def _heatmap_picture(image: ImageErrors, cam, source: str) -> np.ndarray:
-    """Baseline and texcoords heatmaps side by side, each row on one colour scale fitted to
-    its two images (`fit_scale`: top at the 99th percentile, logarithmic) with its colour
-    bar; the material error below them when the dataset has a rest shape; a legend of the
-    other colours (magenta: the two meshes show different UV charts, where a uv difference
-    means nothing; grey: the body)."""
-    from mvtex.render.pictures import BACKGROUND, colorbar, fit_scale, heatmap, legend, side_by_side, stack
+# The heatmaps' colour scales, the same in every picture of every run, so that two pictures
+# compare at a glance (logarithmic; values above the top are drawn in its colour, "+").
+UV_HEATMAP_SCALE = (1e-5, 3e-2)  # uv units
+MATERIAL_HEATMAP_SCALE = (1e-5, 3e-2)  # metres: 0.01 to 30 mm
+
+
+def heatmap_scales(has_material: bool = True) -> dict:
+    """The `ColorScale`s of the eval heatmaps: "uv" (the uv error on same-chart pixels) and,
+    with a rest shape, "material" (the material error, shown in mm)."""
+    from mvtex.render.pictures import ColorScale
+
+    scales = {"uv": ColorScale(*UV_HEATMAP_SCALE, True, "jet", "uv error on same-chart pixels", "uv units")}
+    if has_material:
+        scales["material"] = ColorScale(*MATERIAL_HEATMAP_SCALE, True, "jet", "material error", "mm", 1e3)
+    return scales
+
+
+# How the heatmaps name a texcoord set by its source (texcoords.json "source").
+SOURCE_NAMES = {"ts": "texture sliding", "tsnn": "learned model", "views-blend": "novel view (blend)",
+                "views-reconstruct": "novel view (reconstruct)"}
+
+
+def _heatmap_picture(image: ImageErrors, cam, source: str, pose: int) -> np.ndarray:
+    """The inferred mesh (T_G) and the texcoord set side by side: the uv error on the pixels
+    where both meshes show one UV chart (top row) and, with a rest shape, the material error
+    (bottom row), each row on its fixed colour scale (`heatmap_scales`) with its colour bar.
+    Each panel's label names the measure it maps with that image's value (SqrtMSE of the uv
+    error over the same pixels, RMSE of the material error); a title names the pose and the
+    camera; a legend the other colours (magenta: the two meshes show different UV charts,
+    where a uv difference means nothing; grey: the body)."""
+    from mvtex.render.pictures import BACKGROUND, caption, colorbar, heatmap, legend, side_by_side, stack
     from mvtex.render.shading import BODY_RGB
 
     raster = image.raster
@@ -372,25 +396,30 @@ def _heatmap_picture(image: ImageErrors, cam, source: str) -> np.ndarray:
             picture[raster.full(mark.reshape(r1 - r0, c1 - c0), shape, False)] = color
         return picture
 
-    (s_b, s_t), (same_b, same_t), (m_b, m_t) = image.sqrt_mse, image.sqrt_mse_same_chart, image.material_rmse_m
-    same = ~image.other_chart
-    uv_scale = fit_scale([image.e_b[same], image.e_t[same]], title="uv error, same-chart pixels", unit="uv units")
-    rows = [side_by_side([full(image.e_b, uv_scale, True), full(image.e_t, uv_scale, True),
-                          colorbar(cam.height, uv_scale, width=110)],
-                         [f"inferred {s_b * 1e3:.2f}e-3, same chart {same_b * 1e3:.2f}e-3",
-                          f"{source} {s_t * 1e3:.2f}e-3, same chart {same_t * 1e3:.2f}e-3", ""])]
+    (same_b, same_t), (m_b, m_t) = image.sqrt_mse_same_chart, image.material_rmse_m
+    scales = heatmap_scales(image.mat_b is not None)
+    source = SOURCE_NAMES.get(source, source)
+    rows = [side_by_side([full(image.e_b, scales["uv"], True), full(image.e_t, scales["uv"], True),
+                          colorbar(cam.height, scales["uv"], width=110)],
+                         [f"inferred (T_G): same-chart uv error {same_b * 1e3:.2f}e-3",
+                          f"{source}: same-chart uv error {same_t * 1e3:.2f}e-3", ""])]
     if image.mat_b is not None:
-        mat_scale = fit_scale([image.mat_b, image.mat_t], title="material error", unit="mm", factor=1e3)
-        rows.append(side_by_side([full(image.mat_b, mat_scale, False), full(image.mat_t, mat_scale, False),
-                                  colorbar(cam.height, mat_scale, width=110)],
-                                 [f"inferred material {m_b * 1e3:.2f} mm", f"{source} material {m_t * 1e3:.2f} mm", ""]))
+        rows.append(side_by_side([full(image.mat_b, scales["material"], False),
+                                  full(image.mat_t, scales["material"], False),
+                                  colorbar(cam.height, scales["material"], width=110)],
+                                 [f"inferred (T_G): material error {m_b * 1e3:.2f} mm",
+                                  f"{source}: material error {m_t * 1e3:.2f} mm", ""]))
+    width = rows[0].shape[1]
+    what = "uv error on same-chart pixels" + (" (top), material error (bottom)" if image.mat_b is not None else "")
+    title = caption(f"pose {pose}, camera {cam.name}: {what}. Left: the inferred mesh with its own texture "
+                    f"coordinates (T_G); right: {source}.", width)
     material = ", the material error (bottom row) is drawn" if image.mat_b is not None else ""
     entries = [(CHART_BOUNDARY_COLOR, "top row: the two meshes show different UV charts (pattern pieces) here; "
                                       f"the uv difference means nothing{material}"),
                (BODY_RGB, "the body is the nearest surface in either render"),
                (BACKGROUND, "background: no cloth in either render")]
-    rows.append(legend(entries, rows[0].shape[1], scale=0.5))
-    return stack(rows)
+    rows.append(legend(entries, width, scale=0.5))
+    return stack([title] + rows)
 
 
 def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tuple]:
@@ -407,7 +436,8 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
         image = state.evaluator(k, cam, tc.texcoords(cam.name, k), assigned=tc.assigned(cam.name, k))
         out.append((index, *image.values()))
         if spec.heatmaps is not None:
-            save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", _heatmap_picture(image, cam, tc.source))
+            save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png",
+                     _heatmap_picture(image, cam, tc.source, k))
     return out
 
 
@@ -429,9 +459,10 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         texcoord_set: `TexcoordSet` or its directory.
         poses: dataset pose indices (default: the set's poses).
         heatmaps: if given, a directory that receives ``pose_<k>_<camera>.png`` per image:
-            baseline and texcoords heatmaps side by side (blue = 0, red >= 0.04; magenta where
-            the two meshes show different UV charts) and, when the dataset has `rest`, a
-            second row with the material error in millimeters (red >= 20 mm).
+            baseline and texcoords heatmaps side by side, the uv error on same-chart pixels
+            (magenta where the two meshes show different UV charts) and, when the dataset has
+            `rest`, the material error in millimeters, each measure on one logarithmic scale
+            in every picture (`heatmap_scales`).
         progress: progress bar on stderr.
         workers: local processes (1: this process), see `mvtex.util.parallel.map_unordered`.
         scheduler: Dask scheduler address (overrides `workers`); its workers must read the

@@ -260,6 +260,26 @@ def legend(entries: Sequence[tuple[tuple[int, int, int], str]], width: int, *, s
     return canvas
 
 
+def caption(text: str, width: int, *, scale: float = 0.55, background: tuple[int, int, int] = BACKGROUND) -> np.ndarray:
+    """A (h, width, 3) strip with `text` written on it, wrapped to the width: a picture's title."""
+    import cv2
+
+    lines, line = [], ""
+    for word in text.split():
+        trial = f"{line} {word}".strip()
+        if cv2.getTextSize(trial, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] > width - 16 and line:
+            lines.append(line)
+            line = word
+        else:
+            line = trial
+    lines.append(line)
+    step = int(24 * scale / 0.5)
+    canvas = np.full((step * len(lines) + 10, width, 3), background, np.uint8)
+    for i, text_line in enumerate(lines):
+        _text(canvas, text_line, 8, 4 + (i + 1) * step - 6, scale)
+    return canvas
+
+
 def stack(images: Sequence[np.ndarray], *, gap: int = 4, gap_color: tuple[int, int, int] = (255, 255, 255),
           background: tuple[int, int, int] = BACKGROUND) -> np.ndarray:
     """Place RGB uint8 images top to bottom (narrower ones padded on the right)."""

@@ -170,8 +170,9 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
         steps: optimiser steps (None: `STEPS`); at least one epoch, at most `MAX_EPOCHS`.
 
     Returns:
-        (the model in eval mode, history {"train": [...], "val": [...]} mean over members per
-        epoch, plus "best_epoch": [...] per member).
+        (the model in eval mode, history {"train": [...], "val": [...]}: per epoch, the mean
+        over members of the squared error of d per vertex (uv², the sum over its two
+        coordinates, within the basis), plus "best_epoch": [...] per member).
     """
     from mvtex.tsnn.gp import pose_pca_counted
 
@@ -237,8 +238,10 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
                     for q, b in zip(params, best):
                         b[e].copy_(q[e])
                 best_loss = torch.where(better, val, best_loss)
-            history["train"].append(total / per_epoch * scale ** 2)
-            history["val"].append(float(val.mean()) * scale ** 2)
+            # Per vertex: the squared error of the coefficients is that of d summed over its
+            # 2n' coordinates (within the basis); divided by n' it is the networks' per-vertex MSE.
+            history["train"].append(total / per_epoch * scale ** 2 / config.num_vertices)
+            history["val"].append(float(val.mean()) * scale ** 2 / config.num_vertices)
             if progress is not None:
                 progress(reads + epoch, reads + epochs)
     finally:

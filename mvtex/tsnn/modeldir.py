@@ -101,7 +101,14 @@ def rebuild_mesh(faces: np.ndarray, uv: np.ndarray, subdiv: int) -> tuple[np.nda
     return sub.faces, apply_parent(np.asarray(uv, np.float32), sub.parent).astype(np.float32), sub.parent
 
 
-def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, title: str) -> None:
+# The loss plots' axes: what each architecture's history holds per epoch.
+LOSS_AXIS = {"mlp": "squared error of d per vertex (uv²)",  # within the PCA basis: said in the title
+             "paper": "weighted squared error of d per vertex (uv²)",
+             "unet": "weighted squared error of d per vertex (uv²)"}
+
+
+def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, title: str,
+               axis: str = "weighted squared error of d per vertex (uv²)") -> None:
     # The object-oriented API with an Agg canvas: no global backend switch, no display.
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -115,7 +122,7 @@ def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, tit
         ax.semilogy(epochs, history["val"], label="validation")
     ax.axvline(best_epoch, color="gray", linestyle=":", label=f"best (epoch {best_epoch})")
     ax.set_xlabel("epoch")
-    ax.set_ylabel("weighted MSE of d (uv²)")
+    ax.set_ylabel(axis)
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
@@ -174,7 +181,10 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
                             f"gp {meta['camera']}: relevance of the pose coordinates "
                             f"({meta['architecture']['num_train']} training poses)")
         else:
+            arch = meta["architecture"]["arch"]
             _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
-                       f"TSNN {meta['architecture']['arch']} {meta['camera'] or 'all cameras'} "
+                       f"{arch} model of {'camera ' + meta['camera'] if meta['camera'] else 'all cameras'} "
                        + (f"({meta['architecture']['resolution']}², " if "resolution" in meta["architecture"] else "(")
-                       + f"best epoch {meta['best_epoch']})")
+                       + f"best epoch {meta['best_epoch']})"
+                       + ("\nthe error of d within its principal components" if arch == "mlp" else ""),
+                       axis=LOSS_AXIS.get(arch, LOSS_AXIS["paper"]))

@@ -182,15 +182,82 @@ def interpolate_camera(rig: Rig, weights: Mapping[str, float], name: str) -> Cam
     return Camera(name=name, width=cams[0].width, height=cams[0].height, K=K, R=R, t=-R @ centre, dist=dist)
 
 
+# The strengths of `weights_for_centre`'s terms (dimensionless: lengths in units of the array's extent).
+SUM_WEIGHT = 1e3  # the sum of the weights is 1, before the blended centre is nearest the eye
+CONSTRAINT_WEIGHT = 1e4  # the weights make the nearest point, before they are local and even
+SPREAD = 1e-3  # the evenness term Σ w², against the locality term Σ w_p ‖c_p − x‖²
+
+
+def _extent(C: np.ndarray) -> float:
+    """The array's extent L: its largest distance between two camera centres (m), at least 1 mm."""
+    return max(float(np.sqrt(np.max(np.sum((C[:, None, :] - C[None, :, :]) ** 2, axis=2)))), 1e-3)
+
+
+def nearest_blend_system(centres: np.ndarray, eye: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Step 1 of `weights_for_centre`: min ‖A w − b‖, w ≥ 0, whose solution's blended centre
+    is the point of the cameras' convex hull nearest the eye (unique, though the weights
+    need not be).
+
+    Rows: the sum of the weights is 1 (one row, times `SUM_WEIGHT`); Σ w_p (c_p − eye) / L
+    is 0 (three rows; L the array's extent).
+
+    Args:
+        centres: (p,3) camera centres (m). eye: (3,) the eye (m).
+
+    Returns:
+        A (4,p) and b (4,) float64.
+    """
+    C = np.asarray(centres, np.float64)
+    eye = np.asarray(eye, np.float64).reshape(3)
+    A = np.vstack([np.full((1, len(C)), SUM_WEIGHT), ((C - eye) / _extent(C)).T])
+    return A, np.array([SUM_WEIGHT, 0.0, 0.0, 0.0])
+
+
+def centre_weights_system(centres: np.ndarray, point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Step 2 of `weights_for_centre`: min ‖A w − b‖, w ≥ 0, for a point that a blend of the
+    cameras reaches (step 1's): among the weights whose blended centre is the point, those
+    on the cameras nearest it, Σ w_p ‖c_p − x‖² / L² (the Delaunay interpolant of the
+    camera centres: on a 2x2 array a corner's two neighbours, not the opposite corners), and
+    the most even of them, `SPREAD` Σ w_p² (which makes the answer unique: equal weights at
+    the centre of a square).
+
+    Rows: the sum is 1 and Σ w_p (c_p − x) / L is 0 (four rows, times `CONSTRAINT_WEIGHT`);
+    then √SPREAD · I w = −‖c_p − x‖² / (2 L² √SPREAD) (p rows), which together are the two
+    terms above up to a constant.
+
+    Args:
+        centres: (p,3) camera centres (m). point: (3,) the point (m).
+
+    Returns:
+        A (4+p, p) and b (4+p,) float64. The viewer's script builds the same rows
+        (mvtex/web/viewmath.js, checked against this function by the tests).
+    """
+    C = np.asarray(centres, np.float64)
+    x = np.asarray(point, np.float64).reshape(3)
+    L = _extent(C)
+    p = len(C)
+    near = np.sum((C - x) ** 2, axis=1) / L ** 2
+    A = np.vstack([np.full((1, p), CONSTRAINT_WEIGHT), CONSTRAINT_WEIGHT * ((C - x) / L).T, np.sqrt(SPREAD) * np.eye(p)])
+    b = np.concatenate([[CONSTRAINT_WEIGHT, 0.0, 0.0, 0.0], -near / (2.0 * np.sqrt(SPREAD))])
+    return A, b
+
+
 def weights_for_centre(rig: Rig, names: Sequence[str], centre: np.ndarray) -> dict[str, float]:
-    """Weights ≥ 0 summing to 1 over cameras `names` whose blended centre is nearest `centre`
-    (non-negative least squares with the sum as a heavily weighted extra row)."""
+    """Weights ≥ 0 summing to 1 over cameras `names` whose blended centre is nearest `centre`;
+    where several do (inside the array's span), those on the cameras nearest it, the most
+    even of them. Two non-negative least-squares problems (`nearest_blend_system`, then
+    `centre_weights_system` at the nearest point).
+
+    A camera's own centre gives it weight 1 (every camera of the built-in rigs is a corner of
+    the array's hull); the midpoint of two neighbours gives them 0.5 each, the centre of a
+    2x2 square 0.25 each.
+    """
     from scipy.optimize import nnls
 
-    C = np.stack([rig[n].center for n in names], axis=1)  # (3,p)
-    scale = 1e3 * max(1.0, float(np.abs(C).max()))
-    A = np.vstack([C, np.full((1, len(names)), scale)])
-    b = np.concatenate([np.asarray(centre, np.float64), [scale]])
-    w, _ = nnls(A, b)
+    C = np.stack([rig[n].center for n in names])
+    limit = 50 * len(names) + 100
+    w, _ = nnls(*nearest_blend_system(C, centre), maxiter=limit)
+    nearest = (w / w.sum()) @ C
+    w, _ = nnls(*centre_weights_system(C, nearest), maxiter=limit)
     w = w / w.sum()
     return {n: float(x) for n, x in zip(names, w)}

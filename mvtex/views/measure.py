@@ -1,4 +1,4 @@
-"""Novel views measured: SqrtMSE along a path between two cameras (the paper's two-camera
+"""Novel views measured: the uv error (the paper's SqrtMSE) along a path between two cameras (the paper's two-camera
 plot) and over a 2×2 array (its four-camera map), for
 
     baseline     the inferred mesh with T_G (no view information)
@@ -28,6 +28,10 @@ CURVES = ("baseline", "blend", "reconstruct", "direct TS")
 
 
 _COLORS = {"baseline": "#888888", "blend": "#1f77b4", "reconstruct": "#d62728", "direct TS": "#2ca02c"}
+# How the plots name the curves (the JSON keeps CURVES).
+LABELS = {"baseline": "inferred (T_G)", "blend": "blend", "reconstruct": "reconstruct",
+          "direct TS": "direct TS (slid from gt at the view: the upper bound)"}
+UV_AXIS = "uv error (1e-3 uv units)"
 
 
 def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, float]], names: Sequence[str], *,
@@ -88,7 +92,7 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
 
 def plot_path(measured: dict, path: str | os.PathLike, parameter: Sequence[float], *, a: str, b: str,
               title: str = "") -> Path:
-    """The two-camera plot: SqrtMSE (all pixels | same-chart pixels) against t from a to b."""
+    """The two-camera plot: the uv error (all pixels | same-chart pixels) against t from a to b."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -98,10 +102,10 @@ def plot_path(measured: dict, path: str | os.PathLike, parameter: Sequence[float
     for ax, key, label in zip(axes, ("sqrt_mse", "sqrt_mse_same_chart"), ("all pixels", "same-chart pixels")):
         for curve in CURVES:
             if curve in measured[key]:
-                ax.plot(parameter, np.asarray(measured[key][curve]) * 1e3, "o-", color=_COLORS[curve], label=curve,
+                ax.plot(parameter, np.asarray(measured[key][curve]) * 1e3, "o-", color=_COLORS[curve], label=LABELS[curve],
                         lw=2 if curve == "reconstruct" else 1.5, ms=4)
         ax.set_xlabel(f"t  (0 = {a}, 1 = {b})")
-        ax.set_ylabel("SqrtMSE (1e-3 uv)")
+        ax.set_ylabel(UV_AXIS)
         ax.set_title(label)
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
@@ -113,7 +117,7 @@ def plot_path(measured: dict, path: str | os.PathLike, parameter: Sequence[float
 
 def plot_grid(measured: dict, path: str | os.PathLike, steps: int, corners: Sequence[str], *,
               key: str = "sqrt_mse_same_chart", title: str = "") -> Path:
-    """The four-camera map: one heatmap of SqrtMSE over the steps×steps views per curve."""
+    """The four-camera map: one heatmap of the uv error over the steps×steps views per curve."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -130,12 +134,13 @@ def plot_grid(measured: dict, path: str | os.PathLike, steps: int, corners: Sequ
         for i in range(steps):
             for j in range(steps):
                 ax.text(j, i, f"{values[curve][i, j]:.2f}", ha="center", va="center", fontsize=8, color="white")
-        ax.set_title(f"{curve}\nmean {np.nanmean(values[curve]):.3f}e-3", fontsize=9)
+        ax.set_title(f"{LABELS[curve].replace(': the upper bound', '')}\nmean {np.nanmean(values[curve]):.3f}e-3",
+                     fontsize=8)
         ax.set_xticks([0, steps - 1], [corners[0], corners[1]])
         ax.set_yticks([0, steps - 1], [corners[0], corners[2]])
-    fig.colorbar(im, ax=list(axes), shrink=0.8, label="SqrtMSE (1e-3 uv)")
+    fig.colorbar(im, ax=list(axes), shrink=0.8, label=UV_AXIS)
     base = measured[key].get("baseline")
-    base_text = f"; baseline mean {np.mean(base) * 1e3:.2f}e-3" if base is not None else ""
+    base_text = f"; inferred (T_G) mean {np.mean(base) * 1e3:.2f}e-3" if base is not None else ""
     label = "same-chart pixels" if key == "sqrt_mse_same_chart" else "all pixels"
     fig.suptitle(title or f"{steps}x{steps} views over {', '.join(corners)} ({label}, "
                  f"{len(measured['poses'])} poses{base_text})", fontsize=10)

@@ -1,4 +1,5 @@
-"""The options of novel views and previews (`ViewOptions`, `PreviewOptions`)."""
+"""The options of novel views, previews and scenes (`ViewOptions`, `PreviewOptions`,
+`ExportOptions`)."""
 
 from __future__ import annotations
 
@@ -46,3 +47,21 @@ class PreviewOptions(Options):
     frames_per_segment: int = knob(6, "GIF frames between two consecutive array cameras", low=1, high=240)
     margin: int = knob(4, "pixels added around the garment's bounding box for SSIM and PSNR", unit="px", low=0,
                        high=4096)
+
+
+MAX_TEXTURE_SIZE = 4096
+
+
+@dataclass(frozen=True)
+class ExportOptions(Options):
+    """Options of `export_scene` (the `mvtex export` flags are made from them).
+
+    Attributes:
+        texture_size: pixels per side of the fabric texture written into the scene (the
+            renders' texture is 1024).
+        viewer: also write viewer.html.
+    """
+
+    texture_size: int = knob(1024, "pixels per side of the fabric texture in the scene", low=64,
+                             high=MAX_TEXTURE_SIZE)
+    viewer: bool = knob(True, "write viewer.html (--no-viewer: the scene alone)")

@@ -17,10 +17,13 @@ renders, grown by 4 px): the constant background would otherwise inflate both.
 
 Output (OUT, written atomically as a whole):
     stereo.png       left eye | right eye, the inferred cloth with the eyes' texcoords
-    anaglyph.png     red-cyan: red from the left eye, green and blue from the right
+    anaglyph.png     red-cyan: red from the left eye, green and blue from the right, converged
+                     at the garment (each eye's picture shifted by half the disparity of the
+                     cloth's centre, so that the garment sits at the screen's depth)
     comparison.png   rows gt / inferred (T_G) / texcoords, columns left / right
     preview.json     {"pose", "eyes": {"left": {"ssim": {"inferred", "texcoords"},
-                      "psnr": {...}}, "right": {...}}, "viewpoint", "ipd", "method", ...}
+                      "psnr": {...}}, "right": {...}}, "viewpoint", "ipd", "method",
+                      "convergence": {"depth_m", "shift_px"}, ...}
     path.gif         with `path`: the viewpoint moving through the array's cameras
 """
 
@@ -76,10 +79,12 @@ class Preview:
     texcoords: str
     options: PreviewOptions
     files: list[str]
+    convergence: dict | None = None
 
     def to_json(self) -> dict:
         return {"pose": self.pose, "eyes": {k: v.to_json() for k, v in self.eyes.items()}, "viewpoint": self.viewpoint,
                 "ipd": self.options.ipd, "method": self.method, "source": self.source, "texcoords": self.texcoords,
+                "convergence": self.convergence,
                 "scores_over": "garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)",
                 "options": asdict(self.options), "files": self.files}
 
@@ -134,10 +139,30 @@ def image_scores(reference: np.ndarray, image: np.ndarray, box: tuple[slice, sli
     return float(ssim), float(psnr) if np.isfinite(psnr) else 99.0
 
 
-def anaglyph(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """Red-cyan anaglyph (H,W,3) uint8: red from the left eye, green and blue from the right."""
-    out = np.array(right, np.uint8, copy=True)
-    out[..., 0] = left[..., 0]
+def convergence(viewpoint: Camera, ipd: float, points: np.ndarray) -> dict:
+    """Where the anaglyph converges: the depth (m) of the centre of `points` (the cloth) in
+    the viewpoint camera, and the disparity there between the eyes, fx · ipd / depth (px):
+    a point at that depth is that much further right in the left eye's picture."""
+    depth = float(viewpoint.to_camera(np.asarray(points, np.float64).mean(axis=0, keepdims=True))[0, 2])
+    return {"depth_m": depth, "shift_px": float(viewpoint.K[0, 0] * ipd / depth) if depth > 0 else 0.0}
+
+
+def anaglyph(left: np.ndarray, right: np.ndarray, shift_px: float = 0.0) -> np.ndarray:
+    """Red-cyan anaglyph (H,W,3) uint8: red from the left eye, green and blue from the right,
+    the left picture moved left and the right one right by `shift_px` / 2 each (the
+    convergence: what was `shift_px` apart coincides); uncovered columns are the background."""
+    import cv2
+
+    def moved(image: np.ndarray, dx: float) -> np.ndarray:
+        if dx == 0:
+            return np.asarray(image, np.uint8)
+        M = np.array([[1.0, 0.0, dx], [0.0, 1.0, 0.0]])
+        h, w = image.shape[:2]
+        return cv2.warpAffine(np.ascontiguousarray(image, np.uint8), M, (w, h), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=tuple(int(c) for c in BACKGROUND))
+
+    out = np.array(moved(right, shift_px / 2), np.uint8, copy=True)
+    out[..., 0] = moved(left, -shift_px / 2)[..., 0]
     return out
 
 
@@ -268,14 +293,15 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
                                      box=(int(box[0].start or 0), int(box[0].stop or H), int(box[1].start or 0),
                                           int(box[1].stop or W)))
         files = ["stereo.png", "anaglyph.png", "comparison.png", "preview.json"] + (["path.gif"] if options.path else [])
+        converged = convergence(viewpoint, options.ipd, cloth)
         report = Preview(pose=pose, eyes=scores, viewpoint={"weights": weights, "centre": viewpoint.center.tolist()},
                          method=options.method, source=texcoords.source, texcoords=str(texcoords.path),
-                         options=options, files=files)
+                         options=options, files=files, convergence=converged)
         with atomic_path(out) as tmp:
             tmp.mkdir()
             L, R = renders["left"], renders["right"]
             save_png(tmp / "stereo.png", side_by_side([L["texcoords"], R["texcoords"]], gap=0))
-            save_png(tmp / "anaglyph.png", anaglyph(L["texcoords"], R["texcoords"]))
+            save_png(tmp / "anaglyph.png", anaglyph(L["texcoords"], R["texcoords"], converged["shift_px"]))
             rows = [[L[k], R[k]] for k in ("gt", "inferred", "texcoords")]
             labels = ["gt", "inferred T_G", f"{texcoords.source} {options.method}"]
             save_png(tmp / "comparison.png", grid_image(rows, col_labels=["left", "right"], row_labels=labels))

@@ -112,7 +112,7 @@ def test_bad_usage_exits_2(capsys):
 
 @pytest.mark.slow
 @pytest.mark.gl
-def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
+def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys, monkeypatch):
     pytest.importorskip("torch")
     import trimesh
 
@@ -134,18 +134,36 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys):
     mesh = trimesh.load(out_dir / "reconstruction" / "reconstruction.ply", process=False)
     assert len(mesh.vertices) == n
     assert summary["tsnn"]["num_images"] >= 1 and summary["tsnn"]["train_poses"] == 8
+    assert summary["tsnn"]["arch"] == "gp" and "gp model of camera left" in summary["summary_text"]
+    assert "TSNN" not in summary["summary_text"] and "network" not in summary["summary_text"]
     for picture in summary["pictures"]:
         assert (out_dir / picture).stat().st_size > 0
     # The report links only files that exist; the preview's texcoords look more like gt than T_G.
     from mvtex.apps.report import missing_images
 
     report = (out_dir / "report.html").read_text()
-    assert missing_images(report, out_dir) == [] and "<model-viewer" in report
+    assert missing_images(report, out_dir) == [] and "mvtexViewer.openScene" in report and "model-viewer" not in report
+    assert summary["texture_sliding"]["stereo"]["split"] == "test" and "test split" in summary["summary_text"]
+    assert summary["scene"]["cameras"] == ["tl", "tr", "bl", "br"] and (out_dir / "scene" / "scene.glb").is_file()
     for eye in summary["preview"]["eyes"].values():
         assert eye["ssim"]["texcoords"] > eye["ssim"]["inferred"]
-    # A second run finds every step's output and reports the same numbers.
-    code, out2, _ = run(capsys, "demo", "--out", out_dir, "--num-poses", 10, "--json", "--quiet")
-    assert code == 0
+    # A second run finds every step's output, computes nothing again and reports the same numbers.
+    import mvtex.evaluation.evaluate
+    import mvtex.recon.pose
+    import mvtex.render.pose
+    import mvtex.sliding.dataset
+    import mvtex.tsnn.predict
+    import mvtex.views.scene
+
+    def recomputed(*args, **kwargs):
+        raise AssertionError("a finished demo computed a step again")
+
+    for module, name in ((mvtex.evaluation.evaluate, "evaluate"), (mvtex.recon.pose, "triangulate_pose"),
+                         (mvtex.render.pose, "render_pose"), (mvtex.sliding.dataset, "slide_dataset"),
+                         (mvtex.tsnn.predict, "predict"), (mvtex.views.scene, "export_scene")):
+        monkeypatch.setattr(module, name, recomputed)
+    code, out2, err = run(capsys, "demo", "--out", out_dir, "--num-poses", 10, "--json", "--quiet")
+    assert code == 0, err
     again = json.loads(out2)
     assert again["texture_sliding"] == summary["texture_sliding"] and again["tsnn"] == summary["tsnn"]
 

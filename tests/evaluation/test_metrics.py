@@ -162,13 +162,24 @@ def test_material_error_is_scale_times_uv_error_on_flat_sheet(gl, tiny_dataset, 
             assert getattr(part.material_rmse_m, key).std == pytest.approx(SHEET_SIZE * getattr(part.sqrt_mse, key).std,
                                                                         rel=1e-3, abs=1e-8)
         assert part.ratio_material == pytest.approx(part.ratio, rel=1e-4)
-    # The heatmaps gain a second row (material error in mm) under the uv row, then the legend.
+    # The heatmaps: a title, the uv row, a second row (material error in mm), then the legend,
+    # between white gaps.
     from imageio.v3 import imread
 
     picture = imread(heat / "pose_00000_a.png")
     h = list(front_rig)[0].height
-    assert picture.shape[0] > 2 * h + 2 * 4
-    assert (picture[h:h + 4] == 255).all() and (picture[2 * h + 4:2 * h + 8] == 255).all()  # the gaps between rows
+    white = np.flatnonzero((picture == 255).all(axis=(1, 2)))
+    bands = np.split(np.arange(picture.shape[0]), white)
+    heights = [len(b) - (1 if b[0] in white else 0) for b in bands]
+    heights = [x for x in heights if x > 0]
+    assert len(heights) == 4 and heights[1] == heights[2] == h, heights
+    # One colour scale per measure in every picture: the colour bars of two images whose
+    # errors differ (another pose, another camera, another contraction) are the same pixels.
+    other = imread(heat / "pose_00005_b.png")
+    assert other.shape == picture.shape
+    bars = [p[heights[0] + 1:heights[0] + 2 * h + 6, -110:] for p in (picture, other)]
+    assert np.array_equal(bars[0], bars[1])
+    assert not np.array_equal(picture[heights[0] + 1:heights[0] + h, :-120], other[heights[0] + 1:heights[0] + h, :-120])
 
 
 def test_material_error_matches_ray_cast_and_brute_force_uv_lookup(gl, front_rig):

@@ -86,3 +86,27 @@ def test_fit_learns_a_smooth_field_and_its_spread_grows_away_from_the_data():
     baseline = ((truth - field(x).mean(0)) ** 2).mean()
     assert ((pred - truth) ** 2).mean() < 0.05 * baseline
     assert far > 3 * near
+
+
+def test_the_loss_history_is_the_squared_error_of_d_per_vertex():
+    """The history (and so loss.png's axis) is in uv² per vertex: with one member, the
+    validation value of the kept epoch is the mean over poses and vertices of |pred - d|²
+    computed directly from the model's prediction (the field lies in the basis, so nothing
+    is lost outside it)."""
+    from mvtex.tsnn.mlp import fit_pose_mlp
+    from mvtex.tsnn.modeldir import LOSS_AXIS
+
+    rng = np.random.default_rng(4)
+    n = 6
+    directions = rng.normal(size=(2, 2 * n))
+
+    def field(x):
+        return (np.sin(x[:, :1]) * directions[0] + np.cos(x[:, 1:2]) * directions[1]).reshape(len(x), n, 2) * 0.01
+
+    x, xv = rng.uniform(-2, 2, (120, 2)), rng.uniform(-2, 2, (30, 2))
+    model, history = fit_pose_mlp(x, field(x), xv, field(xv), components=2, hidden=16, members=1, seed=0, steps=200)
+    with torch.no_grad():
+        pred = model(torch.from_numpy(xv)).double().numpy()
+    direct = float(((pred - field(xv)) ** 2).sum(-1).mean())
+    assert history["val"][history["best_epoch"][0] - 1] == pytest.approx(direct, rel=1e-3)
+    assert LOSS_AXIS["mlp"] == "squared error of d per vertex (uv²)"

@@ -11,7 +11,7 @@ from helpers import held_elsewhere, run
 
 from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.views.cameras import interpolate_camera
-from mvtex.views.preview import anaglyph, eye_cameras, garment_box, image_scores
+from mvtex.views.preview import anaglyph, convergence, eye_cameras, garment_box, image_scores
 
 
 def test_eyes_are_ipd_apart_and_see_the_expected_disparity():
@@ -48,6 +48,38 @@ def test_scores_and_anaglyph_closed_forms():
     assert (rows.start, rows.stop, cols.start, cols.stop) == (8, 22, 28, 37)
 
 
+def test_the_anaglyph_converges_at_the_cloth():
+    """A point at the cloth's centre, drawn where OpenCV projects it in each eye, lands on one
+    column of the anaglyph in both its red (left eye) and cyan (right eye) channels."""
+    import cv2
+
+    rig = load_rig(builtin_rig_file("stereo"))
+    view = interpolate_camera(rig, {"left": 0.4, "right": 0.6}, "v")
+    cloth = view.center + 2.1 * view.R[2] + np.random.default_rng(0).normal(scale=0.05, size=(200, 3))
+    centre = cloth.mean(axis=0)
+    shift = convergence(view, 0.064, cloth)
+    assert shift["depth_m"] == pytest.approx(float(view.R[2] @ (centre - view.center)), abs=1e-9)
+    pictures = []
+    for eye in eye_cameras(view, 0.064):
+        pixel, _ = cv2.projectPoints(centre[None], cv2.Rodrigues(eye.R)[0], eye.t, eye.K, np.zeros(5))
+        image = np.zeros((eye.height, eye.width, 3), np.uint8)
+        u, v = pixel[0, 0]
+        image[int(round(v)) - 2:int(round(v)) + 3] = np.exp(-0.5 * ((np.arange(eye.width) - u) / 1.5) ** 2)[:, None] * 250
+        pictures.append(image)
+    ana = anaglyph(*pictures, shift["shift_px"]).astype(float)
+    cols = np.arange(ana.shape[1])
+    row = int(round(cv2.projectPoints(centre[None], cv2.Rodrigues(view.R)[0], view.t, view.K, np.zeros(5))[0][0, 0, 1]))
+
+    def centre_of(values):  # of the dot, not of the background the shift uncovers (40, 40, 46)
+        w = np.maximum(values - 50, 0)
+        return (w * cols).sum() / w.sum()
+
+    assert abs(centre_of(ana[row, :, 0]) - centre_of(ana[row, :, 1])) < 0.2
+    plain = anaglyph(*pictures).astype(float)  # without the shift they are the disparity apart
+    gap = centre_of(plain[row, :, 0]) - centre_of(plain[row, :, 1])
+    assert gap == pytest.approx(shift["shift_px"], abs=0.3) and shift["shift_px"] > 20
+
+
 @pytest.mark.parametrize("method", ["blend", "reconstruct"])
 def test_preview_command(tmp_path, sheet_set, capsys, method):
     import imageio.v3 as iio
@@ -60,7 +92,7 @@ def test_preview_command(tmp_path, sheet_set, capsys, method):
     assert code == 0, err
     report = json.loads(stdout)
     assert report == json.loads((out / "preview.json").read_text())
-    assert report["pose"] == 4
+    assert report["pose"] == 4 and report["convergence"]["shift_px"] > 0
     for eye in ("left", "right"):
         scores = report["eyes"][eye]
         assert set(scores["ssim"]) == {"inferred", "texcoords"} and set(scores["psnr"]) == {"inferred", "texcoords"}
