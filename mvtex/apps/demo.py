@@ -191,7 +191,7 @@ def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
                     if isinstance(old, dict) and isinstance(old.get("options"), dict) else "unknown options"
                 raise InputError(out, f"holds a demo run with other options ({was}); it would be reported as this "
                                  "one: choose another folder, or pass --overwrite to start over")
-            clear_output(out)
+            clear_output(out, "demo")
     write_json(out / "demo.json", record)
 
 
