@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, load_rig, output, rig_spec
+from mvtex.cli.common import (add_common, add_rig, add_workers, cameras, command_inputs, emit, load_rig, output,
+                              rig_spec)
 
 
 def register(sub) -> None:
@@ -68,7 +69,8 @@ def cmd_views(args):
 
     from mvtex.util.output import claim_file
 
-    plot = claim_file(args.plot, "views", overwrite=args.overwrite) if args.plot else contextlib.nullcontext()
+    plot = claim_file(args.plot, "views", overwrite=args.overwrite, inputs=[*command_inputs(args), rig_path]) \
+        if args.plot else contextlib.nullcontext()
     with output(args, "views"), plot:
         result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses, options=options,
                              rig_source=rig_path, progress=not args.quiet, workers=args.workers or 1,

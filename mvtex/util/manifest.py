@@ -225,12 +225,13 @@ def walk(directory: str | os.PathLike) -> tuple[list[str], list[str]]:
     are listed, never followed.
 
     Returns:
-        (entries, mounts): mounts are the entries that are mount points (a bind mount, another
-        file system): listed, never descended into, and never anything mvtex wrote.
+        (entries, alien): alien are the entries mvtex never writes, whatever a manifest
+        lists: symbolic links, mount points (a bind mount, another file system: never
+        descended into), FIFOs, sockets and devices.
     """
     directory = Path(directory)
-    mounts_here = _mount_points()
-    out, mounts = [], []
+    mounts = _mount_points()
+    out, alien = [], []
     for root, dirs, files in os.walk(directory):
         rel = Path(root).relative_to(directory)
         keep = []
@@ -242,17 +243,20 @@ def walk(directory: str | os.PathLike) -> tuple[list[str], list[str]]:
             if name.startswith(".") and is_transient(path):
                 continue
             out.append(entry)
-            if name in dirs and is_real_dir(path):
-                if os.path.realpath(path) in mounts_here or os.path.ismount(path):
-                    mounts.append(entry)
+            info = lstat(path)
+            if info is None or not (stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode)):
+                alien.append(entry)
+            elif stat.S_ISDIR(info.st_mode):
+                if os.path.realpath(path) in mounts or os.path.ismount(path):
+                    alien.append(entry)
                 else:
                     keep.append(name)
         dirs[:] = [d for d in dirs if d in keep]
-    return sorted(out), sorted(mounts)
+    return sorted(out), sorted(alien)
 
 
 def entries(directory: str | os.PathLike) -> list[str]:
-    """The entries of `walk` (mount points included)."""
+    """The entries of `walk`."""
     return walk(directory)[0]
 
 

@@ -100,7 +100,7 @@ def remove_leftovers(directory: str | os.PathLike, name: str) -> None:
 
 def foreign_entries(path: str | os.PathLike) -> list[str]:
     """What is in folder `path` that mvtex did not write: entries its manifest does not
-    list (all of them without a manifest), and every mount point. A folder inside a claimed
+    list (all of them without a manifest), and every link, mount point or special file. A folder inside a claimed
     output that is written in place is judged by that output's manifest."""
     path = Path(path)
     listed = written_by_mvtex(path)
@@ -111,8 +111,8 @@ def foreign_entries(path: str | os.PathLike) -> list[str]:
             listed = written_by_mvtex(root)
             prefix = Path(os.path.relpath(os.path.realpath(path), os.path.realpath(root))).as_posix() + "/"
     listed = listed or set()
-    found, mounts = walk(path)
-    return [e for e in found if prefix + e not in listed or e in mounts]
+    found, alien = walk(path)
+    return [e for e in found if prefix + e not in listed or e in alien]
 
 
 def clear_output(path: str | os.PathLike, command: str | None = None) -> None:
@@ -327,7 +327,8 @@ def check_output(path: str | os.PathLike, command: str, *, overwrite: bool = Fal
             raise InputError(path, _foreign_message(path, foreign))
         owner = output_owner(path)
         if not overwrite and owner != command and walk(path)[0]:
-            raise InputError(path, f"exists and is the output of `mvtex {owner}`; its content would be replaced: "
+            what = f"the output of `mvtex {owner}`" if owner else "part of another mvtex output"
+            raise InputError(path, f"exists and is {what}; its content would be replaced: "
                              "choose another output path or pass --overwrite")
     return path
 
