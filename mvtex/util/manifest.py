@@ -158,6 +158,13 @@ def written_by_mvtex(path: str | os.PathLike) -> set[str] | None:
 
 # -- transients ------------------------------------------------------------------------------------
 
+def temporary_for(name: str) -> str | None:
+    """NAME when `name` is named as mvtex names a temporary (``.NAME.mvtex-XXXXXXXX.tmp`` or
+    ``.aside``), else None (the name only: `is_temporary` checks the folder)."""
+    match = _TEMP_NAME.match(name)
+    return match.group("name") if match else None
+
+
 def is_temporary(entry: str | os.PathLike, name: str | None = None) -> bool:
     """Whether `entry` is a temporary folder mvtex made (for ``name``, if given): named
     ``.NAME.mvtex-XXXXXXXX.tmp`` or ``.aside``, a real folder (not a link), holding mvtex's

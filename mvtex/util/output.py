@@ -49,7 +49,7 @@ from mvtex.util.errors import InputError, OptionError, OutputError
 from mvtex.util.inputs import Inputs, _inside, array_files, check_inputs, check_place, input_paths
 from mvtex.util.lock import locked
 from mvtex.util.manifest import (MARKER, TAG, TEMP_STAMP, is_real_dir, is_regular, is_temporary, lstat,
-                                 output_owner, read_manifest, walk, write_manifest, written_by_mvtex)
+                                 output_owner, read_manifest, temporary_for, walk, write_manifest, written_by_mvtex)
 
 __all__ = ["MARKER", "TEMP_STAMP", "array_files", "atomic_path", "check_inputs", "check_output", "claim_file",
            "claim_output", "clear_output", "forget", "foreign_entries", "input_paths", "is_temporary", "mark_output",
@@ -347,7 +347,17 @@ def _output_errors(path: Path) -> Iterator[None]:
         if not (err.filename is None or _concerns(path, err.filename) or err.errno in _DISK_ERRORS):
             raise
         what = (err.strerror or os.strerror(err.errno)) if err.errno else str(err)
-        raise OutputError(path, f"cannot write it ({what})") from err
+        raise OutputError(_shown(path), f"cannot write it ({what})") from err
+
+
+def _shown(path: Path) -> Path:
+    """`path` as the user knows it: a path inside one of mvtex's temporaries
+    (``.NAME.mvtex-XXXXXXXX.tmp/NAME/...``) as where it will be once renamed into place."""
+    parts = Path(path).parts
+    for i in range(len(parts) - 1):
+        if temporary_for(parts[i]) == parts[i + 1]:
+            return _shown(Path(*parts[:i], *parts[i + 1:]))
+    return Path(path)
 
 
 _DISK_ERRORS = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EIO)
