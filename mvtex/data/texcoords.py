@@ -122,7 +122,8 @@ class TexcoordSet:
             raise InputError(file, "is not a file (a folder, a device or a broken link?): the uncertainty of a "
                              "texcoord set is a .npy file")
         u = load_npy(file)
-        check_uncertainty(u, (len(self.poses), len(self.uv)), lambda problem: InputError(file, problem))
+        check_uncertainty(u, (len(self.poses), len(self.uv)), lambda problem, row: InputError(
+            file, problem if row is None else f"{problem} at row {row} (pose {self.poses[row]})"))
         return u
 
     # Rows are read through the files (`read_rows`), not the maps: pages read through a map
@@ -282,7 +283,7 @@ def _check_parent(parent: np.ndarray, num_vertices: int, source) -> None:
         raise InputError(source, "parent names a vertex that does not precede it")
 
 
-def check_uncertainty(u: np.ndarray, shape: tuple[int, int], error: Callable[[str], Exception]) -> None:
+def check_uncertainty(u: np.ndarray, shape: tuple[int, int], error: Callable[[str, int | None], Exception]) -> None:
     """The one check of a predictive uncertainty, for every writer and every reader of
     texcoord sets: (len(poses), n') float32 (`UNCERTAINTY_DTYPE`) standard deviations, every
     one finite and >= 0 (0 is an exact observation). Writers cast to float32 first and
@@ -291,18 +292,18 @@ def check_uncertainty(u: np.ndarray, shape: tuple[int, int], error: Callable[[st
     Args:
         u: the array (a memory map is read in blocks, through its file).
         shape: (len(poses), n').
-        error: makes the exception for a problem ("negative uncertainty (row 3)"): an
-            InputError naming a file for readers, an OptionError naming an argument for
-            writers of given arrays.
+        error: makes the exception of a problem ("negative uncertainty") and the row it is
+            in (None for the dtype or shape): an InputError naming a file for readers, an
+            OptionError naming an argument for writers of given arrays.
 
     Raises:
         What `error` makes.
     """
     if u.dtype != UNCERTAINTY_DTYPE:
         raise error(f"dtype {u.dtype.str if u.dtype.kind == 'f' else u.dtype}, expected float32 (little-endian "
-                    "<f4) standard deviations")
+                    "<f4) standard deviations", None)
     if u.shape != tuple(shape):
-        raise error(f"shape {u.shape}, expected {tuple(shape)}")
+        raise error(f"shape {u.shape}, expected {tuple(shape)}", None)
     rows = max(1, (1 << 24) // max(1, u[0].nbytes)) if len(u) else 1
     for start in range(0, len(u), rows):
         block = read_rows(u, start, start + rows)
@@ -311,7 +312,7 @@ def check_uncertainty(u: np.ndarray, shape: tuple[int, int], error: Callable[[st
         if not finite.all() or negative.any():
             row = int(np.argmax(~finite | negative))
             what = "NaN or infinite" if not finite[row] else "negative"
-            raise error(f"{what} uncertainty (row {start + row}): a standard deviation is a finite number >= 0")
+            raise error(f"{what} uncertainty (a standard deviation is a finite number >= 0)", start + row)
 
 
 def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
@@ -404,7 +405,8 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
                 raise OptionError(f"{name} must be numbers, got {u.dtype}")
             with np.errstate(over="ignore", invalid="ignore"):
                 written[cam] = u.astype(UNCERTAINTY_DTYPE)
-            check_uncertainty(written[cam], (len(poses), len(uv)), lambda problem: OptionError(f"{name}: {problem}"))
+            check_uncertainty(written[cam], (len(poses), len(uv)), lambda problem, row: OptionError(
+                f"{name}: {problem}" + ("" if row is None else f" at row {row}") + " (as float32, as it is written)"))
     if not isinstance(path, (str, os.PathLike)):
         raise OptionError(f"path must be a folder path, got {type(path).__name__}")
     path = Path(path)

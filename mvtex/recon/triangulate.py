@@ -142,11 +142,17 @@ def consensus_threshold(hypotheses: Hypotheses, num_vertices: int, cameras: Sequ
     return float(max(options.consensus_px, options.consensus_scale * np.median(err)))
 
 
+# The smallest standard deviation (px) an observation is given: an uncertainty of 0 (legal:
+# an exact observation) weighs as this, far below what float32 texcoords resolve, instead
+# of as an infinite weight that no least squares can take.
+MIN_SIGMA_PX = 1e-6
+
+
 def observation_sigma_px(hypotheses: Hypotheses, pixels: np.ndarray, points: np.ndarray,
                          cameras: Sequence[Camera]) -> np.ndarray | None:
     """The standard deviation (px) of each chosen observation (n,C) from its hypothesis'
-    3-D standard deviation (`Hypotheses.sigma`) seen at the depth of `points` (fx / z);
-    inf where none was chosen. None when the hypotheses carry no sigma."""
+    3-D standard deviation (`Hypotheses.sigma`) seen at the depth of `points` (fx / z), at
+    least `MIN_SIGMA_PX`; inf where none was chosen. None when the hypotheses carry no sigma."""
     if hypotheses.sigma is None:
         return None
     n, C = pixels.shape[:2]
@@ -156,9 +162,9 @@ def observation_sigma_px(hypotheses: Hypotheses, pixels: np.ndarray, points: np.
     sigma[hv[same], hc[same]] = hypotheses.sigma[same]
     K, R, t = camera_arrays(cameras)
     z = np.einsum("cj,nj->nc", R[:, 2], np.nan_to_num(points)) + t[None, :, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         px = sigma * K[None, :, 0, 0] / z
-    return np.where(np.isfinite(px) & (z > 0), px, np.inf)
+    return np.where(np.isfinite(px) & (z > 0), np.maximum(px, MIN_SIGMA_PX), np.inf)
 
 
 def point_sigma(cameras: Sequence[Camera], points: np.ndarray, weights: np.ndarray, sigma_px: np.ndarray

@@ -22,7 +22,8 @@ import numpy as np
 
 from mvtex.data.camera import check_camera_name
 from mvtex.data.rig import save_rig
-from mvtex.data.texcoords import MAX_DISPLACEMENT, RIG_FILE, dataset_record, rig_record, write_header
+from mvtex.data.texcoords import (MAX_DISPLACEMENT, RIG_FILE, UNCERTAINTY_DTYPE, check_uncertainty, dataset_record,
+                                  rig_record, write_header)
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
@@ -256,7 +257,10 @@ def predict_uncertainty(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, d
                          f"the mesh has {len(uv)}")
     with torch.no_grad():
         std = net.predictive_std(torch.from_numpy(np.array(poses, dtype=np.float64)).to(device))
-    return None if std is None else std.cpu().numpy().astype(np.float32)
+    if std is None:
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond float32's range: inf, which `check_uncertainty` refuses
+        return std.cpu().numpy().astype(UNCERTAINTY_DTYPE)
 
 
 def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.ndarray | None]]:
@@ -394,6 +398,9 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                 write_npy_rows(tmp / name / "assigned.npy", index, np.ones((len(rows), len(uv)), dtype=bool))
                 if name in uncertain:
                     std = predict_uncertainty(m, x[start:start + len(rows)], uv, device=device)
+                    check_uncertainty(std, (len(rows), len(uv)), lambda problem, row: InputError(
+                        m.path / "model.safetensors", f"predicts {problem} for camera {name!r}"
+                        + ("" if row is None else f" at pose {int(rows[row])}") + ": the model is broken; train it again"))
                     write_npy_rows(tmp / name / "uncertainty.npy", index, std)
                 bar.update(len(rows))
     return out
