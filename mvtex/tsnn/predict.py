@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mvtex.data.camera import check_camera_name
+from mvtex.data.camera import MAX_COORDINATE_M, check_camera_name
 from mvtex.data.rig import save_rig
 from mvtex.data.texcoords import (MAX_DISPLACEMENT, RIG_FILE, UNCERTAINTY_DTYPE, check_uncertainty, dataset_record,
                                   rig_record, write_header)
@@ -139,8 +139,10 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
             cameras = {str(k): np.asarray(v, dtype=np.float64) for k, v in raw.items()}
         except (AttributeError, TypeError, ValueError):
             cameras = None
-        if not cameras or any(v.shape != (3, 4) or not np.all(np.isfinite(v)) for v in cameras.values()):
-            raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices")
+        if not cameras or any(v.shape != (3, 4) or not np.all(np.isfinite(v)) or np.abs(v).max() > MAX_COORDINATE_M
+                              for v in cameras.values()):
+            raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices (entries "
+                             f"at most {MAX_COORDINATE_M:g} in magnitude)")
     if hasattr(network, "geometry_mean"):  # the U-Net rebuilds its input images: it needs the atlas
         dilation = meta.get("atlas", {}).get("dilation") if isinstance(meta.get("atlas"), dict) else None
         if not isinstance(dilation, int) or isinstance(dilation, bool) or not 0 <= dilation <= 64:
