@@ -264,8 +264,10 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
 
     poses = None if poses is None else as_indices(poses, "poses")
     subdiv, repeats = as_index(subdiv, "subdiv"), as_index(repeats, "repeats")
-    if not 0 <= subdiv <= 3 or not 1 <= repeats <= 100:
-        raise OptionError(f"subdiv must be in 0..3 and repeats in 1..100, got {subdiv} and {repeats}")
+    if not 0 <= subdiv <= 3:
+        raise OptionError(f"subdiv must be an integer in 0..3, got {subdiv}")
+    if not 1 <= repeats <= 100:
+        raise OptionError(f"repeats must be an integer in 1..100, got {repeats}")
     from tqdm import tqdm
 
     from mvtex.data.dataset import as_dataset, reference_shape

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mvtex.data.camera import MAX_COORDINATE_M
-from mvtex.data.dataset import save_dataset
+from mvtex.data.dataset import save_dataset, validate_body_faces
 from mvtex.util.output import writer
 from mvtex.util.errors import InputError
 from mvtex.util.files import load_npy
@@ -126,6 +126,7 @@ def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray
     first = _read_mesh(files[0])
     faces = np.asarray(first.faces, dtype=np.int32)
     nb = len(first.vertices)
+    validate_body_faces(faces, nb, files[0])  # the body's own file named, not the dataset being made
     positions = np.empty((count, nb, 3), dtype=np.float32)
     from tqdm import tqdm
 

@@ -53,7 +53,7 @@ from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, camera_arrays, ob
                                   projection_jacobian, reprojection_errors, surface_distance, triangulate_points,
                                   triangulation_angles)
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
-from mvtex.recon.options import ENGINES, ReconOptions
+from mvtex.recon.options import ENGINES, MIN_SIGMA_PX, ReconOptions, check_observation_count
 from mvtex.util.checks import check_shape
 
 if TYPE_CHECKING:
@@ -140,12 +140,6 @@ def consensus_threshold(hypotheses: Hypotheses, num_vertices: int, cameras: Sequ
         return float(options.consensus_px)
     err = reprojection_errors(cameras, loose.points[ok], loose.pixels[ok])[loose.weights[ok] > 0]
     return float(max(options.consensus_px, options.consensus_scale * np.median(err)))
-
-
-# The smallest standard deviation (px) an observation is given: an uncertainty of 0 (legal:
-# an exact observation) weighs as this, far below what float32 texcoords resolve, instead
-# of as an infinite weight that no least squares can take.
-MIN_SIGMA_PX = 1e-6
 
 
 def observation_sigma_px(hypotheses: Hypotheses, pixels: np.ndarray, points: np.ndarray,
@@ -527,6 +521,7 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     names = [c for c in rig.names if c in texcoords]
     if len(names) < 2:
         raise OptionError(f"texcoords: reconstruction needs texcoords of ≥ 2 rig cameras, got {sorted(texcoords)}")
+    check_observation_count(n, len(names))
     cameras = [rig[c] for c in names]
     hypotheses, stats = collect_hypotheses(gt_uv, X_N, faces, texcoords, cameras, uv_resolution=options.uv_resolution,
                                            depth_tolerance=options.depth_tolerance, assigned=assigned,
