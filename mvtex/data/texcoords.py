@@ -9,7 +9,11 @@ eval, triangulate, render, views and preview read.
     <camera>/assigned.npy      bool (len(poses), n')
     <camera>/uncertainty.npy   optional float32 (len(poses), n'): the predictive standard
                                deviation of d per vertex (uv units), written by models that
-                               report one; readers that do not know it ignore it
+                               report one; checked (`check_uncertainty`) wherever the
+                               camera is read, used where it is wanted
+
+texcoords.json is `mvtex.data.texcoord_header.TexcoordHeader`; the resumable writer of
+`slide` and `views` is `mvtex.data.partial_set.PartialSet`.
 """
 
 from __future__ import annotations
