@@ -129,6 +129,9 @@ def write_manifest(directory: str | os.PathLike, manifest: dict) -> None:
     directory = Path(directory)
     fd, tmp = tempfile.mkstemp(prefix=MARKER + ".", suffix=".tmp", dir=directory)
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # as any file this process makes (mkstemp's is private)
         with os.fdopen(fd, "w") as file:
             file.write(json.dumps(manifest) + "\n")
         os.replace(tmp, directory / MARKER)
