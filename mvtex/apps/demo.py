@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 from mvtex.apps.options import DemoOptions
@@ -63,7 +62,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     from mvtex.recon.pose import triangulate_pose
     from mvtex.recon.triangulate import ReconOptions
     from mvtex.render.pose import render_pose
-    from mvtex.sliding.dataset import slide_dataset
+    from mvtex.sliding.dataset import slide_complete, slide_dataset
     from mvtex.sliding.options import SlideOptions
     from mvtex.synth.generate import SynthOptions, write_synth
     from mvtex.util.files import read_json, write_json
@@ -98,7 +97,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     for rig_name, rig in (("stereo", stereo), ("square4", square)):
         t = _step(f"texture sliding, {rig_name} rig, {len(poses)} poses, 1 subdivision", progress)
         tc_path = out / f"ts_{rig_name}"
-        if not (tc_path / "texcoords.json").exists():
+        if not slide_complete(dataset, rig, tc_path, poses=poses, options=SlideOptions(subdiv=1)):
             slide_dataset(dataset, rig, tc_path, poses=poses, options=SlideOptions(subdiv=1), progress=progress)
         timings[f"slide_{rig_name}"] = time.perf_counter() - t
         t = _step(f"evaluating texture sliding on the {rig_name} rig, test split ({len(test)} poses)", progress)
@@ -128,7 +127,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
                   progress)
         model = out / "gp_left"
         train_opts = TrainOptions(seed=options.seed)  # the per-camera default: gp
-        if not (model / "config.json").exists():
+        if not _model_current(model, dataset):
             train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
                   options=train_opts, progress=progress)
         timings["train"] = time.perf_counter() - t
@@ -175,7 +174,8 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
 
 
 def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
-    """Resume only a demo of the same options (demo.json); record them for a new one."""
+    """Resume only a demo of the same options, as demo.json records them and as what it
+    wrote bears them out (its dataset's poses and split); record them for a new one."""
     from dataclasses import asdict
 
     from mvtex import __version__
@@ -191,13 +191,48 @@ def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
         except InputError:
             old = None
         if old != record:
+            was = ", ".join(f"{k}={v}" for k, v in old["options"].items()) \
+                if isinstance(old, dict) and isinstance(old.get("options"), dict) else "unknown options"
+            differs = f"holds a demo run with other options ({was})"
+        else:
+            differs = _content_differs(out, options)
+        if differs:
             if not overwrite:
-                was = ", ".join(f"{k}={v}" for k, v in old["options"].items()) \
-                    if isinstance(old, dict) and isinstance(old.get("options"), dict) else "unknown options"
-                raise InputError(out, f"holds a demo run with other options ({was}); it would be reported as this "
-                                 "one: choose another folder, or pass --overwrite to start over")
-            clear_output(out)
+                raise InputError(out, f"{differs}; it would be reported as this one: choose another folder, or pass "
+                                 "--overwrite to start over")
+            clear_output(out, "demo")
     write_json(out / "demo.json", record)
+
+
+def _content_differs(out: Path, options: DemoOptions) -> str | None:
+    """What in a demo folder contradicts `options` (demo.json edited, or the dataset replaced):
+    its dataset's pose count and its split (seeded by `options.seed`); None when nothing does."""
+    from mvtex.data.dataset import default_split, load_dataset
+    from mvtex.util.errors import InputError
+
+    data = out / "shirt"
+    if not (data / "dataset.json").exists():
+        return None
+    try:
+        dataset = load_dataset(data, validate=False)
+    except InputError as err:
+        return f"holds a demo dataset that does not load ({err})"
+    split = {k: [int(p) for p in v] for k, v in dataset.split.items()}
+    if dataset.num_poses != options.num_poses or split != default_split(options.num_poses, options.seed):
+        return (f"holds the demo of a dataset of {dataset.num_poses} poses, not the {options.num_poses} poses of seed "
+                f"{options.seed} its demo.json records")
+    return None
+
+
+def _model_current(model: Path, dataset) -> bool:
+    """Whether the demo's model at `model` was trained on this dataset's training poses."""
+    import json
+
+    try:
+        meta = json.loads((model / "config.json").read_text())
+        return (model / "model.safetensors").is_file() and meta["split"]["train"] == list(dataset.split["train"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
 
 
 def _short(result) -> dict:

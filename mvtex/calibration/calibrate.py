@@ -25,35 +25,25 @@ step is the bundle adjustment above. Distortion follows OpenCV's
 
 from __future__ import annotations
 
-import os
 import sys
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
 from mvtex.calibration.board import BoardDetector, BoardSpec, Detection
 from mvtex.calibration.options import CalibrateOptions
+from mvtex.calibration.images import CameraImages, camera_image_size, read_gray
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
 from mvtex.util.errors import InputError, OptionError
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
 CALIBRATION_FORMAT = "mvtex-calibration"
 
 
 MIN_FRAMES = 3
-
-
-@dataclass(frozen=True)
-class CameraImages:
-    """One camera's images: frame name -> file, all of one size."""
-
-    name: str
-    files: dict[str, Path]
 
 
 @dataclass(frozen=True)
@@ -120,100 +110,16 @@ class Calibration:
                                for name, obs in self.observations.items()}}
 
 
-def find_images(folder: str | os.PathLike) -> list[CameraImages]:
-    """The cameras (sub-folders, sorted by name) and their frames under `folder`.
-
-    Raises:
-        InputError: no such folder, no camera folder with images, or two files of one
-            camera with the same frame name.
-    """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError(folder, "image folder not found")
-    from mvtex.data.camera import check_camera_name
-
-    cameras = []
-    seen: dict[str, str] = {}
-    for sub in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        # A camera folder's name becomes the camera's name: checked before any detection runs.
-        try:
-            check_camera_name(sub.name)
-        except ValueError as err:
-            raise InputError(sub, f"{err}; rename the folder") from None
-        if sub.name.lower() in seen:
-            raise InputError(sub, f"camera folders {seen[sub.name.lower()]!r} and {sub.name!r} differ only in case "
-                             "(camera names must be unique ignoring case)")
-        seen[sub.name.lower()] = sub.name
-        files: dict[str, Path] = {}
-        for path in sorted(sub.iterdir()):
-            if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES:
-                if path.stem in files:
-                    raise InputError(path, f"two images of frame {path.stem!r} ({files[path.stem].name}, {path.name})")
-                files[path.stem] = path
-        if files:
-            cameras.append(CameraImages(sub.name, files))
-    if not cameras:
-        raise InputError(folder, "no images found; expected IMAGES/<camera>/<frame>.png or .jpg")
-    return cameras
-
-
-def image_size(path: str | os.PathLike) -> tuple[int, int]:
-    """(width, height) of a PNG or JPEG from its header, without decoding the pixels (Pillow
-    opens lazily).
-
-    Raises:
-        InputError: naming the file when it is not a readable image, or larger than
-            `mvtex.data.camera.MAX_IMAGE_SIZE` on a side (checked before any memory is taken).
-    """
-    from PIL import Image, UnidentifiedImageError
-
-    from mvtex.data.camera import MAX_IMAGE_SIZE
-
-    try:
-        with open(path, "rb") as file:
-            head = file.read(24)
-    except OSError as err:
-        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":  # the size is in the first chunk
-        width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-    else:
-        try:
-            with Image.open(path) as image:
-                width, height = image.size
-        except Image.DecompressionBombError:  # Pillow's own bound (far above ours) says so first
-            raise InputError(path, f"image larger than {MAX_IMAGE_SIZE}x{MAX_IMAGE_SIZE} pixels") from None
-        except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
-            raise InputError(path, f"cannot be read as an image ({err.__class__.__name__})") from None
-    if not (1 <= width <= MAX_IMAGE_SIZE and 1 <= height <= MAX_IMAGE_SIZE):
-        raise InputError(path, f"image is {width}x{height}: mvtex reads images of 1..{MAX_IMAGE_SIZE} pixels "
-                         "a side")
-    return int(width), int(height)
-
-
-def read_gray(path: Path) -> np.ndarray:
-    """A gray (H,W) uint8 image; unreadable files and images larger than MAX_IMAGE_SIZE a
-    side (`image_size`, read from the header before decoding) raise InputError naming them."""
-    import cv2
-
-    image_size(path)
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None or image.size == 0:
-        raise InputError(path, "cannot be read as an image")
-    return image
-
-
 def detect_camera(images: CameraImages, detector: BoardDetector, min_corners: int, progress=None) -> Observations:
     """Detect the board in every frame of one camera; keep frames with enough spread corners."""
     frames, detections, skipped = [], [], []
-    size = None
+    size = camera_image_size(images)  # from the headers: an odd image is named before any is decoded
     corners = detector.spec.corners
     for frame, path in images.files.items():
         image = read_gray(path)
-        if size is None:
-            size = (image.shape[1], image.shape[0])
-        elif size != (image.shape[1], image.shape[0]):
-            raise InputError(path, f"image is {image.shape[1]}x{image.shape[0]}, camera {images.name}'s other "
-                             f"images are {size[0]}x{size[1]}")
+        if size != (image.shape[1], image.shape[0]):  # its EXIF orientation turns it
+            raise InputError(path, f"image is {image.shape[1]}x{image.shape[0]} once turned as its EXIF "
+                             f"orientation says, camera {images.name}'s other images are {size[0]}x{size[1]}")
         detection = detector.detect(image)
         if len(detection) >= min_corners and _spread(corners[detection.ids]):
             frames.append(frame)

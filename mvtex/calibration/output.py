@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from mvtex.calibration.board import BoardSpec
-from mvtex.calibration.calibrate import CALIBRATION_FORMAT, CalibrateOptions, Calibration, calibrate, find_images
+from mvtex.calibration.calibrate import CALIBRATION_FORMAT, CalibrateOptions, Calibration, calibrate
+from mvtex.calibration.images import find_images
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
 

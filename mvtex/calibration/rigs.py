@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.calibration.calibrate import image_size
+from mvtex.calibration.images import read_image
 from mvtex.data.camera import undistort_image, undistorted_camera
 from mvtex.data.rig import Rig, save_rig, undistort_rig
 from mvtex.util.errors import InputError, OptionError
@@ -114,7 +114,6 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
     Returns:
         {"num_images", "cameras": {name: count}, "rig", "alpha"}.
     """
-    import cv2
     from tqdm import tqdm
 
     from mvtex.util.files import save_png, write_json
@@ -135,16 +134,13 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
         tmp.mkdir()
         for name, files in plan.items():
             for source, relative in files:
-                image_size(source)  # the header's size is checked before decoding
-                image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
-                if image is None:
-                    raise InputError(source, "cannot be read as an image")
+                image = read_image(source)  # RGB(A) or gray; the header's size checked before decoding
                 try:
                     result = undistort_image(image, rig[name], pinhole[name])
                 except ValueError as err:
-                    raise InputError(rig.source, str(err)) from None
-                if result.ndim == 3 and result.shape[2] >= 3:  # save_png takes RGB
-                    result = cv2.cvtColor(result, cv2.COLOR_BGRA2RGB if result.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+                    raise InputError(source, str(err)) from None
+                if result.ndim == 3 and result.shape[2] == 4:  # the PNG written is RGB
+                    result = result[..., :3]
                 save_png(tmp / relative, result)
                 bar.update(1)
         save_rig(Rig(tuple(pinhole[cam.name] for cam in rig)), tmp / "rig.yaml")

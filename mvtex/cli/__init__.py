@@ -13,7 +13,7 @@ from typing import Sequence
 
 from mvtex.cli import apps, calibration, data, evaluation, recon, sliding, tsnn, views
 from mvtex.cli.common import Parser, UsageError, run_command
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, one_line
 
 GROUPS = (data, sliding, evaluation, recon, tsnn, views, calibration, apps)
 
@@ -47,7 +47,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if extra:
             command_parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except UsageError as err:
-        print(str(err), file=sys.stderr)
+        print(one_line(err), file=sys.stderr)
         return 2
     except SystemExit as exit_:  # --help, --version
         return int(exit_.code or 0)
@@ -55,7 +55,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         run_command(command_parser, args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
     except UsageError as err:
-        print(str(err), file=sys.stderr)
+        print(one_line(err), file=sys.stderr)
         return 2
     except InputError as err:
         return _fail(args.command, str(err))
@@ -100,5 +100,5 @@ def _output_of(args) -> str | None:
 
 
 def _fail(command: str, message: str) -> int:
-    print(f"mvtex {command}: error: {message}", file=sys.stderr)
+    print(f"mvtex {command}: error: {one_line(message)}", file=sys.stderr)
     return 2

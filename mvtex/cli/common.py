@@ -11,7 +11,6 @@ an options class come from its fields (`mvtex.cli.options`).
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_rig, add_workers, cameras, emit, output, rig_of
+from mvtex.cli.common import add_common, add_rig, add_workers, cameras, command_inputs, emit, output, rig_of
 from mvtex.cli.options import add_options, options_from
 from mvtex.views.options import ExportOptions, PreviewOptions, ViewOptions
 
@@ -77,7 +77,8 @@ def cmd_views(args):
 
     from mvtex.util.output import claim_file
 
-    plot = claim_file(args.plot, "views", overwrite=args.overwrite) if args.plot else contextlib.nullcontext()
+    plot = claim_file(args.plot, "views", overwrite=args.overwrite, inputs=[*command_inputs(args), rig.source]) \
+        if args.plot else contextlib.nullcontext()
     with output(args, "views"), plot:
         result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses, options=options,
                              progress=not args.quiet, workers=args.workers or 1,

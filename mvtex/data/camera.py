@@ -34,6 +34,21 @@ image stays within the 2 GB memory target; larger cameras are refused before any
 allocated. Calibration and rig tools take cameras up to MAX_IMAGE_SIZE a side."""
 
 
+MAX_COORDINATE_M = 1e6
+"""Largest magnitude of a coordinate mvtex accepts, in metres: a camera's translation, a
+vertex of a garment or a body (1000 km). Far beyond any rig, it keeps every product and
+square mvtex forms finite, and every value it hands the GPU a float32."""
+
+
+MAX_INTRINSIC_PX = 1e7
+"""Largest magnitude of an entry of K (pixels): a focal length of ten million pixels, a
+field of view of a tenth of a degree across the largest image."""
+
+
+MAX_DISTORTION = 1e6
+"""Largest magnitude of a distortion coefficient."""
+
+
 ROTATION_TOLERANCE = 1e-6
 """Largest |R Rᵀ - I| entry and |det R - 1| a camera's rotation may have (a rotation stored
 as decimal text in a rig YAML keeps ~1e-15)."""
@@ -119,7 +134,8 @@ class Camera:
 
     Raises:
         OptionError: a name that is not allowed (`check_camera_name`), a size outside
-            1..MAX_IMAGE_SIZE, K, R, t or dist not finite numbers of their shape, K not
+            1..MAX_IMAGE_SIZE, K, R, t or dist not finite numbers of their shape or beyond
+            their bounds (`MAX_INTRINSIC_PX`, `MAX_COORDINATE_M`, `MAX_DISTORTION`), K not
             upper triangular with fx, fy > 0, or R not a rotation (`check_rotation`). The rig
             loader and `save_rig` accept exactly these cameras.
     """
@@ -152,6 +168,11 @@ class Camera:
             if value.shape != shape or not np.all(np.isfinite(value)):
                 raise OptionError("camera", f"{self.name!r}: {key} must be finite with shape {shape}, got "
                                   f"{value.shape}{'' if np.all(np.isfinite(value)) else ' with NaN or infinite values'}")
+            limit = {"K": MAX_INTRINSIC_PX, "t": MAX_COORDINATE_M, "dist": MAX_DISTORTION}.get(key)
+            if limit is not None and np.abs(value).max() > limit:
+                unit = {"K": " px", "t": " m"}.get(key, "")
+                raise OptionError("camera", f"{self.name!r}: {key} has a value of magnitude {np.abs(value).max():.3g}, "
+                                  f"more than {limit:g}{unit}")
             value.setflags(write=False)
             object.__setattr__(self, key, value)
         K = self.K

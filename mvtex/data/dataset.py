@@ -24,6 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
+from mvtex.data.camera import MAX_COORDINATE_M
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_row, read_rows
 from mvtex.util.output import atomic_path, writer
@@ -245,13 +246,19 @@ def _check_positions(array: np.ndarray, n: int, source: Path, k: int | None = No
 
 
 def _check_finite(array: np.ndarray, source: Path) -> None:
-    """NaN / Inf check of a (K,n,3) array, naming the first bad pose."""
+    """NaN / Inf check of a (K,n,3) array of positions, and their bound (`MAX_COORDINATE_M`),
+    naming the first bad pose."""
     # Chunked so a large memory-mapped array is never loaded whole (nor left resident).
     for start in range(0, array.shape[0], 64):
         block = read_rows(array, start, start + 64)
         if not np.all(np.isfinite(block)):
             bad = start + int(np.argmax(~np.isfinite(block).all(axis=(1, 2))))
             raise InputError(source, f"NaN or infinite positions (pose {bad})")
+        far = np.abs(block).max(axis=(1, 2), initial=0.0) > MAX_COORDINATE_M
+        if far.any():
+            bad = int(np.argmax(far))
+            raise InputError(source, f"a position of magnitude {np.abs(block[bad]).max():.3g} at pose {start + bad}, "
+                             f"more than {MAX_COORDINATE_M:g} m")
 
 
 def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
@@ -421,13 +428,20 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
     if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3) or not len(gt):
         raise OptionError("gt", f"and inferred must both have shape (K,{len(uv)},3) with K ≥ 1, got {gt.shape} and "
                           f"{inferred.shape}")
+    if body is not None:
+        body = as_array(body, "body", np.float32)
     if poses.ndim == 1 and len(poses) == len(gt):
         poses = poses[:, None]
     if poses.ndim != 2 or len(poses) != len(gt) or poses.shape[1] == 0:
         raise OptionError("poses", f"must have shape ({len(gt)},P), got {poses.shape}")
-    for key, array in (("gt", gt), ("inferred", inferred), ("poses", poses)):
+    for key, array in (("gt", gt), ("inferred", inferred), ("poses", poses), ("body", body)):
+        if array is None:
+            continue
         if not np.all(np.isfinite(array)):
             raise OptionError(key, f"has NaN or infinite values (float32)")
+        if key != "poses" and array.size and np.abs(array).max() > MAX_COORDINATE_M:
+            raise OptionError(key, f"has a position of magnitude {np.abs(array).max():.3g}, more than "
+                              f"{MAX_COORDINATE_M:g} m")
     if rest is not None:
         rest = as_array(rest, "rest", np.float32)
         if rest.shape != (len(uv), 3) or not np.all(np.isfinite(rest)):
@@ -440,8 +454,6 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
         split = {k: as_indices(split[k], f"split[{k!r}]") for k in ("train", "val", "test")}
         if any(not 0 <= i < len(gt) for k in split for i in split[k]):
             raise OptionError("split", f"has a pose index outside [0, {len(gt)})")
-    if body is not None:
-        body = as_array(body, "body", np.float32)
     if body_faces is not None:
         body_faces = as_array(body_faces, "body_faces", None)
     try:

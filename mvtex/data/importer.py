@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.data.dataset import save_dataset
+from mvtex.data.camera import MAX_COORDINATE_M
+from mvtex.data.dataset import save_dataset, validate_body_faces
 from mvtex.util.output import writer
 from mvtex.util.errors import InputError
 from mvtex.util.files import load_npy
@@ -109,9 +110,13 @@ def _check_same_mesh(mesh, file: str, n: int, faces: np.ndarray, first: str) -> 
         raise InputError(file, f"{len(vertices)} vertices, expected {n} (from {first})")
     if not np.array_equal(np.asarray(mesh.faces), faces):
         raise InputError(file, f"connectivity or vertex order differs from {first}")
-    vertices = vertices.astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        vertices = vertices.astype(np.float32)
     if not np.all(np.isfinite(vertices)):  # after the cast: float32 overflows count too
         raise InputError(file, "NaN or infinite vertex positions")
+    if vertices.size and np.abs(vertices).max() > MAX_COORDINATE_M:
+        raise InputError(file, f"a vertex position of magnitude {np.abs(vertices).max():.3g}, more than "
+                         f"{MAX_COORDINATE_M:g} m")
     return vertices
 
 
@@ -121,6 +126,7 @@ def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray
     first = _read_mesh(files[0])
     faces = np.asarray(first.faces, dtype=np.int32)
     nb = len(first.vertices)
+    validate_body_faces(faces, nb, files[0])  # the body's own file named, not the dataset being made
     positions = np.empty((count, nb, 3), dtype=np.float32)
     from tqdm import tqdm
 

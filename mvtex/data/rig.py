@@ -127,9 +127,10 @@ def save_rig(rig: Rig, path: str | os.PathLike, *, overwrite: bool = False) -> N
         raise OptionError("path", f"must be a file path, got {type(path).__name__}")
     path = Path(path)
     with claim_file(path, "save_rig", overwrite=overwrite), atomic_path(path) as tmp:
-        # FileStorage picks the format from the extension: keep ".yaml" on the temporary.
+        # FileStorage writes into memory (its file writer fails silently on a full disk) and
+        # Python writes the file: a failed write is an OSError the claim names the output by.
         tmp_yaml = tmp.with_name(tmp.name + ".yaml")
-        fs = cv2.FileStorage(str(tmp_yaml), cv2.FILE_STORAGE_WRITE)
+        fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
         fs.write("format", RIG_FORMAT)
         fs.write("version", RIG_VERSION)
         fs.startWriteStruct("cameras", cv2.FileNode_SEQ)
@@ -144,7 +145,7 @@ def save_rig(rig: Rig, path: str | os.PathLike, *, overwrite: bool = False) -> N
             fs.write("t", cam.t.reshape(3, 1))
             fs.endWriteStruct()
         fs.endWriteStruct()
-        fs.release()
+        tmp_yaml.write_text(fs.releaseAndGetString())
         _check_reads_back(rig, tmp_yaml)
         os.replace(tmp_yaml, tmp)
 

@@ -9,39 +9,44 @@ eval, triangulate, render, views and preview read.
     <camera>/assigned.npy      bool (len(poses), n')
     <camera>/uncertainty.npy   optional float32 (len(poses), n'): the predictive standard
                                deviation of d per vertex (uv units), written by models that
-                               report one; readers that do not know it ignore it
+                               report one; checked (`check_uncertainty`) wherever the
+                               camera is read, used where it is wanted
+
+texcoords.json is `mvtex.data.texcoord_header.TexcoordHeader`; the resumable writer of
+`slide` and `views` is `mvtex.data.partial_set.PartialSet`.
 """
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from mvtex.data.camera import check_camera_name
+from mvtex.data.dataset import content_fingerprint, validate_mesh
 from mvtex.data.mesh import apply_extension, extension_matrix
-from mvtex.data.limits import MAX_SUBDIV
+from mvtex.data.texcoord_header import FORMAT, MAX_SUBDIV, VERSION, TexcoordHeader
+from mvtex.util.checks import as_index, as_path
 from mvtex.util.errors import InputError, OptionError
-from mvtex.util.files import load_npy, load_npz, read_header, read_row, read_rows
+from mvtex.util.files import load_npy, load_npz, read_row, read_rows
+from mvtex.util.fingerprint import fingerprint
 from mvtex.util.output import atomic_path, writer
 
-FORMAT = "mvtex-texcoords"
+__all__ = ["FORMAT", "LAYOUT", "MAX_DISPLACEMENT", "MAX_SUBDIV", "RIG_FILE", "UNCERTAINTY_DTYPE", "VERSION",
+           "TexcoordSet", "as_texcoords", "check_texcoord_arrays", "check_uncertainty", "dataset_record",
+           "open_texcoords", "recorded_rig", "rig_record", "save_texcoords", "write_header"]
 
-_LAYOUT = ["texcoords.json", "mesh.npz", "rig.yaml"]  # the files of a set beside its camera folders
-
-
-VERSION = 1
-
-
-
+LAYOUT = ["texcoords.json", "mesh.npz", "rig.yaml"]
+"""The files of a set beside its camera folders."""
 
 MAX_DISPLACEMENT = 1.0
-
-
 """Largest |d| accepted in a set (uv units: the whole atlas is 1 wide); larger is corrupt."""
+
+UNCERTAINTY_DTYPE = np.dtype("<f4")
+"""What `<camera>/uncertainty.npy` holds: float32, little-endian."""
 
 
 @dataclass(frozen=True)
@@ -49,32 +54,37 @@ class TexcoordSet:
     """An opened texcoord set; per-camera arrays are memory-mapped on first access.
 
     Attributes:
-        path: the directory. meta: texcoords.json as a dict.
+        path: the directory. header: its texcoords.json (`TexcoordHeader`).
         faces: (m',3) int32. uv: (n',2) float32 T_G on the (subdivided) mesh. parent: (n',2) int32.
     """
 
     path: Path
-    meta: dict[str, Any]
+    header: TexcoordHeader
     faces: np.ndarray
     uv: np.ndarray
     parent: np.ndarray
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
+    def meta(self) -> dict[str, Any]:
+        """texcoords.json as a dict."""
+        return self.header.to_json()
+
+    @property
     def poses(self) -> list[int]:
-        return [int(p) for p in self.meta["poses"]]
+        return list(self.header.poses)
 
     @property
     def cameras(self) -> list[str]:
-        return [str(c) for c in self.meta["cameras"]]
+        return list(self.header.cameras)
 
     @property
     def subdiv(self) -> int:
-        return int(self.meta.get("subdiv", 0))
+        return self.header.subdiv
 
     @property
     def source(self) -> str:
-        return str(self.meta.get("source", "unknown"))
+        return self.header.source
 
     @property
     def num_base_vertices(self) -> int:
@@ -102,8 +112,23 @@ class TexcoordSet:
             if d.dtype.kind != "f":
                 raise InputError(self.path / camera / "displacement.npy", f"dtype {d.dtype}, expected float32")
             _check_displacements(d, self.path / camera / "displacement.npy")
+            self._cache[("uncertainty", camera)] = self._read_uncertainty(camera)
             self._cache[camera] = (d, a)
         return self._cache[camera]
+
+    def _read_uncertainty(self, camera: str) -> np.ndarray | None:
+        """The camera's uncertainty.npy, checked (`check_uncertainty`), or None without one.
+        Every command that reads a camera checks it, whether it uses it or not."""
+        file = self.path / camera / "uncertainty.npy"
+        if not os.path.lexists(file):
+            return None
+        if not file.is_file():
+            raise InputError(file, "is not a file (a folder, a device or a broken link?): the uncertainty of a "
+                             "texcoord set is a .npy file")
+        u = load_npy(file)
+        check_uncertainty(u, (len(self.poses), len(self.uv)), lambda problem, row: InputError(
+            file, problem if row is None else f"{problem} at row {row} (pose {self.poses[row]})"))
+        return u
 
     # Rows are read through the files (`read_rows`), not the maps: pages read through a map
     # stay resident while it lives, so a pass over a 10,000-pose set would hold all of it.
@@ -116,19 +141,8 @@ class TexcoordSet:
         return read_row(self._arrays(camera)[1], self.row(pose))
 
     def _uncertainty(self, camera: str) -> np.ndarray | None:
-        key = ("uncertainty", camera)
-        if key not in self._cache:
-            self._arrays(camera)  # the camera exists and its displacements are sound
-            file = self.path / camera / "uncertainty.npy"
-            u = None
-            if file.is_file():
-                u = load_npy(file)
-                shape = (len(self.poses), len(self.uv))
-                if u.shape != shape or u.dtype.kind != "f":
-                    raise InputError(file, f"shape {u.shape} {u.dtype}, expected {shape} float32")
-                _check_uncertainty(u, file)
-            self._cache[key] = u
-        return self._cache[key]
+        self._arrays(camera)  # the camera exists and its arrays are sound
+        return self._cache[("uncertainty", camera)]
 
     def has_uncertainty(self, camera: str) -> bool:
         """True when the set holds the camera's predictive uncertainty (`uncertainty`)."""
@@ -144,7 +158,6 @@ class TexcoordSet:
     def fingerprint(self, camera: str) -> str:
         """Content hash of one camera's displacement and assigned arrays (`io.fingerprint`,
         read in blocks through the files)."""
-        from mvtex.util.fingerprint import fingerprint
 
         return fingerprint(*self._arrays(camera))
 
@@ -156,7 +169,6 @@ class TexcoordSet:
         """Refuse (InputError) a dataset other than the one this set was made from: its mesh
         (vertex count, and the fingerprint of faces and uv where recorded) and its content
         (`mvtex.data.dataset.content_fingerprint`, where recorded)."""
-        from mvtex.data.dataset import content_fingerprint
         from mvtex.util.fingerprint import fingerprint
 
         header = self.path / "texcoords.json"
@@ -241,7 +253,6 @@ def rig_record(rig) -> dict:
 def dataset_record(dataset) -> dict:
     """What a texcoord set records of the dataset it was made from (`TexcoordSet.check_dataset`
     compares a dataset with it)."""
-    from mvtex.data.dataset import content_fingerprint
     from mvtex.util.fingerprint import fingerprint
 
     return {"path": str(Path(dataset.path).resolve()), "name": dataset.name, "num_poses": dataset.num_poses,
@@ -276,21 +287,36 @@ def _check_parent(parent: np.ndarray, num_vertices: int, source) -> None:
         raise InputError(source, "parent names a vertex that does not precede it")
 
 
-def _check_uncertainty(u: np.ndarray, source: Path) -> None:
-    """Every value finite and >= 0, read in blocks."""
+def check_uncertainty(u: np.ndarray, shape: tuple[int, int], error: Callable[[str, int | None], Exception]) -> None:
+    """The one check of a predictive uncertainty, for every writer and every reader of
+    texcoord sets: (len(poses), n') float32 (`UNCERTAINTY_DTYPE`) standard deviations, every
+    one finite and >= 0 (0 is an exact observation). Writers cast to float32 first and
+    check what they will write: a float64 value beyond float32's range is infinite there.
+
+    Args:
+        u: the array (a memory map is read in blocks, through its file).
+        shape: (len(poses), n').
+        error: makes the exception of a problem ("negative uncertainty") and the row it is
+            in (None for the dtype or shape): an InputError naming a file for readers, an
+            OptionError naming an argument for writers of given arrays.
+
+    Raises:
+        What `error` makes.
+    """
+    if u.dtype != UNCERTAINTY_DTYPE:
+        raise error(f"dtype {u.dtype.str if u.dtype.kind == 'f' else u.dtype}, expected float32 (little-endian "
+                    "<f4) standard deviations", None)
+    if u.shape != tuple(shape):
+        raise error(f"shape {u.shape}, expected {tuple(shape)}", None)
     rows = max(1, (1 << 24) // max(1, u[0].nbytes)) if len(u) else 1
     for start in range(0, len(u), rows):
         block = read_rows(u, start, start + rows)
-        ok = np.isfinite(block).all(axis=1) & (block >= 0).all(axis=1)
-        if not ok.all():
-            raise InputError(source, f"negative, NaN or infinite uncertainty (row {start + int(np.argmin(ok))})")
-
-
-def _int_list(meta: dict, key: str, source: Path) -> list:
-    values = meta.get(key)
-    if not isinstance(values, list):
-        raise InputError(source, f"missing list '{key}'")
-    return values
+        finite = np.isfinite(block).all(axis=1)
+        negative = (np.where(np.isfinite(block), block, 0.0) < 0).any(axis=1)
+        if not finite.all() or negative.any():
+            row = int(np.argmax(~finite | negative))
+            what = "NaN or infinite" if not finite[row] else "negative"
+            raise error(f"{what} uncertainty (a standard deviation is a finite number >= 0)", start + row)
 
 
 def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
@@ -302,42 +328,13 @@ def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
         num_vertices: the dataset's vertex count, checked against the set's base mesh.
         num_poses: the dataset's pose count: every pose of the set must be below it.
 
-    Per-camera arrays are validated (shape, dtype, finite, |d| <= MAX_DISPLACEMENT) when
-    first read.
+    Per-camera arrays are validated (shape, dtype, finite, |d| <= MAX_DISPLACEMENT, the
+    uncertainty's `check_uncertainty`) when first read.
     """
-    from mvtex.data.camera import check_camera_name
-    from mvtex.data.dataset import validate_mesh
-    from mvtex.util.checks import as_index, as_path
-
     path = as_path(path, "path")
     num_vertices = None if num_vertices is None else as_index(num_vertices, "num_vertices")
     num_poses = None if num_poses is None else as_index(num_poses, "num_poses")
-    header = path / "texcoords.json"
-    meta = read_header(path, "texcoords.json", FORMAT, VERSION, "a texcoord set")
-    poses = _int_list(meta, "poses", header)
-    if not poses:
-        raise InputError(header, "'poses' is empty")
-    if not all(isinstance(p, int) and not isinstance(p, bool) for p in poses):
-        raise InputError(header, "'poses' must be a list of integer pose indices")
-    bad = [p for p in poses if p < 0 or (num_poses is not None and p >= num_poses)]
-    if bad:
-        limit = f"[0, {num_poses})" if num_poses is not None else "non-negative"
-        raise InputError(header, f"pose index {bad[0]} out of range ({limit})")
-    if len(set(poses)) != len(poses):
-        raise InputError(header, "'poses' lists a pose twice")
-    cameras = _int_list(meta, "cameras", header)
-    if not cameras:
-        raise InputError(header, "'cameras' is empty")
-    try:
-        for name in cameras:
-            check_camera_name(name)
-    except ValueError as err:
-        raise InputError(header, str(err)) from None
-    if len({c.lower() for c in cameras}) != len(cameras):
-        raise InputError(header, "'cameras' names a camera twice")
-    subdiv = meta.get("subdiv", 0)
-    if not isinstance(subdiv, int) or isinstance(subdiv, bool) or not 0 <= subdiv <= MAX_SUBDIV:
-        raise InputError(header, f"'subdiv' must be an integer in 0..{MAX_SUBDIV}, got {subdiv!r}")
+    header = TexcoordHeader.read(path, num_poses)
     mesh_file = path / "mesh.npz"
     mesh = load_npz(mesh_file)
     for key in ("faces", "uv", "parent"):
@@ -346,8 +343,8 @@ def open_texcoords(path: str | os.PathLike, num_vertices: int | None = None,
     validate_mesh(mesh["faces"], mesh["uv"], mesh_file)
     parent = mesh["parent"]
     _check_parent(parent, len(mesh["uv"]), mesh_file)
-    tc = TexcoordSet(path=path, meta=meta, faces=mesh["faces"].astype(np.int32), uv=mesh["uv"].astype(np.float32),
-                     parent=parent.astype(np.int32))
+    tc = TexcoordSet(path=path, header=header, faces=mesh["faces"].astype(np.int32),
+                     uv=mesh["uv"].astype(np.float32), parent=parent.astype(np.int32))
     if num_vertices is not None and tc.num_base_vertices != num_vertices:
         raise InputError(mesh_file, f"made for a mesh of {tc.num_base_vertices} vertices, "
                          f"the dataset has {num_vertices}")
@@ -366,146 +363,13 @@ def as_texcoords(texcoords: "TexcoordSet | str | os.PathLike", name: str = "texc
 
 def write_header(path: Path, *, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray, source: str,
                  subdiv: int, poses: Sequence[int], cameras: Sequence[str], **extra: Any) -> None:
-    """Write texcoords.json and mesh.npz into an existing directory `path`."""
+    """Write texcoords.json (`TexcoordHeader`: the header is checked first) and mesh.npz
+    into an existing directory `path` (a set being built, renamed into place whole)."""
+    header = TexcoordHeader(source=source, subdiv=subdiv, poses=tuple(int(p) for p in poses), cameras=tuple(cameras),
+                            record=extra)
     np.savez_compressed(path / "mesh.npz", faces=np.asarray(faces, np.int32), uv=np.asarray(uv, np.float32),
                         parent=np.asarray(parent, np.int32))
-    meta = {"format": FORMAT, "version": VERSION, "source": source, "subdiv": int(subdiv),
-            "poses": [int(p) for p in poses], "cameras": list(cameras), **extra}
-    (path / "texcoords.json").write_text(json.dumps(meta, indent=2) + "\n")
-
-
-class PartialSet:
-    """A texcoord set written row by row into ``OUT.partial`` and renamed to OUT when every
-    row is in: the resumable writer of `slide` and `views`.
-
-    Opening keeps an unfinished set of the same run (its texcoords.json holds the same poses,
-    cameras, subdiv and `record` values) and continues from its done masks; another run's
-    is deleted and started over (said on stderr); a folder that is not an unfinished set of
-    this command is refused. Rows go through the files (positioned writes, then fsync), so
-    they are on disk before a camera's done mask (``<camera>/done.npy``) says so; a kill
-    loses at most the rows in flight.
-
-    Args:
-        out: the finished set's directory.
-        command: the command writing it, for messages ("slide").
-        source_prefix: how the set's "source" starts ("ts", "views-"): what an unfinished set
-            of this command looks like.
-        faces, uv, parent, source, subdiv, poses, cameras: the set's header (`write_header`).
-        record: the other keys of texcoords.json, compared with an unfinished set's
-            (JSON-like values: lists, not tuples).
-
-    Raises:
-        InputError: OUT.partial exists and is not an unfinished set of `command`, or its
-            arrays do not have the set's shapes.
-    """
-
-    def __init__(self, out: str | os.PathLike, command: str, source_prefix: str, *, faces: np.ndarray,
-                 uv: np.ndarray, parent: np.ndarray, source: str, subdiv: int, poses: Sequence[int],
-                 cameras: Sequence[str], record: dict[str, Any]):
-        from mvtex.util.files import load_npy
-        from mvtex.util.output import remove_leftovers
-
-        self.out = Path(out)
-        self.path = self.out.with_name(self.out.name + ".partial")
-        self.poses = [int(p) for p in poses]
-        self.cameras = list(cameras)
-        self._open(command, source_prefix, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv,
-                   record=record)
-        shape = (len(self.poses), len(uv))
-        self.done: dict[str, np.ndarray] = {}
-        for cam in self.cameras:
-            # A run killed while saving a done mask leaves the mask's hidden temporary and aside
-            # copies: they must not end up in the finished set. No mask (a run stopped while
-            # finishing): that camera is done again.
-            remove_leftovers(self.path / cam, "done.npy")
-            mask = self.path / cam / "done.npy"
-            self.done[cam] = np.array(load_npy(mask, mmap=False), dtype=bool) if mask.is_file() else np.zeros(shape[0], bool)
-            d, a = (load_npy(self.path / cam / name) for name in ("displacement.npy", "assigned.npy"))
-            if d.shape != shape + (2,) or a.shape != shape or self.done[cam].shape != shape[:1]:
-                raise InputError(self.path / cam, "unfinished result has unexpected array shapes; delete it and rerun")
-            del d, a
-
-    def _open(self, command: str, source_prefix: str, *, faces, uv, parent, source, subdiv, record) -> None:
-        import shutil
-        import sys
-
-        from mvtex.util.files import create_npy, read_json
-        from mvtex.util.output import foreign_entries, mark_output, written_by_mvtex
-
-        partial = self.path
-        if partial.is_dir():
-            try:
-                old = read_json(partial / "texcoords.json")
-            except InputError:
-                old = None
-            if not (isinstance(old, dict) and old.get("format") == FORMAT
-                    and str(old.get("source", "")).startswith(source_prefix)):
-                raise InputError(partial, f"exists and is not an unfinished mvtex {command}; move it away and rerun")
-            if all(old.get(k) == v for k, v in record.items()) and old.get("poses") == self.poses \
-                    and old.get("cameras") == self.cameras and old.get("subdiv") == subdiv:
-                return
-            # Only what mvtex wrote there goes: its manifest's entries (and the views' rig.yaml,
-            # saved last), or, for a partial from before manifests, the set's own layout.
-            if written_by_mvtex(partial) is not None:
-                foreign = [e for e in foreign_entries(partial) if e != "rig.yaml"]
-            else:
-                layout = [str(c) for c in old.get("cameras") or []] + _LAYOUT
-                foreign = [e for e in foreign_entries(partial) if e.split("/")[0] not in layout]
-            if foreign:
-                raise InputError(partial, f"an unfinished run with other settings that also holds files mvtex did "
-                                 f"not write ({', '.join(foreign[:3])}); move them away and rerun")
-            print(f"{partial}: an unfinished run with other settings; starting over", file=sys.stderr)
-            shutil.rmtree(partial)
-        # Built in a stamped temporary beside it, marked as `command`'s, renamed in whole.
-        with atomic_path(partial) as tmp:
-            tmp.mkdir()
-            write_header(tmp, faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=self.poses,
-                         cameras=self.cameras, **record)
-            for cam in self.cameras:
-                (tmp / cam).mkdir()
-                create_npy(tmp / cam / "displacement.npy", np.float32, (len(self.poses), len(uv), 2))
-                create_npy(tmp / cam / "assigned.npy", np.bool_, (len(self.poses), len(uv)))
-                np.save(tmp / cam / "done.npy", np.zeros(len(self.poses), bool), allow_pickle=False)
-            mark_output(tmp, command)
-
-    @property
-    def rows_done(self) -> int:
-        """(pose, camera) rows already in."""
-        return int(sum(mask.sum() for mask in self.done.values()))
-
-    def todo(self, camera: str) -> list[int]:
-        """Rows (indices into `poses`) of `camera` still to compute."""
-        return np.flatnonzero(~self.done[camera]).tolist()
-
-    def write(self, camera: str, rows: Sequence[int], displacement: np.ndarray, assigned: np.ndarray) -> None:
-        """Write rows of one camera ((r,n',2) float32 and (r,n') bool), then mark them done."""
-        from mvtex.util.files import save_npy, write_npy_rows
-
-        rows = list(rows)
-        write_npy_rows(self.path / camera / "displacement.npy", rows, displacement)
-        write_npy_rows(self.path / camera / "assigned.npy", rows, assigned)
-        self.done[camera][rows] = True
-        save_npy(self.path / camera / "done.npy", self.done[camera])
-
-    def finish(self) -> Path:
-        """Rename the finished set to OUT (an older OUT aside first, deleted after), then drop
-        the done masks: a stop in between leaves a resumable partial or a complete set.
-
-        Raises:
-            RuntimeError: rows still missing (a backend that lost tasks): never rename an
-                incomplete set into place.
-        """
-        from mvtex.util.output import forget, replace_path
-
-        missing = [c for c in self.cameras if not self.done[c].all()]
-        if missing:
-            raise RuntimeError(f"{self.path}: {int((~self.done[missing[0]]).sum())} poses of camera {missing[0]!r} "
-                               "were not computed; rerun to finish them")
-        replace_path(self.path, self.out)
-        for cam in self.cameras:
-            (self.out / cam / "done.npy").unlink(missing_ok=True)
-        forget(self.out, [f"{cam}/done.npy" for cam in self.cameras])
-        return self.out
+    header.write(path)
 
 
 @writer("save_texcoords", out="path", inputs=lambda a: (a["displacement"], a["assigned"]))
@@ -519,27 +383,34 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
 
     Everything is checked before anything is written, with the rules `open_texcoords`
     reads by: the mesh (faces, uv, parent), subdiv in 0..MAX_SUBDIV, poses distinct
-    non-negative integers, camera names, and every displacement finite with |d| at most
-    MAX_DISPLACEMENT uv units (the whole atlas: larger is no texcoord perturbation).
+    non-negative integers, camera names, every displacement finite with |d| at most
+    MAX_DISPLACEMENT uv units (the whole atlas: larger is no texcoord perturbation), and
+    each uncertainty as it will be written (float32: `check_uncertainty`).
 
     Args:
         displacement: camera name -> (len(poses), n', 2) float32.
         assigned: camera name -> (len(poses), n') bool.
-        uncertainty: optional camera name -> (len(poses), n') float32 predictive standard
-            deviation of d (cameras without one write none); finite and >= 0.
+        uncertainty: optional camera name -> (len(poses), n') predictive standard deviation
+            of d (cameras without one write none), written as float32: finite and >= 0 there.
 
     Raises:
         OptionError: an argument of the wrong type, shape or value, named.
     """
     cameras = check_texcoord_arrays(faces=faces, uv=uv, parent=parent, source=source, subdiv=subdiv, poses=poses,
                                     displacement=displacement, assigned=assigned)
+    written: dict[str, np.ndarray] = {}
     if uncertainty is not None:
         if not isinstance(uncertainty, dict) or not set(uncertainty) <= set(cameras):
             raise OptionError("uncertainty", "must be a dict: camera name (of displacement) -> (len(poses), n') array")
         for cam, u in uncertainty.items():
-            u = _array(u, f"uncertainty[{cam!r}]")
-            if u.shape != (len(poses), len(uv)) or u.dtype.kind not in "fiu" or not np.isfinite(u).all() or (u < 0).any():
-                raise OptionError(None, f"uncertainty[{cam!r}] must be finite numbers >= 0 with shape {(len(poses), len(uv))}")
+            name = f"uncertainty[{cam!r}]"
+            u = _array(u, name)
+            if u.dtype.kind not in "fiu":
+                raise OptionError(name, f"must be numbers, got {u.dtype}")
+            with np.errstate(over="ignore", invalid="ignore"):
+                written[cam] = u.astype(UNCERTAINTY_DTYPE)
+            check_uncertainty(written[cam], (len(poses), len(uv)), lambda problem, row: OptionError(
+                None, f"{name}: {problem}" + ("" if row is None else f" at row {row}") + " (as float32, as it is written)"))
     if not isinstance(path, (str, os.PathLike)):
         raise OptionError("path", f"must be a folder path, got {type(path).__name__}")
     path = Path(path)
@@ -551,8 +422,8 @@ def save_texcoords(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray
             (tmp / cam).mkdir()
             np.save(tmp / cam / "displacement.npy", np.asarray(displacement[cam], np.float32), allow_pickle=False)
             np.save(tmp / cam / "assigned.npy", np.asarray(assigned[cam], bool), allow_pickle=False)
-            if uncertainty is not None and cam in uncertainty:
-                np.save(tmp / cam / "uncertainty.npy", np.asarray(uncertainty[cam], np.float32), allow_pickle=False)
+            if cam in written:
+                np.save(tmp / cam / "uncertainty.npy", written[cam], allow_pickle=False)
     return path
 
 
@@ -574,9 +445,6 @@ def check_texcoord_arrays(*, faces, uv, parent, source, subdiv, poses, displacem
     Raises:
         OptionError: naming the argument ("displacement['left']: ...").
     """
-    from mvtex.data.camera import check_camera_name
-    from mvtex.data.dataset import validate_mesh
-
     def named(name: str, check, *args) -> None:
         try:
             check(*args)
@@ -586,17 +454,8 @@ def check_texcoord_arrays(*, faces, uv, parent, source, subdiv, poses, displacem
     faces, uv, parent = _array(faces, "faces"), _array(uv, "uv"), _array(parent, "parent")
     named("faces/uv", validate_mesh, faces, uv, None)
     named("parent", _check_parent, parent, len(uv), None)
-    if not isinstance(source, str) or not source:
-        raise OptionError("source", f"must be a non-empty string (\"ts\", \"tsnn\", ...), got {source!r}")
-    if isinstance(subdiv, bool) or not isinstance(subdiv, (int, np.integer)) or not 0 <= subdiv <= MAX_SUBDIV:
-        raise OptionError("subdiv", f"must be an integer in 0..{MAX_SUBDIV}, got {subdiv!r}")
     if isinstance(poses, (str, bytes)) or not hasattr(poses, "__len__"):
         raise OptionError("poses", f"must be a list of pose indices, got {type(poses).__name__}")
-    if not len(poses) or not all(isinstance(p, (int, np.integer)) and not isinstance(p, bool) and p >= 0
-                                 for p in poses):
-        raise OptionError("poses", f"must be a non-empty list of non-negative integer pose indices, got {poses!r}")
-    if len(set(int(p) for p in poses)) != len(poses):
-        raise OptionError("poses", "lists a pose twice")
     if not isinstance(displacement, dict) or not displacement:
         raise OptionError("displacement", "must be a non-empty dict: camera name -> (len(poses), n', 2) array")
     if not isinstance(assigned, dict) or set(assigned) != set(displacement):
@@ -607,6 +466,7 @@ def check_texcoord_arrays(*, faces, uv, parent, source, subdiv, poses, displacem
         check_camera_name(cam)
     if len({c.lower() for c in cameras}) != len(cameras):
         raise OptionError("displacement", "names a camera twice (ignoring case)")
+    TexcoordHeader(source=source, subdiv=subdiv, poses=tuple(poses), cameras=tuple(cameras))  # OptionError naming it
     shape = (len(poses), len(uv))
     for cam in cameras:
         d = _array(displacement[cam], f"displacement[{cam!r}]")

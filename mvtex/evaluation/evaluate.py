@@ -504,7 +504,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     elif not set(rig.names) <= set(tc.cameras):
         rig = rig.select(tc.cameras)
     tc.check_rig(rig, cameras=rig.names)
-    poses = tc.poses if poses is None else [int(p) for p in poses]
+    poses = tc.poses if poses is None else ds.check_poses(poses)  # in range, none twice, at least one
     if poses:
         check_sees(rig, read_row(ds.inferred, poses[0]),
                    what=f"the inferred mesh of {ds.path} at pose {poses[0]}")

@@ -142,14 +142,36 @@ def point_reconstruction(rig: Rig, observations: dict[str, np.ndarray], points: 
     return rec, ids
 
 
+def _counts(reconstruction) -> tuple[int, int, int, int]:
+    return (reconstruction.num_cameras(), reconstruction.num_images(), reconstruction.num_points3D(),
+            reconstruction.compute_num_observations())
+
+
 def write_model(reconstruction, path: str | os.PathLike, text: bool = False) -> Path:
-    """Write a pycolmap.Reconstruction (binary by default) into directory `path`, atomically."""
+    """Write a pycolmap.Reconstruction (binary by default) into directory `path`, atomically.
+
+    COLMAP's writers do not report a failed write (a full disk, a file-size limit: the
+    files are cut short): the model is read back before it is renamed into place and must
+    hold what was written.
+
+    Raises:
+        OutputError: naming `path`, when the written model does not read back whole.
+    """
+    from mvtex.util.errors import OutputError
     from mvtex.util.output import atomic_path
 
+    pycolmap = _pycolmap()
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.mkdir()
         (reconstruction.write_text if text else reconstruction.write_binary)(str(tmp))
+        try:
+            back = _counts(pycolmap.Reconstruction(str(tmp)))
+        except Exception as err:  # pycolmap raises generic errors for unreadable models
+            back = f"unreadable ({str(err).strip().splitlines()[-1] if str(err).strip() else type(err).__name__})"
+        if back != _counts(reconstruction):
+            raise OutputError(path, "cannot write it (COLMAP's writer stopped short: the written model reads back "
+                              f"{back if isinstance(back, str) else 'with fewer entries'}; is the disk full?)")
     return path
 
 

@@ -126,6 +126,12 @@ def observed(pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.where(finite & (w > 0), w, 0.0)
 
 
+TRIANGULATION_BLOCK = 1 << 18
+"""Observations (points × cameras) `triangulate_points` works on at a time, and camera pairs
+(points × cameras²) `triangulation_angles` compares at a time: memory stays that of a block
+whatever the number of cameras."""
+
+
 def triangulation_angles(cameras: Sequence[Camera], points: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """The widest angle (degrees) between two rays that observe each point.
 
@@ -142,14 +148,18 @@ def triangulation_angles(cameras: Sequence[Camera], points: np.ndarray, weights:
     sizes = check_shape(points, "points", ("N", 3))
     check_shape(weights, "weights", ("N", len(cameras)), sizes)
     centers = np.stack([c.center for c in cameras])  # (C,3)
-    rays = points[:, None, :] - centers[None]  # (N,C,3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    cos = np.einsum("nci,ndi->ncd", rays, rays)
     seen = np.asarray(weights) > 0
-    pair = seen[:, :, None] & seen[:, None, :]
-    cos = np.where(pair & np.isfinite(cos), cos, np.inf)
-    smallest = cos.min(axis=(1, 2))
+    smallest = np.full(len(points), np.inf)
+    # In blocks of points: every pair of cameras is compared, (block,C,C) at a time.
+    block = max(1, TRIANGULATION_BLOCK // max(1, len(cameras) ** 2))
+    for start in range(0, len(points), block):
+        rows = slice(start, start + block)
+        rays = points[rows, None, :] - centers[None]  # (b,C,3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        cos = np.einsum("nci,ndi->ncd", rays, rays)
+        pair = seen[rows, :, None] & seen[rows, None, :]
+        smallest[rows] = np.where(pair & np.isfinite(cos), cos, np.inf).min(axis=(1, 2), initial=np.inf)
     with np.errstate(invalid="ignore"):
         angle = np.degrees(np.arccos(np.clip(smallest, -1.0, 1.0)))
     enough = (seen.sum(axis=1) >= 2) & np.all(np.isfinite(points), axis=1) & np.isfinite(smallest)
@@ -181,7 +191,7 @@ def triangulate_dlt(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.n
     rows_x = xn[..., 0:1] * P[None, :, 2] - P[None, :, 0]
     rows_y = xn[..., 1:2] * P[None, :, 2] - P[None, :, 1]
     A = np.concatenate([rows_x, rows_y], axis=1) * np.concatenate([weights, weights], axis=1)[..., None]
-    _, _, vt = np.linalg.svd(A)
+    _, _, vt = np.linalg.svd(A, full_matrices=False)  # (N,4,4): never U's (N,2C,2C)
     X = vt[:, -1]
     with np.errstate(divide="ignore", invalid="ignore"):
         out = X[:, :3] / X[:, 3:4]
@@ -283,6 +293,19 @@ def triangulate_points(cameras: Sequence[Camera], pixels: np.ndarray, weights: n
     cameras = _cameras(cameras)
     pixels = _as_array(pixels, "pixels")
     weights = _as_array(weights, "weights")
+    _check_observations(cameras, pixels, weights)
+    # In blocks of points: the DLT rows and the Jacobians take ~100 bytes per observation,
+    # so memory stays that of a block whatever the number of cameras.
+    block = max(1, TRIANGULATION_BLOCK // max(1, len(cameras)))
+    X = np.full((len(pixels), 3), np.nan)
+    for start in range(0, len(pixels), block):
+        rows = slice(start, start + block)
+        X[rows] = _triangulate_block(cameras, pixels[rows], weights[rows], iterations, min_angle_deg)
+    return X
+
+
+def _triangulate_block(cameras, pixels: np.ndarray, weights: np.ndarray, iterations: int,
+                       min_angle_deg: float) -> np.ndarray:
     X = triangulate_dlt(cameras, pixels, weights)
     weights = observed(pixels, weights)
     good = np.all(np.isfinite(X), axis=1)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Literal
 
+from mvtex.util.errors import InputError, OptionError
 from mvtex.util.options import Options, knob
 
 # consensus_scale of predicted texcoord sets (`ReconOptions.for_source`).
@@ -123,3 +124,30 @@ class ReconOptions(Options):
         if self.shrink is None:
             out = replace(out, shrink=PREDICTED_SHRINK if predicted else 0.0)
         return out
+
+
+MAX_OBSERVATIONS = 8_000_000
+"""Most (gt vertex, camera) pairs one reconstruction takes: the arrays over them hold about
+130 bytes a pair (8 million: about 1 GB, within the 2 GB memory target), and everything
+that grows faster (camera pairs, DLT rows) is worked through in blocks
+(`mvtex.recon.geometry.TRIANGULATION_BLOCK`). Checked before anything is allocated
+(`check_observation_count`); benchmarks/triangulate_memory.py measures it."""
+
+
+def check_observation_count(num_vertices: int, num_cameras: int, source=None) -> None:
+    """Refuse a reconstruction of more (vertex, camera) pairs than `MAX_OBSERVATIONS`.
+
+    Raises:
+        InputError: naming `source` (the texcoord set) when given, else OptionError.
+    """
+    pairs = int(num_vertices) * int(num_cameras)
+    if pairs > MAX_OBSERVATIONS:
+        problem = (f"{num_vertices} vertices seen by {num_cameras} cameras make {pairs} observations, more than "
+                   f"{MAX_OBSERVATIONS} (the memory bound of one reconstruction): triangulate with fewer cameras")
+        raise InputError(source, problem) if source is not None else OptionError("texcoords", f"hold {problem}")
+
+
+MIN_SIGMA_PX = 1e-6
+"""The smallest standard deviation (px) a reconstruction gives an observation: an
+uncertainty of 0 (legal: an exact observation) weighs as this, far below what float32
+texcoords resolve, instead of as an infinite weight no least squares can take."""

@@ -16,6 +16,7 @@ from mvtex.util.errors import InputError
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 from mvtex.recon.report import ReconReport, reconstruction_report
+from mvtex.recon.options import check_observation_count
 from mvtex.recon.triangulate import ReconOptions, reconstruct
 from mvtex.util.output import writer
 
@@ -72,6 +73,7 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     if len(names) < 2:
         raise InputError(texcoords.path, f"triangulation needs ≥ 2 cameras present in both the texcoord set "
                          f"({', '.join(texcoords.cameras)}) and the rig ({', '.join(rig.names)})")
+    check_observation_count(dataset.num_vertices, len(names), texcoords.path)  # before anything is allocated
     sub_rig = rig.select(names)
     check_outside_body(sub_rig, dataset, [pose])
     options = options.for_source(texcoords.source)

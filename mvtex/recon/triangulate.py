@@ -53,7 +53,7 @@ from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, camera_arrays, ob
                                   projection_jacobian, reprojection_errors, surface_distance, triangulate_points,
                                   triangulation_angles)
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
-from mvtex.recon.options import ReconOptions
+from mvtex.recon.options import MIN_SIGMA_PX, ReconOptions, check_observation_count
 from mvtex.util.checks import check_shape
 
 if TYPE_CHECKING:
@@ -145,8 +145,8 @@ def consensus_threshold(hypotheses: Hypotheses, num_vertices: int, cameras: Sequ
 def observation_sigma_px(hypotheses: Hypotheses, pixels: np.ndarray, points: np.ndarray,
                          cameras: Sequence[Camera]) -> np.ndarray | None:
     """The standard deviation (px) of each chosen observation (n,C) from its hypothesis'
-    3-D standard deviation (`Hypotheses.sigma`) seen at the depth of `points` (fx / z);
-    inf where none was chosen. None when the hypotheses carry no sigma."""
+    3-D standard deviation (`Hypotheses.sigma`) seen at the depth of `points` (fx / z), at
+    least `MIN_SIGMA_PX`; inf where none was chosen. None when the hypotheses carry no sigma."""
     if hypotheses.sigma is None:
         return None
     n, C = pixels.shape[:2]
@@ -156,9 +156,9 @@ def observation_sigma_px(hypotheses: Hypotheses, pixels: np.ndarray, points: np.
     sigma[hv[same], hc[same]] = hypotheses.sigma[same]
     K, R, t = camera_arrays(cameras)
     z = np.einsum("cj,nj->nc", R[:, 2], np.nan_to_num(points)) + t[None, :, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         px = sigma * K[None, :, 0, 0] / z
-    return np.where(np.isfinite(px) & (z > 0), px, np.inf)
+    return np.where(np.isfinite(px) & (z > 0), np.maximum(px, MIN_SIGMA_PX), np.inf)
 
 
 def point_sigma(cameras: Sequence[Camera], points: np.ndarray, weights: np.ndarray, sigma_px: np.ndarray
@@ -520,7 +520,9 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
         check_shape(rest, "rest", (n, 3))
     names = [c for c in rig.names if c in texcoords]
     if len(names) < 2:
-        raise OptionError("texcoords", f"must hold texcoords of ≥ 2 rig cameras for a reconstruction, got {sorted(texcoords)}")
+        raise OptionError("texcoords", f"must hold texcoords of ≥ 2 rig cameras for a reconstruction, got "
+                          f"{sorted(texcoords)}")
+    check_observation_count(n, len(names))
     cameras = [rig[c] for c in names]
     hypotheses, stats = collect_hypotheses(gt_uv, X_N, faces, texcoords, cameras, uv_resolution=options.uv_resolution,
                                            depth_tolerance=options.depth_tolerance, assigned=assigned,

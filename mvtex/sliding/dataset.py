@@ -140,7 +140,8 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
 
     from mvtex.data.dataset import as_dataset, reference_shape
     from mvtex.data.rig import as_rig, save_rig
-    from mvtex.data.texcoords import RIG_FILE, PartialSet
+    from mvtex.data.partial_set import PartialSet
+    from mvtex.data.texcoords import RIG_FILE
     from mvtex.util.fingerprint import fingerprint_record
 
     from mvtex.util.checks import as_path, check_instance
@@ -238,17 +239,15 @@ def _slide_record(ds, rig, options: SlideOptions) -> dict:
 def _complete(out: Path, record: dict, poses: list[int], cameras: list[str], subdiv: int) -> bool:
     """Whether `out` is a finished slide set of this run: texcoords.json with the same
     poses, cameras, subdivision and record, and every camera's arrays in their shapes."""
-    from mvtex.data.texcoords import FORMAT
+    from mvtex.data.texcoord_header import TexcoordHeader
     from mvtex.util.errors import InputError
-    from mvtex.util.files import load_npy, read_json
+    from mvtex.util.files import load_npy
 
     if not (out / "texcoords.json").is_file() or (out.with_name(out.name + ".partial")).exists():
         return False
     try:
-        meta = read_json(out / "texcoords.json")
-        if not (isinstance(meta, dict) and meta.get("format") == FORMAT and meta.get("source") == "ts"
-                and meta.get("poses") == [int(p) for p in poses] and meta.get("cameras") == list(cameras)
-                and meta.get("subdiv") == subdiv and all(meta.get(k) == v for k, v in record.items())):
+        wanted = TexcoordHeader(source="ts", subdiv=subdiv, poses=tuple(poses), cameras=tuple(cameras), record=record)
+        if not wanted.same_run(TexcoordHeader.peek(out)):
             return False
         for cam in cameras:
             d = load_npy(out / cam / "displacement.npy")

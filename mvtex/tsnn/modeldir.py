@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from mvtex.data.mesh import apply_parent, subdivide
-from mvtex.util.output import atomic_path, readable
+from mvtex.util.output import atomic_path
 
 MODEL_FORMAT = "mvtex-tsnn"
 
@@ -166,15 +166,17 @@ def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
 
 
 def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
-    from safetensors.torch import save_file
+    from safetensors.torch import save
 
     with atomic_path(out) as tmp:
         tmp.mkdir()
         state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
         # One metadata entry: safetensors writes its metadata map in hash order, which varies
         # from process to process, and a model's bytes should not (the cameras are in config.json).
-        save_file(state, str(tmp / "model.safetensors"), metadata={"format": MODEL_FORMAT})
-        readable(tmp / "model.safetensors")
+        # Serialised in memory and written by Python: a failed write (a full disk, a file-size
+        # limit) is then an OSError the writer policy names the output by, not safetensors' own
+        # error type.
+        (tmp / "model.safetensors").write_bytes(save(state, metadata={"format": MODEL_FORMAT}))
         (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
         if meta["architecture"]["arch"] == "gp":
             _relevance_plot(tmp / "relevance.png", model.relevance(),

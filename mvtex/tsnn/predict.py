@@ -20,9 +20,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mvtex.data.camera import check_camera_name
+from mvtex.data.camera import MAX_COORDINATE_M, check_camera_name
 from mvtex.data.rig import save_rig
-from mvtex.data.texcoords import MAX_DISPLACEMENT, RIG_FILE, dataset_record, rig_record, write_header
+from mvtex.data.texcoords import (MAX_DISPLACEMENT, RIG_FILE, UNCERTAINTY_DTYPE, check_uncertainty, dataset_record,
+                                  rig_record, write_header)
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.geometry import geometry_images
 from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
@@ -139,8 +140,10 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
             cameras = {str(k): np.asarray(v, dtype=np.float64) for k, v in raw.items()}
         except (AttributeError, TypeError, ValueError):
             cameras = None
-        if not cameras or any(v.shape != (3, 4) or not np.all(np.isfinite(v)) for v in cameras.values()):
-            raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices")
+        if not cameras or any(v.shape != (3, 4) or not np.all(np.isfinite(v)) or np.abs(v).max() > MAX_COORDINATE_M
+                              for v in cameras.values()):
+            raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices (entries "
+                             f"at most {MAX_COORDINATE_M:g} in magnitude)")
     if hasattr(network, "geometry_mean"):  # the U-Net rebuilds its input images: it needs the atlas
         dilation = meta.get("atlas", {}).get("dilation") if isinstance(meta.get("atlas"), dict) else None
         if not isinstance(dilation, int) or isinstance(dilation, bool) or not 0 <= dilation <= 64:
@@ -257,7 +260,10 @@ def predict_uncertainty(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, d
                          f"the mesh has {len(uv)}")
     with torch.no_grad():
         std = net.predictive_std(torch.from_numpy(np.array(poses, dtype=np.float64)).to(device))
-    return None if std is None else std.cpu().numpy().astype(np.float32)
+    if std is None:
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond float32's range: inf, which `check_uncertainty` refuses
+        return std.cpu().numpy().astype(UNCERTAINTY_DTYPE)
 
 
 def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.ndarray | None]]:
@@ -395,6 +401,9 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                 write_npy_rows(tmp / name / "assigned.npy", index, np.ones((len(rows), len(uv)), dtype=bool))
                 if name in uncertain:
                     std = predict_uncertainty(m, x[start:start + len(rows)], uv, device=device)
+                    check_uncertainty(std, (len(rows), len(uv)), lambda problem, row: InputError(
+                        m.path / "model.safetensors", f"predicts {problem} for camera {name!r}"
+                        + ("" if row is None else f" at pose {int(rows[row])}") + ": the model is broken; train it again"))
                     write_npy_rows(tmp / name / "uncertainty.npy", index, std)
                 bar.update(len(rows))
     return out

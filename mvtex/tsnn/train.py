@@ -36,10 +36,9 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Sequence
 

@@ -73,7 +73,8 @@ def as_array(value, name: str, dtype=np.float64) -> np.ndarray:
     if array.dtype.kind not in "biuf":
         raise OptionError(name, f"must be an array of numbers, got {array.dtype} values")
     try:
-        return np.asarray(array, dtype=dtype)
+        with np.errstate(over="ignore", invalid="ignore"):  # a value beyond the dtype's range: inf, checked by the caller
+            return np.asarray(array, dtype=dtype)
     except (TypeError, ValueError, OverflowError):
         raise OptionError(name, f"must be an array of {np.dtype(dtype).name} values") from None
 

@@ -4,18 +4,28 @@
 from __future__ import annotations
 
 import os
+import unicodedata
+
+
+def one_line(text: str) -> str:
+    """`text` with every control or line-breaking character written as its escape
+    ("a\\nb"), so that a file name holding a newline cannot split a one-line message."""
+    return "".join(c if c == " " or c.isprintable() or unicodedata.category(c) not in ("Cc", "Zl", "Zp", "Cs")
+                   else c.encode("unicode_escape", "backslashreplace").decode("ascii") for c in str(text))
 
 
 class InputError(ValueError):
-    """Bad user input. `str(err)` is a one-line message "PATH: problem".
+    """Bad user input. `str(err)` is a one-line message "PATH: problem" (control characters in
+    PATH escaped, white space in the problem folded).
 
     The CLI turns it into exit code 2; library users can catch it like a ValueError.
     """
 
     def __init__(self, path: str | os.PathLike | None, problem: str):
         self.path = None if path is None else os.fspath(path)
-        self.problem = " ".join(str(problem).split())
-        super().__init__(self.problem if self.path is None else f"{self.path}: {self.problem}")
+        self.problem = one_line(" ".join(str(problem).split()))
+        shown = None if self.path is None else one_line(os.fsdecode(self.path))
+        super().__init__(self.problem if shown is None else f"{shown}: {self.problem}")
 
     def __reduce__(self):
         # Rebuilt from (path, problem), not from the formatted message: an error raised in a

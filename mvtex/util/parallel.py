@@ -15,11 +15,14 @@ only then. Workers there must be able to import mvtex and read the same dataset 
 
 from __future__ import annotations
 
+import numbers
 import os
 import re
 import sys
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
+
+import numpy as np
 
 MAX_WORKERS = 64
 """Most local worker processes a run accepts. Each worker holds its own GL context and a
@@ -48,7 +51,7 @@ def check_backend(workers: int | None = None, scheduler: str | None = None, *,
 
     from mvtex.util.errors import OptionError
 
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+    if workers is not None and (isinstance(workers, (bool, np.bool_)) or not isinstance(workers, numbers.Integral)
                                 or not 1 <= workers <= MAX_WORKERS):
         raise OptionError("workers", f"must be an integer in 1..{MAX_WORKERS}, got {workers!r}")
     if scheduler is None:

@@ -5,7 +5,6 @@ weighted quaternion averaging).
 
 from __future__ import annotations
 
-import os
 from typing import Mapping, Sequence
 
 import numpy as np

@@ -145,7 +145,8 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     from tqdm import tqdm
 
     from mvtex.data.rig import save_rig
-    from mvtex.data.texcoords import PartialSet, dataset_record, rig_record
+    from mvtex.data.partial_set import PartialSet
+    from mvtex.data.texcoords import dataset_record, rig_record
     from mvtex.util.files import dumps_strict
 
     check_backend(workers, scheduler)

@@ -21,7 +21,6 @@ bit: the view is that camera, and its texcoords are the measured ones.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -29,10 +28,10 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
-from mvtex.util.errors import InputError, OptionError
+from mvtex.util.errors import InputError
 from mvtex.util.files import read_row
 from mvtex.views.cameras import _single
-from mvtex.views.options import METHODS, ViewOptions
+from mvtex.views.options import ViewOptions
 
 
 

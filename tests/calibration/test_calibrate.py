@@ -196,7 +196,10 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
 def test_existing_outputs_are_not_replaced_without_overwrite(tmp_path, capsys):
     foreign = tmp_path / "notes.yaml"
     foreign.write_text("my notes\n")
-    _fails(["calibrate", str(tmp_path), "--board", SPEC, "--out", str(foreign)], capsys, "exists", "--overwrite")
+    _fails(["calibrate", str(tmp_path / "images"), "--board", SPEC, "--out", str(foreign)], capsys, "exists",
+           "--overwrite")
+    _fails(["calibrate", str(tmp_path), "--board", SPEC, "--out", str(foreign), "--overwrite"], capsys,
+           "lies inside the input")  # a file in the image folder is part of the input
     _fails(["board", SPEC, "--out", str(foreign)], capsys, "exists", "--overwrite")
     _fails(["rig", "stereo", "--undistort", "--out", str(foreign)], capsys, "exists", "--overwrite")
     _fails(["rig", "stereo", "--plot", str(foreign)], capsys, "exists", "--overwrite")

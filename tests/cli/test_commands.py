@@ -7,7 +7,7 @@ import shutil
 
 import numpy as np
 import pytest
-from helpers import grid_mesh, run, wave, write_obj
+from helpers import grid_mesh, run, write_obj
 
 from mvtex.cli import main
 from mvtex.data.camera import Camera
@@ -89,7 +89,6 @@ def test_bad_inputs_exit_2_naming_the_file(tmp_path, tiny_dataset, rig_file, cap
 
 
 def test_import_mismatched_vertex_counts(tmp_path, capsys):
-    from helpers import grid_mesh, write_obj
 
     faces, uv, rest = grid_mesh(5, 5)
     f2, uv2, rest2 = grid_mesh(6, 5)

@@ -29,7 +29,7 @@ def test_existing_files_are_kept_without_overwrite(tmp_path, capsys):
     assert run(capsys, "rig", "square4", "--undistort", "--out", rig)[0] == 0
     before = rig.read_bytes()
     for argv in (["rig", "stereo", "--plot", photo], ["board", "charuco:5x4:0.04:0.03:DICT_4X4_50", "--out", photo],
-                 ["rig", "stereo", "--undistort", "--out", rig], ["rig", "--from-colmap", tmp_path, "--out", rig]):
+                 ["rig", "stereo", "--undistort", "--out", rig], ["rig", "--from-colmap", tmp_path / "model", "--out", rig]):
         code, _, err = run(capsys, *argv)
         one_line_error(code, err, "exists", "--overwrite")
     # An input is never its own output, --overwrite or not: the calibrated distortion stays.

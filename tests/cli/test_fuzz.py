@@ -318,3 +318,49 @@ def test_damaged_colmap_text_models(which, how, line, field, value):
         out = root / "out"
         check(["rig", "--from-colmap", root / "model", "--out", out / "rig.yaml", "--json"], root, out,
               snapshot(root))
+
+
+# -- the file-system states of a shared folder ------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def binds(tmp_path_factory) -> bool:
+    from fs_states import bind_mounts_allowed
+
+    return bind_mounts_allowed(tmp_path_factory.mktemp("bind-probe"))
+
+
+def _fs_state_strategy():
+    from fs_states import state
+
+    return state
+
+
+@FUZZ
+@given(fs=_fs_state_strategy(), command=st.sampled_from(["to-colmap", "board"]))
+def test_writers_in_hostile_file_system_states(binds, fs, command):
+    """Links at the lock's, the manifest's and the stamps' names, a user's files named like
+    them, links and bind mounts inside the output (where the machine allows them): exit 0 or
+    2 with one line, and nothing planted (or pointed to) changes or goes away."""
+    from fs_states import plant
+
+    with sandbox() as root:
+        (root / "work").mkdir()
+        out = root / "work" / ("model" if command == "to-colmap" else "board.png")
+        argv = ["rig", "stereo", "--to-colmap", out] if command == "to-colmap" else \
+            ["board", "charuco:5x4:0.04:0.03:DICT_4X4_50", "--out", out, "--pixels-per-square", "20"]
+        if fs["out"] == "written":
+            assert main([str(a) for a in argv]) == 0
+        elif fs["out"] == "empty" and command == "to-colmap":
+            out.mkdir()
+        planted = plant(root, out, fs["plantings"], binds=binds)
+        try:
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+                code = main([str(a) for a in argv] + (["--overwrite"] if fs["overwrite"] else []))
+            assert code in (0, 2), err.getvalue()
+            if code == 2:
+                lines = err.getvalue().strip().splitlines()
+                assert len(lines) == 1 and lines[0].startswith(f"mvtex {argv[0]}: error: "), lines
+            planted.check()
+        finally:
+            planted.unmount()

@@ -202,17 +202,17 @@ def test_resume_key_includes_the_content_of_the_arrays(tmp_path, tiny_dataset, f
 
 def test_a_failure_while_finishing_leaves_a_partial_the_rerun_completes(tmp_path, tiny_dataset, front_rig,
                                                                         monkeypatch, gl):
+    import mvtex.data.partial_set
     import mvtex.sliding.dataset as sliding
-    import mvtex.util.output
 
-    real = mvtex.util.output.replace_path
+    real = mvtex.data.partial_set.replace_path
 
     def fail(src, dst):  # only the last step: renaming the finished set in
         if Path(src).name == "tc.partial" and Path(dst).name == "tc":
             raise OSError(28, "No space left on device", str(dst))
         return real(src, dst)
 
-    monkeypatch.setattr(mvtex.util.output, "replace_path", fail)
+    monkeypatch.setattr(mvtex.data.partial_set, "replace_path", fail)
     with pytest.raises(OutputError, match="tc: cannot write it"):
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     monkeypatch.undo()

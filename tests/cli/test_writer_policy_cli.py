@@ -182,3 +182,41 @@ def test_every_public_writer_goes_through_the_policy():
         assert "overwrite" in inspect.signature(function).parameters, name
         source = inspect.getsource(inspect.unwrap(function)) if not hasattr(function, "__wrapped__") else ""
         assert hasattr(function, "__wrapped__") or "claim_" in source, name
+
+
+# -- writers of other libraries: their failed writes are errors naming the output ------------------
+
+def _limited(limit: int, *argv, cwd=None) -> subprocess.CompletedProcess:
+    """`mvtex ARGV` under a file-size limit of `limit` bytes (RLIMIT_FSIZE, as `ulimit -f`):
+    a write past it fails (EFBIG) inside whichever library writes."""
+    script = (f"import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
+              "from mvtex.cli import main; sys.exit(main(sys.argv[1:]))")
+    return subprocess.run([sys.executable, "-c", script, *map(str, argv)], capture_output=True, text=True,
+                          timeout=300, cwd=cwd)
+
+
+def test_colmap_models_cut_short_by_a_full_disk_are_errors(tmp_path):
+    out = tmp_path / "model"
+    proc = _limited(300, "rig", "trapezoid12", "--to-colmap", out, "--quiet")
+    one_line_error(proc.returncode, proc.stderr, out, "cannot write it")
+    assert list(tmp_path.iterdir()) == []
+    proc = _limited(300, "rig", "trapezoid12", "--to-colmap", out, "--text", "--quiet")
+    one_line_error(proc.returncode, proc.stderr, out, "cannot write it")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_rig_file_cut_short_is_an_output_error_not_the_rigs(tmp_path):
+    out = tmp_path / "pinhole.yaml"
+    proc = _limited(400, "rig", "trapezoid12", "--undistort", "--out", out, "--quiet")
+    line = one_line_error(proc.returncode, proc.stderr, out, "cannot write it", "File too large")
+    assert "reader refuses" not in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_model_weights_cut_short_are_an_output_error(tmp_path, tiny_dataset, slid_sheet0):
+    pytest.importorskip("torch")
+    out = tmp_path / "model"
+    proc = _limited(4000, "train", tiny_dataset, "--texcoords", slid_sheet0, "--cameras", "a", "--out", out,
+                    "--quiet", cwd=tmp_path)
+    one_line_error(proc.returncode, proc.stderr, out, "cannot write it", "File too large")
+    assert list(tmp_path.iterdir()) == []

@@ -93,6 +93,8 @@ MALFORMED = {
     "float64": (lambda p: np.save(p / "body.npy", np.zeros((6, 6, 3))), "body.npy", "float32"),
     "nan in one pose": (lambda p: np.save(p / "body.npy", np.where(np.arange(6)[:, None, None] == 4, np.nan,
                                                                    np.load(p / "body.npy"))), "body.npy", "pose 4"),
+    "beyond any rig": (lambda p: np.save(p / "body.npy", np.where(np.arange(6)[:, None, None] == 2, np.float32(3e38),
+                                                                 np.load(p / "body.npy"))), "body.npy", "pose 2"),
     "face out of range": (lambda p: _npz_faces(p, np.array([[0, 1, 6]], np.int32)), "body.npz", "out of range"),
     "faces not triangles": (lambda p: _npz_faces(p, np.zeros((3, 4), np.int32)), "body.npz", "(mb,3)"),
     "float faces": (lambda p: _npz_faces(p, np.zeros((3, 3), np.float32)), "body.npz", "integers"),

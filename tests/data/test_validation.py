@@ -360,7 +360,7 @@ def _png_header(path: Path, width: int, height: int) -> None:
 
 
 def test_a_huge_png_is_refused_from_its_header(tmp_path):
-    from mvtex.calibration.calibrate import image_size, read_gray
+    from mvtex.calibration.images import image_size, read_gray
 
     _png_header(tmp_path / "big.png", 32000, 32000)
     with pytest.raises(mvtex.InputError, match=r"big.png: image is 32000x32000"):

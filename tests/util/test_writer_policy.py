@@ -200,3 +200,103 @@ def test_a_demo_with_other_options_is_not_resumed(tmp_path, monkeypatch):
     with pytest.raises(mvtex.InputError, match="other options .*num_poses=10"):
         mvtex.run_demo(out, mvtex.DemoOptions(num_poses=12), progress=False)
     assert json.loads((out / "demo.json").read_text())["options"]["num_poses"] == 10
+
+
+# -- links and lookalikes: only what mvtex made is mvtex's ------------------------------------------
+
+@pytest.mark.parametrize("name", ["a/.notes.mvtex-lock", "a/.mvtex-output.json", "a/.mvtex-output.json.tmp",
+                                  "a/.mvtex-output.json.abcd1234.tmp"])
+def test_a_hidden_lookalike_deep_in_an_output_is_the_users(name, tmp_path, sheet):
+    out = tmp_path / "tc"
+    mvtex.save_texcoords(out, **texcoord_arrays(sheet))
+    (out / name).write_text("the user's data, not mvtex's\n")
+    before = tree(out)
+    for overwrite in (False, True):
+        with pytest.raises(mvtex.InputError, match="did not write"):
+            mvtex.save_texcoords(out, overwrite=overwrite, **texcoord_arrays(sheet))
+    assert tree(out) == before
+
+
+def test_a_link_in_an_output_is_never_followed_and_never_mvtexs(tmp_path, sheet):
+    out = tmp_path / "tc"
+    mvtex.save_texcoords(out, **texcoord_arrays(sheet))
+    elsewhere = tmp_path / "elsewhere.txt"
+    elsewhere.write_text("keep")
+    (out / "a" / "assigned.npy").unlink()
+    (out / "a" / "assigned.npy").symlink_to(elsewhere)  # a listed name, now a link to someone's file
+    with pytest.raises(mvtex.InputError, match=r"did not write \(a/assigned.npy\)"):
+        mvtex.save_texcoords(out, overwrite=True, **texcoord_arrays(sheet))
+    assert elsewhere.read_text() == "keep" and (out / "a" / "assigned.npy").is_symlink()
+
+
+def test_a_writer_inside_an_output_claimed_with_overwrite_inherits_it(tmp_path, sheet):
+    from mvtex.util.output import claim_output
+
+    out = tmp_path / "out"
+    with claim_output(out, "first", in_place=True):
+        mvtex.save_texcoords(out / "tc", **texcoord_arrays(sheet))
+    # Another command, with overwrite, writes in place: what the first wrote there is its to replace.
+    with claim_output(out, "second", in_place=True, overwrite=True):
+        mvtex.save_dataset(out / "tc", **small_arrays(sheet))
+    assert json.loads((out / "tc" / MARKER).read_text())["command"] == "save_dataset"
+    assert json.loads((out / MARKER).read_text())["command"] == "second"
+
+
+# -- fuzz: the file-system states of a shared folder -------------------------------------------------
+
+@pytest.fixture(scope="session")
+def binds(tmp_path_factory) -> bool:
+    from fs_states import bind_mounts_allowed
+
+    return bind_mounts_allowed(tmp_path_factory.mktemp("bind-probe"))
+
+
+def _fuzz_settings():
+    from hypothesis import HealthCheck, settings
+
+    return settings(max_examples=40, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+
+def test_writers_keep_the_policy_in_any_file_system_state(tmp_path_factory, sheet, front_rig, binds):
+    """Links at the lock's, the manifest's and the stamps' names, a user's files named like
+    them, links and bind mounts inside an output (where the machine allows them): a writer
+    either writes or refuses with one line, and never changes, deletes or writes through
+    anything it did not make."""
+    from fs_states import plant, state
+    from hypothesis import given
+    from hypothesis import strategies as st
+
+    @_fuzz_settings()
+    @given(fs=state, which=st.sampled_from(["save_texcoords", "save_rig"]))
+    def run(fs, which):
+        root = tmp_path_factory.mktemp("fs")
+        out = root / "work" / ("tc" if which == "save_texcoords" else "rig.yaml")
+        out.parent.mkdir()
+
+        def write(overwrite):
+            if which == "save_texcoords":
+                mvtex.save_texcoords(out, overwrite=overwrite, **texcoord_arrays(sheet))
+            else:
+                mvtex.save_rig(front_rig, out, overwrite=overwrite)
+
+        if fs["out"] == "written":
+            write(False)
+        elif fs["out"] == "empty" and which == "save_texcoords":
+            out.mkdir()
+        planted = plant(root, out, fs["plantings"], binds=binds)
+        try:
+            try:
+                write(fs["overwrite"])
+            except mvtex.InputError as err:
+                assert "\n" not in str(err) and str(out) in str(err), err
+            else:
+                if which == "save_texcoords":
+                    assert mvtex.open_texcoords(out).cameras == ["a"]
+                else:
+                    assert mvtex.load_rig(out).names == front_rig.names
+            planted.check()
+        finally:
+            planted.unmount()
+
+    run()
