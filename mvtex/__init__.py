@@ -28,6 +28,7 @@ __version__ = "0.3.0"
 _API = {
     # errors
     "InputError": "mvtex.util.errors", "OptionError": "mvtex.util.errors", "OutputError": "mvtex.util.errors",
+    "NoGroundTruthError": "mvtex.util.errors",
     # cameras, rigs, datasets, texcoord sets
     "Camera": "mvtex.data.camera", "look_at": "mvtex.data.camera",
     "Rig": "mvtex.data.rig", "load_rig": "mvtex.data.rig", "save_rig": "mvtex.data.rig",
@@ -64,7 +65,7 @@ _API = {
     # texture sliding models
     "TrainOptions": "mvtex.tsnn.train", "TrainResult": "mvtex.tsnn.modeldir", "TrainedCameras": "mvtex.tsnn.modeldir",
     "train": "mvtex.tsnn.train", "train_cameras": "mvtex.tsnn.cameras",
-    "predict": "mvtex.tsnn.predict", "load_model": "mvtex.tsnn.predict",
+    "predict": "mvtex.tsnn.predict", "load_model": "mvtex.tsnn.predict", "ModelConfig": "mvtex.tsnn.config",
     # applications
     "run_bench": "mvtex.apps.bench", "DemoOptions": "mvtex.apps.demo", "run_demo": "mvtex.apps.demo",
 }
