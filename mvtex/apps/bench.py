@@ -274,6 +274,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
 
     check_backend(workers)
     ds = as_dataset(dataset)
+    ds.require_gt("the sliding benchmark (bench)")
     rig, rig_source = as_rig(rig)
     poses = list(range(min(10, ds.num_poses))) if poses is None else ds.check_poses(poses)
     check_sees(rig, np.asarray(ds.inferred[poses[0]]), rig_source,

@@ -35,6 +35,7 @@ def cmd_bench(args):
     from mvtex.data.dataset import load_dataset
 
     dataset = load_dataset(args.dataset)
+    dataset.require_gt("bench")
     _, rig_path = load_rig(args.rig)
     poses = dataset.select(args.poses)
     result = run_bench(dataset, rig_path, poses=poses, subdiv=args.subdiv, workers=args.workers,

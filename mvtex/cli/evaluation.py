@@ -46,6 +46,7 @@ def cmd_eval(args):
     from mvtex.evaluation.evaluate import evaluate
 
     dataset = load_dataset(args.dataset)
+    dataset.require_gt("eval")
     rig, rig_path = load_rig(rig_spec(args))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     poses = dataset.select(args.poses) if args.poses else None

@@ -85,6 +85,7 @@ def cmd_slide(args):
 
     options = slide_options(args)
     dataset = load_dataset(args.dataset)
+    dataset.require_gt("slide")
     rig, rig_path = load_rig(args.rig)
     rig = rig.select(cameras(args.cameras), rig_path)
     poses = dataset.select(args.poses)

@@ -149,6 +149,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     out = as_path(out, "out")
     check_instance(options, SlideOptions, "options")
     ds = as_dataset(dataset)
+    ds.require_gt("texture sliding (slide)")
     rig, rig_path = as_rig(rig)
     rig = rig.select(cameras, source=rig_path)
     poses = ds.check_poses(poses)
@@ -214,6 +215,7 @@ def slide_complete(dataset, rig, out: str | os.PathLike, *, poses: list[int], op
     from mvtex.data.rig import as_rig
 
     ds = as_dataset(dataset)
+    ds.require_gt("texture sliding (slide)")
     rig, rig_path = as_rig(rig)
     rig = rig.select(cameras, source=rig_path)
     poses = ds.check_poses(poses)

@@ -46,6 +46,7 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
          "sqrt_mse": {curve: [per view mean]}, "sqrt_mse_same_chart": {curve: [...]}}
         (values in uv units; curve names from CURVES).
     """
+    from mvtex.data.dataset import as_dataset
     from mvtex.evaluation.evaluate import evaluate
     from mvtex.sliding.dataset import slide_dataset
     from mvtex.sliding.options import SlideOptions
@@ -53,6 +54,8 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
     from mvtex.views.novel import novel_views
     from mvtex.views.synthesizer import ViewOptions
 
+    dataset = as_dataset(dataset)
+    dataset.require_gt("measuring views against gt")
     poses = texcoords.poses if poses is None else [int(p) for p in poses]
     cameras = Rig(tuple(interpolate_camera(rig, w, n) for w, n in zip(weights, names)))
     out = {"views": list(names), "weights": [dict(w) for w in weights], "poses": poses,
