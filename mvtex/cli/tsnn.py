@@ -16,7 +16,8 @@ def register(sub) -> None:
                    "every camera of --texcoords, conditioned on the camera (unet)")
     p.add_argument("--camera", dest="cameras", action=Deprecated, new="--cameras A[,B...]", metavar="A[,B...]")
     p.add_argument("--rig", help="rig of the texcoord set's cameras, needed without --cameras (a rig YAML or a "
-                   "built-in rig name; default TEXCOORDS/rig.yaml)")
+                   "built-in rig name; default TEXCOORDS/rig.yaml); the model records its cameras from it (default: "
+                   "the texcoord set's record of them)")
     p.add_argument("--out", type=Path, required=True, help="model directory to write")
     p.add_argument("--arch", choices=("gp", "mlp", "unet", "paper"),
                    help="gp: Gaussian processes of the pose on the principal components of d, per camera (default "
@@ -40,7 +41,7 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="texcoord set directory to write")
     p.add_argument("--poses", default="all", help="pose SPEC: all, train, val, test, a:b or 3,5,7 (default all)")
     p.add_argument("--rig", help="predict these cameras (a camera-conditioned model serves any camera; default: "
-                   "the models' own cameras)")
+                   "the models' own cameras, recorded as OUT/rig.yaml for the commands that read the set)")
     add_common(p)
     p.set_defaults(run=cmd_predict)
 
@@ -80,6 +81,8 @@ def cmd_train(args):
             raise UsageError("mvtex train: error: one network for every camera needs their rig: give --rig "
                              "(or --cameras NAME for one camera's model)")
         rig, _ = load_rig(args.rig or str(args.texcoords / "rig.yaml"))
+    elif args.rig is not None:  # the camera the model records (default: the texcoord set's record of it)
+        rig, _ = load_rig(args.rig)
     with output(args, "train"):
         result = train(dataset, tc, args.out, camera=names[0] if names else None, rig=rig, options=options,
                        progress=not args.quiet)
@@ -95,4 +98,11 @@ def cmd_predict(args):
     poses = dataset.select(args.poses)
     with output(args, "predict"):
         out = predict(dataset, args.model, args.out, poses=poses, rig=rig, progress=not args.quiet)
-    emit(args, {"out": str(out), "poses": len(poses), "models": [str(m) for m in args.model]}, f"wrote {out}")
+    from mvtex.data.texcoords import open_texcoords, recorded_rig
+
+    cameras = open_texcoords(out).cameras
+    rig_file = recorded_rig(out)
+    where = "its cameras in rig.yaml" if rig_file is not None else "no rig recorded: give --rig to the commands after"
+    emit(args, {"out": str(out), "poses": len(poses), "models": [str(m) for m in args.model], "cameras": cameras,
+                "rig": None if rig_file is None else str(rig_file), "ground_truth": dataset.has_gt},
+         f"wrote {out}: {len(poses)} poses x {len(cameras)} cameras ({', '.join(cameras)}), {where}")

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from mvtex.tsnn.config import training_rig
 from mvtex.tsnn.modeldir import TrainedCameras, TrainResult, _kept_model
 from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, dataset_fingerprint, train
 from mvtex.util.errors import InputError, OptionError
@@ -79,7 +80,8 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
             continue
         if dataset_hash is None:
             dataset_hash = dataset_fingerprint(dataset)
-        kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
+        kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash,
+                                                rig=training_rig(None, texcoords, [c])))
         if kept is not None:
             models[c] = kept
             if progress:
