@@ -2,7 +2,11 @@
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
           -> train the TSNN of camera left (gp: Gaussian processes of the pose) -> predict -> eval
-          -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
+          -> novel views (two-camera plot, four-camera map) -> stereo preview
+          -> new frames, no ground truth: the test frames as OBJ + pose vectors, imported without
+             gt, predicted by the models of left and right, one frame triangulated and previewed
+             (`mvtex.apps.new_frames`)
+          -> report.html
 
 Each step writes into OUT and is skipped when its output is already there, so an
 interrupted demo resumes where it stopped. OUT/demo.json records the options; a rerun with
@@ -28,7 +32,7 @@ class DemoOptions:
     Attributes:
         num_poses: poses of the built-in dataset (at least `MIN_POSES`).
         seed: seed of the dataset.
-        tsnn: also train and evaluate the per-camera model.
+        tsnn: also train and evaluate the per-camera model, and run the new-frames stage.
     """
 
     num_poses: int = 120
@@ -156,6 +160,18 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     summary["preview"] = demo_preview(dataset, stereo, out, test_pose, progress=progress)
     timings["preview"] = time.perf_counter() - t
 
+    if options.tsnn:
+        from mvtex.apps.new_frames import demo_new_frames
+        from mvtex.tsnn.train import TrainOptions, train
+
+        t = _step("new frames, no ground truth: import without gt, predict, triangulate, preview", progress)
+        if not (out / "tsnn_right" / "config.json").exists():  # the second camera a triangulation needs
+            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), out / "tsnn_right",
+                  camera="right", options=TrainOptions(seed=options.seed), progress=progress)
+        summary["new_frames"] = demo_new_frames(dataset, out, [out / "tsnn_left", out / "tsnn_right"],
+                                                progress=progress)
+        timings["new_frames"] = time.perf_counter() - t
+
     summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     summary["pictures"] = sorted(str(p.relative_to(out)) for p in out.rglob("*.png")
                                  if "heatmaps" in p.parts or p.parent.name in ("render", "reconstruction"))
@@ -253,6 +269,10 @@ def _text(summary: dict) -> str:
         lines.append(f"stereo preview SSIM (inferred -> texcoords): left {e['left']['ssim']['inferred']:.3f} -> "
                      f"{e['left']['ssim']['texcoords']:.3f}, right {e['right']['ssim']['inferred']:.3f} -> "
                      f"{e['right']['ssim']['texcoords']:.3f}")
+    if "new_frames" in summary:
+        from mvtex.apps.new_frames import summary_line
+
+        lines.append(summary_line(summary["new_frames"]))
     if "report" in summary:
         lines.append(f"report: {summary['report']}")
     lines.append("pictures: " + ", ".join(summary["pictures"][:8]) + (" ..." if len(summary["pictures"]) > 8 else ""))
