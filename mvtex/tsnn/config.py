@@ -230,22 +230,29 @@ class ModelConfig:
                      atlas=_optional(meta, file, "atlas", dict), geometry=_optional(meta, file, "geometry", dict),
                      inputs=_optional(meta, file, "inputs", str),
                      **{key: _optional(meta, file, key, _KINDS[key]) for key in _RECORD})
-        if config.conditioned == (camera is not None):
-            raise InputError(file, "'camera' must be null exactly when the architecture is conditioned on the view")
-        if config.conditioned and (not config.cameras or any(v is None for v in config.cameras.values())):
-            raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices")
-        if arch.get("arch") == "unet":
-            dilation = config.dilation
-            if not isinstance(dilation, int) or isinstance(dilation, bool) or not 0 <= dilation <= 64:
-                raise InputError(file, "missing or malformed 'atlas.dilation'")
-        if config.geometry is not None and config.geometry.get("file") != GEOMETRY_FILE:
-            raise InputError(file, f"malformed 'geometry' (expected {{\"file\": \"{GEOMETRY_FILE}\"}})")
-        if config.rig is not None:
-            trained = [camera] if camera is not None else list(config.cameras)
-            if sorted(config.rig.names) != sorted(trained):
-                raise InputError(file, f"'rig' holds cameras {', '.join(config.rig.names)}, the model was trained "
-                                 f"for {', '.join(trained)}")
+        _check_consistent(config, file)
         return config
+
+
+def _check_consistent(config: ModelConfig, file) -> None:
+    """What one key of config.json says about another: the camera and the architecture's
+    view, the training cameras, a unet's atlas, the geometry file, the recorded rig."""
+    camera = config.camera
+    if config.conditioned == (camera is not None):
+        raise InputError(file, "'camera' must be null exactly when the architecture is conditioned on the view")
+    if config.conditioned and (not config.cameras or any(v is None for v in config.cameras.values())):
+        raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices")
+    if config.architecture.get("arch") == "unet":
+        dilation = config.dilation
+        if not isinstance(dilation, int) or isinstance(dilation, bool) or not 0 <= dilation <= 64:
+            raise InputError(file, "missing or malformed 'atlas.dilation'")
+    if config.geometry is not None and config.geometry.get("file") != GEOMETRY_FILE:
+        raise InputError(file, f"malformed 'geometry' (expected {{\"file\": \"{GEOMETRY_FILE}\"}})")
+    if config.rig is not None:
+        trained = [camera] if camera is not None else list(config.cameras)
+        if sorted(config.rig.names) != sorted(trained):
+            raise InputError(file, f"'rig' holds cameras {', '.join(config.rig.names)}, the model was trained "
+                             f"for {', '.join(trained)}")
 
 
 _KINDS: dict[str, type | tuple[type, ...]] = {
