@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig, save_rig
 from mvtex.data.texcoords import MAX_DISPLACEMENT, RIG_FILE, dataset_record, rig_record, write_header
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
@@ -79,7 +80,7 @@ class LoadedModel:
     def needs_geometry(self) -> bool:
         return hasattr(self.network, "geometry_mean")
 
-    def recorded_camera(self, name: str):
+    def recorded_camera(self, name: str) -> Camera | None:
         """The training camera `name` whole (`mvtex.data.camera.Camera`) as config.json
         records it, or None (not one of its cameras, or a model stored without the record)."""
         rig = self.config.rig
@@ -103,8 +104,10 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
     geometry = None
     if config.geometry is not None:
         geometry = load_npz(path / GEOMETRY_FILE)
-        if set(geometry) != {"rest_length", "groups"}:
-            raise InputError(path / GEOMETRY_FILE, f"needs arrays rest_length and groups, has {sorted(geometry)}")
+        if set(geometry) != {"rest_length", "groups"} or geometry["rest_length"].dtype.kind != "f" \
+                or geometry["groups"].dtype.kind not in "iu":
+            raise InputError(path / GEOMETRY_FILE, "needs arrays rest_length (float) and groups (integer), has "
+                             + ", ".join(f"{k} {v.dtype}" for k, v in sorted(geometry.items())))
     return LoadedModel(path=path, config=config, network=network, geometry=geometry)
 
 
