@@ -22,6 +22,16 @@ from typing import Sequence
 
 import numpy as np
 
+from mvtex.data.dataset import load_dataset
+from mvtex.data.importer import import_sequences
+from mvtex.data.rig import load_rig
+from mvtex.data.texcoords import open_texcoords, recorded_rig
+from mvtex.recon.pose import triangulate_pose
+from mvtex.tsnn.predict import predict
+from mvtex.util.files import read_json, read_row
+from mvtex.util.output import atomic_path
+from mvtex.views.preview import stereo_preview
+
 FOLDER = "new_frames"
 
 
@@ -43,9 +53,6 @@ def write_frames(dataset, poses: Sequence[int], folder: str | os.PathLike) -> Pa
     poses of a dataset, as a predictor hands them over: FOLDER/inferred_<i>.obj,
     FOLDER/body_<i>.obj and FOLDER/poses.txt (one row per frame), i = 0, 1, ... in the order
     of `poses`. Nothing of gt. Written whole (a temporary folder renamed)."""
-    from mvtex.util.files import read_row
-    from mvtex.util.output import atomic_path
-
     folder = Path(folder)
     with atomic_path(folder) as tmp:
         tmp.mkdir()
@@ -61,15 +68,6 @@ def demo_new_frames(dataset, out: str | os.PathLike, models: Sequence[str | os.P
                     progress: bool = True) -> dict:
     """Run the stage (module docstring) on the test frames of `dataset` with `models`
     (one-camera models of two or more cameras); returns its summary."""
-    from mvtex.data.dataset import load_dataset
-    from mvtex.data.importer import import_sequences
-    from mvtex.data.rig import load_rig
-    from mvtex.data.texcoords import open_texcoords, recorded_rig
-    from mvtex.recon.pose import triangulate_pose
-    from mvtex.tsnn.predict import predict
-    from mvtex.util.files import read_json
-    from mvtex.views.preview import stereo_preview
-
     root = Path(out) / FOLDER
     test = list(dataset.split["test"])
     meshes = root / "meshes"

@@ -35,6 +35,7 @@ import numpy as np
 
 from mvtex.data.camera import Camera, check_camera_name
 from mvtex.data.rig import Rig
+from mvtex.util.checks import as_path
 from mvtex.util.errors import InputError
 from mvtex.util.files import read_json
 
@@ -203,7 +204,7 @@ class ModelConfig:
         Raises:
             InputError: naming config.json and the key that is missing or malformed.
         """
-        file = Path(directory) / CONFIG_FILE
+        file = as_path(directory, "directory") / CONFIG_FILE
         return cls.from_json(read_json(file), file)
 
     @classmethod

@@ -46,7 +46,8 @@ from typing import Sequence
 import numpy as np
 
 from mvtex.tsnn.config import (GEOMETRY_FILE, MAX_RESOLUTION, MAX_SUBDIV, MAX_WIDTH, MODEL_VERSION, MeshRecord,
-                               ModelConfig, mesh_fingerprint, training_rig)
+                               ModelConfig, camera_record, mesh_fingerprint, training_rig)
+from mvtex.tsnn.geometry import MeshGeometry
 from mvtex.tsnn.modeldir import TrainResult, _write_model, rebuild_mesh
 from mvtex.tsnn.samples import DisplacementRows, Forward, Samples, sample_losses, weighted_mse
 from mvtex.util.checks import check_field_types, check_seed
@@ -237,7 +238,6 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
     config.json records of them, `training_rig`) and the resolved options.
     config.json records it as "inputs"; `train_cameras` keeps a camera's model that records
     the key it would train with (the same inputs train the same model: bit for bit for `gp`)."""
-    from mvtex.tsnn.config import camera_record
     from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
     record = {
@@ -333,11 +333,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             raise OptionError("train_poses: none of them is a training pose of the texcoord set")
     device = torch.device(options.device)
     t0 = time.perf_counter()
-    reference = None
-    if options.arch == "unet":
-        from mvtex.tsnn.geometry import MeshGeometry
-
-        reference = MeshGeometry.of_dataset(dataset)
+    reference = MeshGeometry.of_dataset(dataset) if options.arch == "unet" else None
 
     previous_deterministic = torch.are_deterministic_algorithms_enabled()
     try:

@@ -22,6 +22,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from mvtex.data.dataset import as_dataset
 from mvtex.data.rig import Rig
 
 CURVES = ("baseline", "blend", "reconstruct", "direct TS")
@@ -46,7 +47,6 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
          "sqrt_mse": {curve: [per view mean]}, "sqrt_mse_same_chart": {curve: [...]}}
         (values in uv units; curve names from CURVES).
     """
-    from mvtex.data.dataset import as_dataset
     from mvtex.evaluation.evaluate import evaluate
     from mvtex.sliding.dataset import slide_dataset
     from mvtex.sliding.options import SlideOptions
