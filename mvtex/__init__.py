@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     # isort: off
     # (grouped by stage, in the order of the pipeline)
     # errors
-    from mvtex.util.errors import InputError, OptionError, OutputError
+    from mvtex.util.errors import InputError, OptionError, OutputError, NoGroundTruthError
     # cameras, rigs, datasets, texcoord sets
     from mvtex.data.camera import Camera, look_at
     from mvtex.data.rig import Rig, load_rig, save_rig
@@ -78,6 +78,7 @@ if TYPE_CHECKING:
     from mvtex.tsnn.train import train
     from mvtex.tsnn.cameras import train_cameras, train_models
     from mvtex.tsnn.predict import predict, load_model
+    from mvtex.tsnn.config import ModelConfig
     # applications
     from mvtex.apps.bench import run_bench
     from mvtex.apps.options import DemoOptions
@@ -89,6 +90,7 @@ __all__ = [
     "InputError",
     "OptionError",
     "OutputError",
+    "NoGroundTruthError",
     "Camera",
     "look_at",
     "Rig",
@@ -147,6 +149,7 @@ __all__ = [
     "train_models",
     "predict",
     "load_model",
+    "ModelConfig",
     "run_bench",
     "DemoOptions",
     "run_demo",

@@ -113,11 +113,11 @@ def fake_model(path: Path, dataset) -> Path:
     from safetensors.torch import save_file
 
     from mvtex.data.dataset import load_dataset
-    from mvtex.tsnn.model import TSNN, ModelConfig
+    from mvtex.tsnn.model import TSNN, PaperConfig
     from mvtex.tsnn.modeldir import MODEL_FORMAT, MODEL_VERSION, mesh_fingerprint
 
     ds = load_dataset(dataset)
-    config = ModelConfig(pose_dim=ds.poses.shape[1], resolution=16, width=8, min_width=4)
+    config = PaperConfig(pose_dim=ds.poses.shape[1], resolution=16, width=8, min_width=4)
     path.mkdir(parents=True)
     save_file(TSNN(config).state_dict(), str(path / "model.safetensors"))
     meta = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": "a", "architecture": config.to_dict(),

@@ -10,7 +10,7 @@ import sys
 import mvtex
 
 PUBLIC = {
-    "__version__", "InputError", "OptionError", "OutputError",
+    "__version__", "InputError", "OptionError", "OutputError", "NoGroundTruthError",
     "Camera", "look_at", "Rig", "load_rig", "save_rig", "Dataset", "load_dataset", "save_dataset", "import_sequences",
     "TexcoordSet", "open_texcoords", "save_texcoords",
     "SynthOptions", "SynthResult", "synthesize", "write_synth",
@@ -23,6 +23,7 @@ PUBLIC = {
     "export_scene",
     "BoardSpec", "parse_board_spec", "write_board_png", "CalibrateOptions", "calibrate", "calibrate_folder",
     "TrainOptions", "TrainResult", "TrainedCameras", "train", "train_cameras", "train_models", "predict", "load_model",
+    "ModelConfig",
     "run_bench", "DemoOptions", "run_demo",
 }
 

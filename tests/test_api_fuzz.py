@@ -104,6 +104,7 @@ def targets(sb: Sandbox) -> dict:
                                           values=np.zeros((n, 2)), assigned=np.arange(n) % 2 == 0),
                  every("faces", "positions", "values", "assigned", "method", "groups")),
         "load_model": (mvtex.load_model, lambda: dict(path=sb.out("model")), {"path": NOT_TEXT}),
+        "ModelConfig": (mvtex.ModelConfig.read, lambda: dict(directory=sb.out("model")), {"directory": NOT_TEXT}),
         "slide_dataset": (mvtex.slide_dataset,
                           lambda: dict(dataset=ds, rig=rig, out=sb.out("slid"), poses=[0],
                                        options=mvtex.SlideOptions(subdiv=0), progress=False),
@@ -244,9 +245,9 @@ def sandbox(tmp_path, tiny_dataset, front_rig, slid_sheet, gl, monkeypatch):
 
 NAMES = ["Camera", "look_at", "Rig", "load_rig", "save_rig", "load_dataset", "save_dataset", "open_texcoords",
          "save_texcoords", "project_points", "triangulate_points", "interpolate_camera", "parse_board_spec",
-         "write_board_png", "fill", "load_model", "slide_dataset", "evaluate", "triangulate_pose", "novel_views",
-         "stereo_preview", "export_scene", "render_pose", "train", "train_cameras", "train_models", "predict",
-         "run_bench", "run_demo",
+         "write_board_png", "fill", "load_model", "ModelConfig", "slide_dataset", "evaluate", "triangulate_pose",
+         "novel_views", "stereo_preview", "export_scene", "render_pose", "train", "train_cameras", "train_models",
+         "predict", "run_bench", "run_demo",
          "write_synth", "synthesize", "import_sequences", "calibrate_folder", "calibrate", "rasterize",
          "render_textured", "rasterize_uv", "interpolate", "MaterialMap", "slide_pose", "reconstruct"]
 
@@ -286,6 +287,6 @@ def test_an_options_field_of_a_hostile_type_raises_a_typed_error(name, sandbox):
 
 def test_the_fuzzed_names_are_the_public_api():
     """Every public function and options class is fuzzed (the result types are not)."""
-    results = {"InputError", "OptionError", "OutputError", "Dataset", "TexcoordSet", "SynthResult", "GLContext", "Raster",
+    results = {"InputError", "OptionError", "OutputError", "NoGroundTruthError", "Dataset", "TexcoordSet", "SynthResult", "GLContext", "Raster",
                "Evaluation", "Reconstruction", "ReconReport", "TrainResult", "TrainedCameras", "__version__"}
     assert set(mvtex.__all__) - results - set(NAMES) - set(OPTIONS) == set()

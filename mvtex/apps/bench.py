@@ -277,6 +277,7 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
 
     check_backend(workers)
     ds = as_dataset(dataset)
+    ds.require_gt("the sliding benchmark (bench)")
     rig = as_rig(rig)
     poses = list(range(min(20, ds.num_poses))) if poses is None else ds.check_poses(poses)
     check_sees(rig, np.asarray(ds.inferred[poses[0]]),

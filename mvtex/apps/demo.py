@@ -3,7 +3,11 @@
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
           -> a gp model of camera left (Gaussian processes of the pose) -> predict -> eval
           -> novel views (two-camera plot, four-camera map) -> stereo preview
-          -> export (the reconstruction's pose as a glTF scene with its viewer) -> report.html
+          -> export (the reconstruction's pose as a glTF scene with its viewer)
+          -> new frames, no ground truth: the test frames as OBJ + pose vectors, imported without
+             gt, predicted by the models of left and right, one frame triangulated and previewed
+             (`mvtex.apps.new_frames`)
+          -> report.html
 
 Numbers are over the dataset's test split (the poses no model was fitted to). Each step
 writes into OUT and is skipped when its output is already there (evaluations keep their
@@ -160,6 +164,18 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
         summary["scene"] = export_scene(dataset, tc, test_pose, out / "scene", rig=square).to_json()
     timings["export"] = time.perf_counter() - t
 
+    if options.tsnn:
+        from mvtex.apps.new_frames import demo_new_frames
+        from mvtex.tsnn.train import TrainOptions, train
+
+        t = _step("new frames, no ground truth: import without gt, predict, triangulate, preview", progress)
+        if not (out / "gp_right" / "config.json").exists():  # the second camera a triangulation needs
+            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), out / "gp_right",
+                  camera="right", options=TrainOptions(seed=options.seed), progress=progress)
+        summary["new_frames"] = demo_new_frames(dataset, out, [out / "gp_left", out / "gp_right"],
+                                                progress=progress)
+        timings["new_frames"] = time.perf_counter() - t
+
     summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     summary["pictures"] = sorted(str(p.relative_to(out)) for p in out.rglob("*.png")
                                  if "heatmaps" in p.parts or p.parent.name in ("render", "reconstruction"))
@@ -305,6 +321,10 @@ def _text(summary: dict) -> str:
     if "scene" in summary:
         lines.append(f"scene of test pose {summary['scene']['pose']} to look around in: "
                      f"{Path(summary['out']) / 'scene' / 'viewer.html'}")
+    if "new_frames" in summary:
+        from mvtex.apps.new_frames import summary_line
+
+        lines.append(summary_line(summary["new_frames"]))
     if "report" in summary:
         lines.append(f"report: {summary['report']}")
     lines.append("pictures: " + ", ".join(summary["pictures"][:8]) + (" ..." if len(summary["pictures"]) > 8 else ""))

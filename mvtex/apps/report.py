@@ -330,11 +330,31 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
                     if (out / "preview" / "path.gif").is_file() else "") + "</div>")
         sections.append(("Stereo preview", content))
 
+    if "new_frames" in summary:
+        sections.append(_new_frames_section(summary["new_frames"]))
+
     timings = summary.get("timings_s", {})
     sections.append(("Timings", table(["step", "seconds"], [[k, float(v)] for k, v in timings.items()])))
     copy_viewer(out)
     text = page("mvtex demo report", sections, viewer=True)
     return write_html(out / "report.html", text)
+
+
+def _new_frames_section(stage: dict) -> tuple[str, str]:
+    """The section of the demo's new-frames stage (`mvtex.apps.new_frames`): what it can say
+    without gt, and its preview."""
+    rec, folder = stage["reconstruction"], stage["folder"]
+    rows = [[stage["frame"], 100 * rec["triangulated_share"], rec["mean_reprojection_error_px"], rec["mean_trust"],
+             rec["displacement_m"]["mean"] * 1e3, rec["displacement_m"]["max"] * 1e3]]
+    content = (f"<p>{stage['frames']} test frames written as OBJ (inferred cloth, body) and pose vectors, imported "
+               "without ground truth, predicted by the per-camera models of "
+               f"{', '.join(stage['cameras'])}; frame {stage['frame']} triangulated and previewed. What can be said "
+               "without gt:</p>"
+               + table(["frame", "triangulated %", "reprojection px", "mean trust", "moved mean mm", "moved max mm"],
+                       rows)
+               + '<div class="row">' + figure(f"{folder}/preview/stereo.png", "stereo pair (left | right)")
+               + figure(f"{folder}/preview/comparison.png", "inferred with T_G / with the eyes' texcoords") + "</div>")
+    return "New frames, no ground truth", content
 
 
 def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):

@@ -33,6 +33,7 @@ def cmd_bench(args):
     from mvtex.data.dataset import load_dataset
 
     dataset = load_dataset(args.dataset)
+    dataset.require_gt("bench")
     rig = rig_of(args)
     poses = dataset.select(args.poses) if args.poses else None
     settings = {k: getattr(args, k) for k in ("subdiv", "workers") if getattr(args, k, None) is not None}

@@ -113,7 +113,7 @@ def emit(args, result: Any, text: str) -> None:
         print(text)
 
 
-INPUT_ARGUMENTS = ("dataset", "texcoords", "model", "images", "rig", "pose_vectors", "from_colmap", "rest")
+INPUT_ARGUMENTS = ("dataset", "texcoords", "model", "images", "rig", "pose_vectors", "from_colmap", "rest_mesh")
 """The arguments that name a command's inputs (paths that exist; a built-in rig's name is none)."""
 
 

@@ -16,11 +16,18 @@ def register(sub) -> None:
     add_common(p)
     p.set_defaults(run=cmd_synth)
 
-    p = sub.add_parser("import", help="OBJ/PLY sequences (same connectivity) -> dataset")
+    p = sub.add_parser("import", help="OBJ/PLY sequences (same connectivity) -> dataset; without --gt an "
+                       "inference set (new frames for trained models)")
     p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
-    p.add_argument("--gt", metavar="GLOB", required=True, help="glob of ground-truth meshes (sorted order = pose order)")
-    p.add_argument("--inferred", metavar="GLOB", required=True, help="glob of inferred meshes, paired with --gt in sorted order")
-    p.add_argument("--pose-vectors", metavar="FILE", type=Path, help="pose vectors: .npy (K,P) or text rows (default: the frame index)")
+    p.add_argument("--gt", metavar="GLOB", help="glob of ground-truth meshes (sorted order = pose order); without it, "
+                   "an inference set: the frames a trained model serves (predict, triangulate, views, preview, render)")
+    p.add_argument("--inferred", metavar="GLOB", required=True,
+                   help="glob of inferred meshes, paired with --gt in sorted order")
+    p.add_argument("--rest", dest="rest_mesh", type=Path, metavar="MESH",
+                   help="the garment's rest shape, an OBJ/PLY of the same connectivity (default: the first gt "
+                   "mesh, or without --gt the first inferred mesh)")
+    p.add_argument("--pose-vectors", metavar="FILE", type=Path,
+                   help="pose vectors: .npy (K,P) or text rows (default: the frame index)")
     p.add_argument("--body", dest="body_glob", metavar="GLOB",
                    help="glob of the body's meshes (OBJ/PLY, one connectivity), paired with --gt in sorted order")
     p.add_argument("--name", help="dataset name (default: the folder name)")
@@ -50,12 +57,22 @@ def cmd_synth(args):
 
 
 def cmd_import(args):
+    from mvtex.data.dataset import load_dataset
     from mvtex.data.importer import import_sequences
 
     with output(args, "import"):
         path = import_sequences(args.out, args.gt, args.inferred, args.pose_vectors, name=args.name,
-                                body_glob=args.body_glob, progress=not args.quiet)
-    emit(args, {"out": str(path)}, f"wrote {path}")
+                                body_glob=args.body_glob, rest_mesh=args.rest_mesh, progress=not args.quiet)
+    dataset = load_dataset(path)
+    what = "dataset" if dataset.has_gt else "inference set (no ground truth)"
+    rest = str(args.rest_mesh) if args.rest_mesh is not None else "the first gt mesh" if dataset.has_gt else \
+        "the first inferred mesh"
+    emit(args, {"out": str(path), "num_poses": dataset.num_poses, "num_vertices": dataset.num_vertices,
+                "pose_dim": int(dataset.poses.shape[1]), "ground_truth": dataset.has_gt,
+                "body": dataset.body is not None},
+         f"wrote {path}: {what}, {dataset.num_poses} frames of {dataset.num_vertices} vertices, "
+         f"{dataset.poses.shape[1]}-dimensional poses{', a body' if dataset.body is not None else ''}; "
+         f"rest shape: {rest}")
 
 
 def cmd_render(args):

@@ -46,6 +46,7 @@ def cmd_eval(args):
     from mvtex.evaluation.evaluate import evaluate
 
     dataset = load_dataset(args.dataset)
+    dataset.require_gt("eval")
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
     rig = rig_of(args, names=tc.cameras)
     poses = dataset.select(args.poses) if args.poses else None

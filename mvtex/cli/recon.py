@@ -37,8 +37,10 @@ def cmd_triangulate(args):
 
 
 def triangulate_summary(result, out) -> str:
-    """`mvtex triangulate`'s text: the RMSE against gt first, inferred -> reconstructed, on
-    the triangulated vertices and on all vertices."""
+    """`mvtex triangulate`'s text: where the dataset has gt, the RMSE against it first
+    (inferred -> reconstructed); then what it says without gt, which leads for an inference
+    set: the triangulated share, the reprojection error, the mean trust in the points and
+    how far the reconstruction moved the inferred mesh."""
     def pair(p) -> str:
         if p.inferred is None or p.reconstructed is None:
             return "n/a"
@@ -46,8 +48,18 @@ def triangulate_summary(result, out) -> str:
         return f"{p.inferred * 1e3:.2f} mm -> {p.reconstructed * 1e3:.2f} mm{ratio}"
 
     reproj = result.mean_reprojection_error_px
-    return (f"RMSE vs gt, inferred -> reconstructed: triangulated vertices ({result.num_triangulated} of "
-            f"{result.num_vertices}) {pair(result.rmse_triangulated_m)}; all vertices {pair(result.rmse_m)}\n"
-            f"pose {result.pose}, mean reprojection error "
-            f"{'n/a' if reproj is None else f'{reproj:.3f} px'}; wrote {out} (reconstruction.ply, colmap/, "
-            "comparison.png)")
+    trust = "n/a" if result.mean_trust is None else f"{result.mean_trust:.2f}"
+    moved = result.displacement_m
+    lines = [f"pose {result.pose}: triangulated {result.num_triangulated} of {result.num_vertices} vertices "
+             f"({100 * result.triangulated_share:.1f} %), mean reprojection error "
+             f"{'n/a' if reproj is None else f'{reproj:.3f} px'}, mean trust {trust}; moved from the inferred mesh "
+             f"{moved['mean'] * 1e3:.2f} mm on average, {moved['max'] * 1e3:.2f} mm at most"]
+    if result.rmse_m is not None:
+        lines.insert(0, f"RMSE vs gt, inferred -> reconstructed: triangulated vertices ({result.num_triangulated} of "
+                     f"{result.num_vertices}) {pair(result.rmse_triangulated_m)}; all vertices {pair(result.rmse_m)}")
+        files = "reconstruction.ply, colmap/, comparison.png"
+    else:
+        lines.append("no ground truth in the dataset: no RMSE against gt, no comparison.png")
+        files = "reconstruction.ply, colmap/"
+    lines.append(f"wrote {out} ({files})")
+    return "\n".join(lines)

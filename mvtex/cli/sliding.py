@@ -29,6 +29,7 @@ def cmd_slide(args):
 
     options = options_from(args, SlideOptions)
     dataset = load_dataset(args.dataset)
+    dataset.require_gt("slide")
     rig = rig_of(args, names=cameras(args.cameras))
     poses = dataset.select(args.poses)
     with output(args, "slide"):

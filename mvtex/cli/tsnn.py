@@ -17,7 +17,8 @@ def register(sub) -> None:
                    "OUT/<camera>, trained side by side with --workers or --scheduler; default: one network for "
                    "every camera of --texcoords, conditioned on the camera (unet)")
     p.add_argument("--rig", help="rig of the texcoord set's cameras, needed without --cameras (a rig YAML or a "
-                   "built-in rig name; default TEXCOORDS/rig.yaml)")
+                   "built-in rig name; default TEXCOORDS/rig.yaml); the model records its cameras from it (default: "
+                   "the texcoord set's record of them)")
     p.add_argument("--out", type=Path, required=True, help="model directory to write")
     add_options(p, TrainOptions)
     add_workers(p, "1; they train several --cameras side by side")
@@ -31,7 +32,7 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="texcoord set directory to write")
     p.add_argument("--poses", metavar="SPEC", help="pose SPEC: all, train, val, test, a:b or 3,5,7 (default: all)")
     p.add_argument("--rig", help="predict these cameras (a camera-conditioned model serves any camera; default: "
-                   "the models' own cameras)")
+                   "the models' own cameras, recorded as OUT/rig.yaml for the commands that read the set)")
     add_common(p)
     p.set_defaults(run=cmd_predict)
 
@@ -67,4 +68,11 @@ def cmd_predict(args):
     poses = dataset.select(args.poses)
     with output(args, "predict"):
         out = predict(dataset, args.model, args.out, poses=poses, rig=rig, progress=not args.quiet)
-    emit(args, {"out": str(out), "poses": len(poses), "models": [str(m) for m in args.model]}, f"wrote {out}")
+    from mvtex.data.texcoords import open_texcoords, recorded_rig
+
+    cameras = open_texcoords(out).cameras
+    rig_file = recorded_rig(out)
+    where = "its cameras in rig.yaml" if rig_file is not None else "no rig recorded: give --rig to the commands after"
+    emit(args, {"out": str(out), "poses": len(poses), "models": [str(m) for m in args.model], "cameras": cameras,
+                "rig": None if rig_file is None else str(rig_file), "ground_truth": dataset.has_gt},
+         f"wrote {out}: {len(poses)} poses x {len(cameras)} cameras ({', '.join(cameras)}), {where}")

@@ -77,18 +77,23 @@ def cmd_views(args):
 
     from mvtex.util.output import claim_file
 
-    plot = claim_file(args.plot, "views", overwrite=args.overwrite, inputs=[*command_inputs(args), rig.source]) \
-        if args.plot else contextlib.nullcontext()
+    # The plot measures the views against gt: an inference set has none, so it is skipped (said once).
+    plot_path = args.plot if dataset.has_gt else None
+    plot = claim_file(plot_path, "views", overwrite=args.overwrite, inputs=[*command_inputs(args), rig.source]) \
+        if plot_path else contextlib.nullcontext()
     with output(args, "views"), plot:
         result = novel_views(dataset, rig, tc, args.out, weights, names, poses=poses, options=options,
                              progress=not args.quiet, workers=args.workers or 1,
                              scheduler=args.scheduler)
-        if args.plot is not None:
+        if plot_path is not None:
             from mvtex.views.measure import path_plot
 
-            result = replace(result, measured=path_plot(dataset, rig, tc, weights, names, args.plot, poses=poses,
+            result = replace(result, measured=path_plot(dataset, rig, tc, weights, names, plot_path, poses=poses,
                                                         progress=not args.quiet))
-    emit(args, result, f"wrote {len(names)} view(s) x {len(result.poses)} pose(s) ({options.method}) to {args.out}")
+    skipped = f"; {dataset.path} has no ground truth: no --plot (it compares with gt)" \
+        if args.plot is not None and plot_path is None else ""
+    emit(args, result, f"wrote {len(names)} view(s) x {len(result.poses)} pose(s) ({options.method}) to {args.out}"
+         + skipped)
 
 
 def cmd_preview(args):
@@ -106,8 +111,13 @@ def cmd_preview(args):
         result = stereo_preview(dataset, rig, tc, args.pose, args.out, weights=weights, options=options,
                                 progress=not args.quiet, overwrite=args.overwrite)
     left, right = result.eyes["left"].ssim, result.eyes["right"].ssim
-    emit(args, result, f"pose {result.pose}: SSIM inferred -> texcoords: left {left[0]:.3f} -> {left[1]:.3f}, "
-         f"right {right[0]:.3f} -> {right[1]:.3f}; wrote {args.out}")
+    if left is None:  # an inference set: nothing to score against
+        text = (f"pose {result.pose}: {dataset.path} has no ground truth: no SSIM/PSNR against gt (the comparison "
+                f"shows inferred and texcoords only); wrote {args.out}")
+    else:
+        text = (f"pose {result.pose}: SSIM inferred -> texcoords: left {left[0]:.3f} -> {left[1]:.3f}, "
+                f"right {right[0]:.3f} -> {right[1]:.3f}; wrote {args.out}")
+    emit(args, result, text)
 
 
 def cmd_export(args):

@@ -3,8 +3,9 @@ pose selection specs, and import from OBJ/PLY sequences.
 
     dataset.json   {"format": "mvtex-dataset", "version": 1, "name", "units": "m",
                     "num_poses": K, "num_vertices": n, "pose_dim": P}
+                   and "ground_truth": false in an inference set (absent: true)
     mesh.npz       faces int32 (m,3), uv float32 (n,2), optional rest float32 (n,3)
-    gt.npy, inferred.npy   float32 (K,n,3)
+    gt.npy, inferred.npy   float32 (K,n,3); an inference set has no gt.npy
     poses.npy      float32 (K,P)
     split.json     optional {"train": [...], "val": [...], "test": [...]}
     body.npz       optional, with body.npy: faces int32 (mb,3) of the wearer's body (or any
@@ -13,6 +14,12 @@ pose selection specs, and import from OBJ/PLY sequences.
 
 dataset.json may record the body's size as "body": {"num_vertices": nb, "num_faces": mb};
 readers do not require it.
+
+An *inference set* is a dataset without ground truth: the frames a trained model serves at
+run time (the predictor's mesh, the pose, the body). `Dataset.has_gt` says which;
+`Dataset.gt` of an inference set raises `NoGroundTruthError`, and `require_gt` is the check
+the stages that need gt (slide, eval, bench) make first. `save_dataset(..., gt=None)` writes
+one.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from mvtex.data.camera import MAX_COORDINATE_M
-from mvtex.util.errors import InputError, OptionError
+from mvtex.util.errors import InputError, NoGroundTruthError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_row, read_rows
 from mvtex.util.output import atomic_path, writer
 
@@ -36,6 +43,9 @@ VERSION = 1
 
 
 BODY_FILES = ("body.npz", "body.npy")
+
+
+GROUND_TRUTH_KEY = "ground_truth"  # dataset.json: false in an inference set; absent means true
 
 
 @dataclass(frozen=True)
@@ -67,9 +77,11 @@ class Dataset:
         path: the dataset directory.
         name: free-form name.
         faces: (m,3) int32. uv: (n,2) float32 (T_G). rest: (n,3) float32 or None.
-        gt, inferred: (K,n,3) float32 (memory-mapped). poses: (K,P) float32.
+        inferred: (K,n,3) float32 (memory-mapped). poses: (K,P) float32.
         split: dict with "train", "val", "test" lists of pose indices.
         body: the wearer's body (`Body`), or None when the dataset has no body files.
+        ground_truth: (K,n,3) float32 gt positions (memory-mapped), or None in an inference
+            set; read it as `gt`, which says what is missing when there is none.
     """
 
     path: Path
@@ -77,19 +89,41 @@ class Dataset:
     faces: np.ndarray
     uv: np.ndarray
     rest: np.ndarray | None
-    gt: np.ndarray
     inferred: np.ndarray
     poses: np.ndarray
     split: dict[str, list[int]]
     body: Body | None = None
+    ground_truth: np.ndarray | None = None
+
+    @property
+    def has_gt(self) -> bool:
+        """False for an inference set (no gt.npy)."""
+        return self.ground_truth is not None
+
+    @property
+    def gt(self) -> np.ndarray:
+        """(K,n,3) float32 gt positions (memory-mapped).
+
+        Raises:
+            NoGroundTruthError: naming the dataset, in an inference set.
+        """
+        self.require_gt()
+        return self.ground_truth
+
+    def require_gt(self, what: str = "this") -> None:
+        """Refuse an inference set: `NoGroundTruthError` naming the dataset, what is missing
+        and `what` needs it ("slide", "the material error", ...)."""
+        if self.ground_truth is None:
+            raise NoGroundTruthError(self.path, f"an inference set, no ground truth (gt.npy): {what} needs the "
+                                     "ground-truth cloth")
 
     @property
     def num_poses(self) -> int:
-        return int(self.gt.shape[0])
+        return int(self.inferred.shape[0])
 
     @property
     def num_vertices(self) -> int:
-        return int(self.gt.shape[1])
+        return int(self.inferred.shape[1])
 
     def select(self, spec: str | None, default: str = "all") -> list[int]:
         """Pose indices for a SPEC (`all`, `train`, `val`, `test`, `a:b`, `3,5,7`)."""
@@ -129,32 +163,39 @@ def reference_shape(dataset: Dataset) -> np.ndarray:
     their chart orientation, the fill's Laplacian, edge breaking (`sliding.build_topology`).
 
     It is the dataset's `rest` shape when it has one, else the gt positions of pose 0
-    (`import_sequences` makes the same choice for `rest`). It never depends on which poses
-    are processed, in which order, or by how many workers, so neither do the results.
+    (`import_sequences` makes the same choice for `rest`), or in an inference set without
+    `rest` the inferred positions of pose 0. It never depends on which poses are processed,
+    in which order, or by how many workers, so neither do the results.
 
     Returns:
         (n,3) float64.
     """
-    shape = dataset.rest if dataset.rest is not None else dataset.gt[0]
-    return np.array(shape, dtype=np.float64)
+    source = reference_shape_source(dataset)
+    shape = {"rest": dataset.rest, "gt[0]": dataset.ground_truth, "inferred[0]": dataset.inferred}[source]
+    return np.array(shape if source == "rest" else shape[0], dtype=np.float64)
 
 
 def reference_shape_source(dataset: Dataset) -> str:
-    """Which shape `reference_shape` takes: "rest" or "gt[0]"."""
-    return "rest" if dataset.rest is not None else "gt[0]"
+    """Which shape `reference_shape` takes: "rest", "gt[0]" or (an inference set without
+    rest) "inferred[0]"."""
+    if dataset.rest is not None:
+        return "rest"
+    return "gt[0]" if dataset.has_gt else "inferred[0]"
 
 
 def content_fingerprint(dataset: Dataset) -> str:
-    """The fingerprint (`mvtex.util.fingerprint`) of a dataset's content: gt, inferred and
-    pose arrays, and the body's when it has one. Texcoord sets and models record it, so
-    that they are never used with another dataset's content under the same path."""
+    """The fingerprint (`mvtex.util.fingerprint`) of a dataset's content: gt (where it has
+    one), inferred and pose arrays, and the body's when it has one. Texcoord sets and models
+    record it, so that they are never used with another dataset's content under the same
+    path."""
     from mvtex.util.fingerprint import fingerprint
 
     # Computed once per loaded dataset: a command that checks a dataset and then uses it
     # reads its arrays once.
     cached = dataset.__dict__.get("_content_fingerprint")
     if cached is None:
-        cached = fingerprint(dataset.gt, dataset.inferred, dataset.poses, *dataset.body_arrays())
+        gt = (dataset.ground_truth,) if dataset.has_gt else ()
+        cached = fingerprint(*gt, dataset.inferred, dataset.poses, *dataset.body_arrays())
         object.__setattr__(dataset, "_content_fingerprint", cached)
     return cached
 
@@ -274,29 +315,39 @@ def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
     faces, uv = mesh["faces"], mesh["uv"]
     validate_mesh(faces, uv, path / "mesh.npz")
     n = len(uv)
-    gt = load_npy(path / "gt.npy")
+    has_gt = meta.get(GROUND_TRUTH_KEY, True)
+    if not isinstance(has_gt, bool):
+        raise InputError(path / "dataset.json", f"{GROUND_TRUTH_KEY} must be true or false, got {has_gt!r}")
+    if not has_gt and (path / "gt.npy").exists():
+        raise InputError(path / "gt.npy", f'is there, but dataset.json says the set has no ground truth '
+                         f'("{GROUND_TRUTH_KEY}": false): remove one of them')
+    gt = load_npy(path / "gt.npy") if has_gt else None
     inferred = load_npy(path / "inferred.npy")
     poses = load_npy(path / "poses.npy")
     rest = mesh.get("rest")
-    if validate:
+    if gt is not None and validate:
         _check_positions(gt, n, path / "gt.npy")
-        _check_positions(inferred, n, path / "inferred.npy", gt.shape[0])
+    num_poses = gt.shape[0] if gt is not None else (inferred.shape[0] if inferred.ndim else 0)
+    if validate:
+        _check_positions(inferred, n, path / "inferred.npy", gt.shape[0] if gt is not None else None)
+        if not len(inferred):
+            raise InputError(path / "inferred.npy", "holds no pose")
         if rest is not None and (rest.shape != (n, 3) or rest.dtype.kind != "f" or not np.all(np.isfinite(rest))):
             raise InputError(path / "mesh.npz", f"rest must be finite with shape ({n},3), got {rest.shape}")
         if poses.dtype.kind != "f":
             raise InputError(path / "poses.npy", f"pose vectors must be float32, got {poses.dtype}")
-        if poses.ndim != 2 or poses.shape[0] != gt.shape[0]:
-            raise InputError(path / "poses.npy", f"expected shape ({gt.shape[0]},P), got {poses.shape}")
+        if poses.ndim != 2 or poses.shape[0] != num_poses:
+            raise InputError(path / "poses.npy", f"expected shape ({num_poses},P), got {poses.shape}")
         if not np.all(np.isfinite(poses)):
             raise InputError(path / "poses.npy", "NaN or infinite values")
-        for key, expected in (("num_poses", gt.shape[0]), ("num_vertices", n), ("pose_dim", poses.shape[1])):
+        for key, expected in (("num_poses", num_poses), ("num_vertices", n), ("pose_dim", poses.shape[1])):
             if key in meta and (type(meta[key]) is not int or meta[key] != expected):
                 raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
-    body = _load_body(path, gt.shape[0], meta, validate)
-    split = _load_split(path, gt.shape[0])
+    body = _load_body(path, num_poses, meta, validate)
+    split = _load_split(path, num_poses)
     return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
                    uv=uv.astype(np.float32), rest=None if rest is None else rest.astype(np.float32),
-                   gt=gt, inferred=inferred, poses=poses, split=split, body=body)
+                   ground_truth=gt, inferred=inferred, poses=poses, split=split, body=body)
 
 
 def validate_body_faces(faces: np.ndarray, num_vertices: int, source: str | os.PathLike | None) -> None:
@@ -330,7 +381,7 @@ def _load_body(path: Path, num_poses: int, meta: dict, validate: bool) -> Body |
     if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[1] == 0:
         raise InputError(file, f"expected shape (K,nb,3), got {positions.shape}")
     if positions.shape[0] != num_poses:
-        raise InputError(file, f"pose count {positions.shape[0]} does not match gt.npy ({num_poses})")
+        raise InputError(file, f"pose count {positions.shape[0]} does not match inferred.npy ({num_poses})")
     validate_body_faces(faces, positions.shape[1], path / "body.npz")
     if validate:
         _check_finite(positions, file)
@@ -378,17 +429,20 @@ def check_body_arrays(body_faces, body, num_poses: int, source: str | os.PathLik
 
 
 def metadata(name: str, num_poses: int, num_vertices: int, pose_dim: int, body_faces=None, body=None,
-             **extra_meta) -> dict:
-    """dataset.json's content, in the order `save_dataset` writes it."""
+             ground_truth: bool = True, **extra_meta) -> dict:
+    """dataset.json's content, in the order `save_dataset` writes it ("ground_truth": false
+    only in an inference set)."""
     meta = {"format": FORMAT, "version": VERSION, "name": name, "units": "m", "num_poses": int(num_poses),
             "num_vertices": int(num_vertices), "pose_dim": int(pose_dim)}
+    if not ground_truth:
+        meta[GROUND_TRUTH_KEY] = False
     if body is not None:
         meta["body"] = {"num_vertices": int(np.shape(body)[1]), "num_faces": int(len(body_faces))}
     return {**meta, **extra_meta}
 
 
 @writer("save_dataset", out="path", inputs=lambda a: (a["gt"], a["inferred"], a["poses"], a["body"]))
-def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray,
+def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray | None,
                  inferred: np.ndarray, poses: np.ndarray, name: str = "dataset",
                  rest: np.ndarray | None = None, split: dict[str, Sequence[int]] | None = None,
                  body_faces: np.ndarray | None = None, body: np.ndarray | None = None, overwrite: bool = False,
@@ -402,7 +456,11 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
 
     Args:
         faces: (m,3) int. uv: (n,2). gt, inferred: (K,n,3). poses: (K,P).
-        rest: optional (n,3). split: optional train/val/test lists (default 80/10/10).
+        gt: None writes an inference set (no gt.npy, "ground_truth": false in
+            dataset.json): the run-time frames of a trained model.
+        rest: optional (n,3); an inference set's measures against the rest shape (strain,
+            the triangulation's fill) take the first inferred frame without it.
+        split: optional train/val/test lists (default 80/10/10).
         body_faces: optional (mb,3) int, and body: optional (K,nb,3): the wearer's body
             (both or neither), written as body.npz and body.npy.
         extra_meta: extra JSON-serialisable keys for dataset.json (e.g. "stats").
@@ -418,27 +476,30 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
     if not isinstance(name, str):
         raise OptionError("name", f"must be a string, got {type(name).__name__}")
     faces, uv = as_array(faces, "faces", None), as_array(uv, "uv", None)
-    gt = as_array(gt, "gt", np.float32)
+    gt = None if gt is None else as_array(gt, "gt", np.float32)
     inferred = as_array(inferred, "inferred", np.float32)
     poses = as_array(poses, "poses", np.float32)
     try:
         validate_mesh(faces, uv, None)
     except InputError as err:
         raise OptionError(None, f"faces/uv: {err.problem}") from None
-    if gt.shape != inferred.shape or gt.ndim != 3 or gt.shape[1:] != (len(uv), 3) or not len(gt):
+    if inferred.ndim != 3 or inferred.shape[1:] != (len(uv), 3) or not len(inferred):
+        raise OptionError("inferred", f"must have shape (K,{len(uv)},3) with K ≥ 1, got {inferred.shape}")
+    if gt is not None and gt.shape != inferred.shape:
         raise OptionError("gt", f"and inferred must both have shape (K,{len(uv)},3) with K ≥ 1, got {gt.shape} and "
                           f"{inferred.shape}")
+    num_poses = len(inferred)
     if body is not None:
         body = as_array(body, "body", np.float32)
-    if poses.ndim == 1 and len(poses) == len(gt):
+    if poses.ndim == 1 and len(poses) == num_poses:
         poses = poses[:, None]
-    if poses.ndim != 2 or len(poses) != len(gt) or poses.shape[1] == 0:
-        raise OptionError("poses", f"must have shape ({len(gt)},P), got {poses.shape}")
+    if poses.ndim != 2 or len(poses) != num_poses or poses.shape[1] == 0:
+        raise OptionError("poses", f"must have shape ({num_poses},P), got {poses.shape}")
     for key, array in (("gt", gt), ("inferred", inferred), ("poses", poses), ("body", body)):
         if array is None:
             continue
         if not np.all(np.isfinite(array)):
-            raise OptionError(key, f"has NaN or infinite values (float32)")
+            raise OptionError(key, "has NaN or infinite values (float32)")
         if key != "poses" and array.size and np.abs(array).max() > MAX_COORDINATE_M:
             raise OptionError(key, f"has a position of magnitude {np.abs(array).max():.3g}, more than "
                               f"{MAX_COORDINATE_M:g} m")
@@ -452,26 +513,30 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
         from mvtex.util.checks import as_indices
 
         split = {k: as_indices(split[k], f"split[{k!r}]") for k in ("train", "val", "test")}
-        if any(not 0 <= i < len(gt) for k in split for i in split[k]):
-            raise OptionError("split", f"has a pose index outside [0, {len(gt)})")
+        if any(not 0 <= i < num_poses for k in split for i in split[k]):
+            raise OptionError("split", f"has a pose index outside [0, {num_poses})")
     if body_faces is not None:
         body_faces = as_array(body_faces, "body_faces", None)
     try:
-        check_body_arrays(body_faces, body, len(gt), None)
+        check_body_arrays(body_faces, body, num_poses, None)
     except InputError as err:
         raise OptionError(None, f"body: {err.problem}") from None
-    check_body_arrays(body_faces, body, len(gt), path)
+    check_body_arrays(body_faces, body, num_poses, path)
     if body is not None and not np.all(np.isfinite(body)):
         raise OptionError("body", "positions have NaN or infinite values")
-    split = split or default_split(len(gt))
-    meta = metadata(name, gt.shape[0], gt.shape[1], poses.shape[1], body_faces, body, **extra_meta)
+    if GROUND_TRUTH_KEY in extra_meta:
+        raise OptionError("extra_meta", f"sets {GROUND_TRUTH_KEY}, which gt sets (None: an inference set)")
+    split = split or default_split(num_poses)
+    meta = metadata(name, num_poses, len(uv), poses.shape[1], body_faces, body, ground_truth=gt is not None,
+                    **extra_meta)
     with atomic_path(path) as tmp:
         tmp.mkdir()
         mesh = {"faces": np.asarray(faces, dtype=np.int32), "uv": np.asarray(uv, dtype=np.float32)}
         if rest is not None:
             mesh["rest"] = np.asarray(rest, dtype=np.float32)
         np.savez_compressed(tmp / "mesh.npz", **mesh)
-        np.save(tmp / "gt.npy", gt, allow_pickle=False)
+        if gt is not None:
+            np.save(tmp / "gt.npy", gt, allow_pickle=False)
         np.save(tmp / "inferred.npy", inferred, allow_pickle=False)
         np.save(tmp / "poses.npy", poses, allow_pickle=False)
         if body is not None:

@@ -1,4 +1,5 @@
-"""`mvtex import`: OBJ/PLY sequences with one connectivity -> an mvtex dataset.
+"""`mvtex import`: OBJ/PLY sequences with one connectivity -> an mvtex dataset, or without
+ground-truth meshes an inference set (DESIGN §4): the frames a trained model serves.
 """
 
 from __future__ import annotations
@@ -141,62 +142,82 @@ def _inputs(a: dict) -> list:
 
     # Only what names files: an argument of another type is refused by the function itself.
     named = [a[k] for k in ("gt_glob", "inferred_glob", "body_glob") if isinstance(a[k], (str, os.PathLike))]
-    poses = a["poses_file"] if isinstance(a["poses_file"], (str, os.PathLike)) else None
-    return [glob.glob(os.fspath(g)) for g in named] + [poses]
+    files = [a[k] if isinstance(a[k], (str, os.PathLike)) else None for k in ("poses_file", "rest_mesh")]
+    return [glob.glob(os.fspath(g)) for g in named] + files
 
 
 @writer("import", inputs=_inputs)
-def import_sequences(out: str | os.PathLike, gt_glob: str, inferred_glob: str,
+def import_sequences(out: str | os.PathLike, gt_glob: str | None = None, inferred_glob: str | None = None,
                      poses_file: str | os.PathLike | None = None, name: str | None = None,
-                     progress: bool = True, body_glob: str | None = None, overwrite: bool = False) -> Path:
-    """Turn two OBJ/PLY sequences with identical connectivity into a dataset.
+                     progress: bool = True, body_glob: str | None = None, overwrite: bool = False,
+                     rest_mesh: str | os.PathLike | None = None) -> Path:
+    """Turn OBJ/PLY sequences with identical connectivity into a dataset, or without
+    `gt_glob` into an inference set (no gt.npy; DESIGN §4).
 
-    Files are paired in sorted order. The first gt mesh defines faces and uv (and `rest`);
-    every other mesh must have the same vertex count and the same faces, or InputError.
+    Files are paired in sorted order. The first mesh of the first sequence (gt, or inferred
+    without gt) defines faces and uv; every other mesh must have the same vertex count and
+    the same faces, or InputError. The rest shape is `rest_mesh` (an OBJ/PLY of the same
+    connectivity) when given, else the first gt mesh, or without gt the first inferred mesh:
+    the material error needs a true rest shape (and gt); with the first inferred frame as
+    rest, strain and the triangulation's fill are measured on that frame.
     Without `poses_file` (.npy (K,P) or .txt/.csv rows), the pose vector is the frame index.
-    With `body_glob`, a third sequence (one connectivity, no uv needed, as many meshes as
-    gt, paired in sorted order) becomes the dataset's body (body.npz + body.npy).
+    With `body_glob`, another sequence (one connectivity, no uv needed, one mesh per frame,
+    paired in sorted order) becomes the dataset's body (body.npz + body.npy).
+
+    Raises:
+        InputError: naming the file: no match, a mesh of another vertex count or
+            connectivity, NaN, pose rows or body meshes of another frame count.
     """
     from mvtex.util.checks import as_path
     from mvtex.util.errors import OptionError
 
     out = as_path(out, "out")
     poses_file = as_path(poses_file, "poses_file", optional=True)
+    rest_mesh = as_path(rest_mesh, "rest_mesh", optional=True)
     for key, value in (("gt_glob", gt_glob), ("inferred_glob", inferred_glob), ("body_glob", body_glob),
                        ("name", name)):
-        if value is not None and not isinstance(value, str) or value is None and key in ("gt_glob", "inferred_glob"):
+        if value is not None and not isinstance(value, str) or value is None and key == "inferred_glob":
             raise OptionError(key, f"must be a string, got {type(value).__name__}")
-    gt_files = _sorted_glob(gt_glob, "gt")
+    gt_files = _sorted_glob(gt_glob, "gt") if gt_glob is not None else None
     inf_files = _sorted_glob(inferred_glob, "inferred")
-    if len(gt_files) != len(inf_files):
+    if gt_files is not None and len(gt_files) != len(inf_files):
         raise InputError(inferred_glob, f"{len(inf_files)} inferred meshes for {len(gt_files)} gt meshes")
+    frames = "gt" if gt_files is not None else "inferred"
     body_files = _sorted_glob(body_glob, "body") if body_glob is not None else None
-    if body_files is not None and len(body_files) != len(gt_files):
-        raise InputError(body_glob, f"{len(body_files)} body meshes for {len(gt_files)} gt meshes")
-    first = _read_mesh(gt_files[0])
+    if body_files is not None and len(body_files) != len(inf_files):
+        raise InputError(body_glob, f"{len(body_files)} body meshes for {len(inf_files)} {frames} meshes")
+    poses = _read_poses(Path(poses_file), len(inf_files)) if poses_file is not None else \
+        np.arange(len(inf_files), dtype=np.float32)[:, None]
+    source = (gt_files or inf_files)[0]
+    first = _read_mesh(source)
     faces = np.asarray(first.faces, dtype=np.int32)
     n = len(first.vertices)
     uv = getattr(getattr(first, "visual", None), "uv", None)
     if uv is None or len(uv) != n:
-        raise InputError(gt_files[0], "no per-vertex texture coordinates (need OBJ 'vt' or PLY texcoords)")
+        raise InputError(source, "no per-vertex texture coordinates (need OBJ 'vt' or PLY texcoords)")
     uv = np.asarray(uv, dtype=np.float32)
     if not np.all(np.isfinite(uv)):
-        raise InputError(gt_files[0], "NaN or infinite texture coordinates")
-    gt = np.empty((len(gt_files), n, 3), dtype=np.float32)
-    inferred = np.empty_like(gt)
+        raise InputError(source, "NaN or infinite texture coordinates")
+    rest = None
+    if rest_mesh is not None:
+        if not Path(rest_mesh).is_file():
+            raise InputError(rest_mesh, "rest mesh not found")
+        rest = _check_same_mesh(_read_mesh(os.fspath(rest_mesh)), os.fspath(rest_mesh), n, faces, source)
+    gt = np.empty((len(inf_files), n, 3), dtype=np.float32) if gt_files is not None else None
+    inferred = np.empty((len(inf_files), n, 3), dtype=np.float32)
     from tqdm import tqdm
 
-    for k, (g, i) in enumerate(tqdm(list(zip(gt_files, inf_files)), desc="import", unit="pose", disable=not progress)):
+    pairs = list(zip(gt_files or [None] * len(inf_files), inf_files))
+    for k, (g, i) in enumerate(tqdm(pairs, desc="import", unit="pose", disable=not progress)):
         for file, target in ((g, gt), (i, inferred)):
-            mesh = first if file == gt_files[0] else _read_mesh(file)
-            target[k] = _check_same_mesh(mesh, file, n, faces, gt_files[0])
-    if poses_file is not None:
-        poses = _read_poses(Path(poses_file), len(gt_files))
-    else:
-        poses = np.arange(len(gt_files), dtype=np.float32)[:, None]
+            if file is not None:
+                mesh = first if file == source else _read_mesh(file)
+                target[k] = _check_same_mesh(mesh, file, n, faces, source)
     body_faces, body = _read_body(body_files, progress) if body_files is not None else (None, None)
+    if rest is None:
+        rest = gt[0] if gt is not None else inferred[0]
     return save_dataset(out, faces=faces, uv=uv, gt=gt, inferred=inferred, poses=poses,
-                        name=name or Path(out).name, rest=gt[0], body_faces=body_faces, body=body)
+                        name=name or Path(out).name, rest=rest, body_faces=body_faces, body=body)
 
 
 def _read_poses(path: Path, k: int) -> np.ndarray:

@@ -493,6 +493,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     check_backend(workers, scheduler)
     workers = 1 if workers is None else workers
     ds = as_dataset(dataset)
+    ds.require_gt("the evaluation (eval)")
     if not isinstance(texcoord_set, (TexcoordSet, str, os.PathLike)):
         raise OptionError("texcoord_set", f"must be a TexcoordSet or a texcoord set folder path, got "
                           f"{type(texcoord_set).__name__}")

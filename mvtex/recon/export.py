@@ -83,7 +83,8 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
         write_ply(tmp / "reconstruction.ply", rec.points, faces, uv=uv, colors=colors,
                   vertex_properties={"triangulated": rec.triangulated.astype(np.uint8)},
                   comments=(f"mvtex reconstruction, pose {report.get('pose')}",
-                            f"colour: |reconstructed - gt| blue 0 .. red >= {options.error_scale_m} m"))
+                            f"colour: |reconstructed - gt| blue 0 .. red >= {options.error_scale_m} m"
+                            if gt is not None else "colour: grey (no ground truth to compare with)"))
 
         pixels = np.stack([rec.observations[name][tri_idx] for name in names], axis=1)
         observations, tracks = track_tables(names, pixels, np.isfinite(pixels[..., 0]))

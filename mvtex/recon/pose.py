@@ -28,7 +28,8 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     """`mvtex triangulate`: reconstruct one pose of a dataset from a texcoord set.
 
     Args:
-        dataset: a `mvtex.data.dataset.Dataset`.
+        dataset: a `mvtex.data.dataset.Dataset`; an inference set (no gt) gives a report
+            whose measures against gt are None, and no comparison.png.
         rig: the cameras; those of the texcoord set are used (≥ 2 needed).
         texcoords: a `mvtex.data.texcoords.TexcoordSet` for this dataset.
         pose: dataset pose index (must be one of the texcoord set's poses).
@@ -87,7 +88,7 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
                       gt_faces=dataset.faces, assigned=assigned, rest=rest, body=body, uncertainty=uncertainty,
                       progress=progress, ctx=ctx)
-    gt = np.asarray(dataset.gt[pose], np.float64)
+    gt = np.asarray(dataset.gt[pose], np.float64) if dataset.has_gt else None
     report = replace(reconstruction_report(rec, gt, dataset.faces, rest, pose, options), cameras=tuple(names),
                      texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)
     if out is not None:

@@ -9,6 +9,9 @@ Output layout (DESIGN §4):
                                                         (and body, for a dataset with a body)
     OUT/overview.png                                    all cameras, gt above inferred
     OUT/render.json                                     the options that made it
+
+An inference set (no gt) gives the inferred pictures alone: no gt column, and shaded_zoom.png
+holds the inferred geometry only.
 """
 
 from __future__ import annotations
@@ -43,15 +46,18 @@ class MeshView:
 
 def pose_views(dataset: Dataset, pose: int, camera: str,
                texcoord_set: TexcoordSet | None = None) -> dict[str, MeshView]:
-    """The gt mesh (with T_G) and the inferred mesh (with T_G, or the set's T_N on its mesh)."""
-    gt = MeshView(np.asarray(dataset.gt[pose], np.float64), dataset.faces, dataset.uv)
+    """The gt mesh (with T_G; none in an inference set) and the inferred mesh (with T_G, or the
+    set's T_N on its mesh)."""
+    views = {}
+    if dataset.has_gt:
+        views["gt"] = MeshView(np.asarray(dataset.gt[pose], np.float64), dataset.faces, dataset.uv)
     inferred_pos = np.asarray(dataset.inferred[pose], np.float64)
     if texcoord_set is None:
-        inferred = MeshView(inferred_pos, dataset.faces, dataset.uv)
+        views["inferred"] = MeshView(inferred_pos, dataset.faces, dataset.uv)
     else:
-        inferred = MeshView(texcoord_set.positions(inferred_pos), texcoord_set.faces,
-                            texcoord_set.texcoords(camera, pose))
-    return {"gt": gt, "inferred": inferred}
+        views["inferred"] = MeshView(texcoord_set.positions(inferred_pos), texcoord_set.faces,
+                                     texcoord_set.texcoords(camera, pose))
+    return views
 
 
 def check_sees_mesh(raster, camera: Camera, rig: Rig, pose: int, what: str) -> None:
@@ -120,7 +126,8 @@ def _render_into(out: Path, dataset: Dataset, rig: Rig, pose: int, texcoord_set:
     for cam in tqdm(list(rig), desc=f"render pose {pose}", unit="camera", disable=not progress):
         views = pose_views(dataset, pose, cam.name, texcoord_set)
         row, zooms = [], []
-        zoom_cam = scaled_camera(cam, garment_box(views["gt"].positions, cam), cam.width, cam.height)
+        framed = views["gt"] if "gt" in views else views["inferred"]
+        zoom_cam = scaled_camera(cam, garment_box(framed.positions, cam), cam.width, cam.height)
         for what, view in views.items():
             r = gl.rasterize(ctx, view.positions, view.faces, cam, occluder=body)
             check_sees_mesh(r, cam, rig, pose, what)
@@ -145,11 +152,12 @@ def _render_into(out: Path, dataset: Dataset, rig: Rig, pose: int, texcoord_set:
         tiles.append(row + zooms)
     from mvtex.render.pictures import grid_image
 
-    save_png(out / "overview.png", grid_image([[t[i] for t in tiles] for i in range(4)], col_labels=rig.names,
-                                              row_labels=["gt", "inferred", "gt geometry, zoom",
-                                                          "inferred geometry, zoom"]))
+    shown = ["gt", "inferred"] if dataset.has_gt else ["inferred"]
+    labels = shown + [f"{what} geometry, zoom" for what in shown]
+    save_png(out / "overview.png", grid_image([[t[i] for t in tiles] for i in range(len(labels))],
+                                              col_labels=rig.names, row_labels=labels))
     files.append("overview.png")
-    summary = {"pose": int(pose), "cameras": rig.names, "dataset": str(dataset.path),
+    summary = {"pose": int(pose), "cameras": rig.names, "dataset": str(dataset.path), "ground_truth": dataset.has_gt,
                "texcoords": None if texcoord_set is None else str(texcoord_set.path), "raster": bool(raster),
                "files": files}
     write_json(out / "render.json", summary)

@@ -33,7 +33,7 @@ def check_mesh(positions, faces, name: str = "positions", dims: int = 3, size: s
     positions = as_array(positions, name)
     sizes = check_shape(positions, name, (size, dims))
     if not np.all(np.isfinite(positions)):
-        raise OptionError(name, f"has NaN or infinite values")
+        raise OptionError(name, "has NaN or infinite values")
     faces = as_array(faces, "faces", None)
     check_shape(faces, "faces", (faces_size, 3))
     if faces.dtype.kind not in "iu":

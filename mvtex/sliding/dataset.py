@@ -150,6 +150,7 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     out = as_path(out, "out")
     check_instance(options, SlideOptions, "options")
     ds = as_dataset(dataset)
+    ds.require_gt("texture sliding (slide)")
     rig = as_rig(rig).select(cameras)
     poses = ds.check_poses(poses)
     check_sees(rig, read_row(ds.inferred, poses[0]), what=f"the inferred mesh of {ds.path} at pose {poses[0]}")
@@ -213,6 +214,7 @@ def slide_complete(dataset, rig, out: str | os.PathLike, *, poses: list[int], op
     from mvtex.data.rig import as_rig
 
     ds = as_dataset(dataset)
+    ds.require_gt("texture sliding (slide)")
     rig = as_rig(rig).select(cameras)
     poses = ds.check_poses(poses)
     return _complete(Path(out), _slide_record(ds, rig, options), poses, rig.names, options.subdiv)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from mvtex.tsnn.config import training_rig
 from mvtex.tsnn.modeldir import TrainedCameras, TrainResult, _kept_model
 from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, dataset_fingerprint, train
 from mvtex.util.errors import InputError, OptionError
@@ -79,7 +80,8 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
             continue
         if dataset_hash is None:
             dataset_hash = dataset_fingerprint(dataset)
-        kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash))
+        kept = _kept_model(out / c, _inputs_key(dataset, texcoords, [c], {}, split, resolved, dataset_hash,
+                                                rig=training_rig(None, texcoords, [c])))
         if kept is not None:
             models[c] = kept
             if progress:
@@ -108,7 +110,8 @@ def train_models(dataset, texcoords, out: str | os.PathLike, cameras: Sequence[s
                  progress: bool = True, overwrite: bool = False) -> TrainResult | TrainedCameras:
     """`mvtex train`: the models a texcoord set's cameras need, by how many are named.
 
-    - one camera: its model in `out` (`train` with `camera`; `gp` by default);
+    - one camera: its model in `out` (`train` with `camera`; `gp` by default), which records
+      the camera from `rig` where given, else from the texcoord set's record of it;
     - several cameras: one model each in OUT/<camera>, side by side on `workers` or a Dask
       `scheduler` (`train_cameras`);
     - None: one network for every camera of the set, conditioned on the camera (`unet`),
@@ -132,8 +135,8 @@ def train_models(dataset, texcoords, out: str | os.PathLike, cameras: Sequence[s
     if names is not None and len(names) > 1:
         return train_cameras(dataset, texcoords, names, out, options, workers=workers or 1, scheduler=scheduler,
                              progress=progress, overwrite=overwrite)
-    if names is not None:
-        return train(dataset, texcoords, out, camera=names[0], options=options, progress=progress,
+    if names is not None:  # the model records its camera from `rig`, else from the set's record of it
+        return train(dataset, texcoords, out, camera=names[0], rig=rig, options=options, progress=progress,
                      overwrite=overwrite)
     if rig is None:
         recorded = recorded_rig(texcoords.path)

@@ -16,6 +16,12 @@ UV with `AtlasSampler.to_image`, so a texel holds the barycentric interpolation 
 triangle's corner values. Per camera the network adds the view (positions and normals in
 camera coordinates) itself from channels 0-5 and the camera's extrinsics
 (`mvtex.tsnn.model.UNet`), so one set of images serves every camera.
+
+What strain and curvature are measured against (the rest edge lengths and which vertices
+are seam copies) is the *reference*: the dataset's rest shape, else the mean of its first
+inferred meshes. A trained `unet` keeps the reference it was trained with
+(`MeshGeometry.reference_arrays`, geometry.npz in its model directory), so that it sees the
+same images of the same inferred mesh in any set of its garment, whatever that set's rest.
 """
 
 from __future__ import annotations
@@ -42,24 +48,31 @@ class MeshGeometry:
     """
 
     def __init__(self, faces: np.ndarray, uv: np.ndarray, rest: np.ndarray | None = None,
-                 reference: np.ndarray | None = None):
+                 reference: np.ndarray | None = None, *, arrays: dict[str, np.ndarray] | None = None):
         self.faces = np.asarray(faces, dtype=np.int64)
         uv = np.asarray(uv, dtype=np.float64)
         self.edges = edges(self.faces)
-        if rest is None:
+        n = len(uv)
+        if arrays is not None:  # a trained model's reference (`reference_arrays`)
+            self.rest_length = np.asarray(arrays["rest_length"], dtype=np.float64)
+            self.groups = np.asarray(arrays["groups"], dtype=np.int64)
+            if self.rest_length.shape != (len(self.edges),) or self.groups.shape != (n,) \
+                    or not np.all(np.isfinite(self.rest_length)) or (self.groups.min(initial=0) < 0) \
+                    or self.groups.max(initial=0) >= n:
+                raise ValueError(f"reference arrays of another mesh: rest_length {self.rest_length.shape} and "
+                                 f"groups {self.groups.shape} for {len(self.edges)} edges and {n} vertices")
+        elif rest is None:
             if reference is None:
                 raise ValueError("MeshGeometry needs rest positions or reference poses")
             reference = np.asarray(reference, dtype=np.float64)
             self.rest_length = np.linalg.norm(reference[:, self.edges[:, 1]] - reference[:, self.edges[:, 0]],
                                               axis=-1).mean(0)
-            weld_source = reference[0]
+            self.groups = weld_groups(reference[0])
         else:
             rest = np.asarray(rest, dtype=np.float64)
             self.rest_length = np.linalg.norm(rest[self.edges[:, 1]] - rest[self.edges[:, 0]], axis=-1)
-            weld_source = rest
+            self.groups = weld_groups(rest)
         self.rest_length = np.maximum(self.rest_length, 1e-12)
-        n = len(uv)
-        self.groups = weld_groups(weld_source)
         adj = welded_adjacency(self.faces, self.groups)
         deg = np.asarray(adj.sum(axis=1)).ravel()
         # The umbrella operator: (mean of neighbours - x) = -(L x) / deg, L = D - A the welded
@@ -74,6 +87,19 @@ class MeshGeometry:
         for k in range(2):
             np.add.at(self.share_sum, self.edges[:, k], duv)
         self.num_vertices = n
+
+    @classmethod
+    def of_dataset(cls, dataset) -> "MeshGeometry":
+        """The geometry of a dataset's mesh, its reference the rest shape or, without one,
+        the mean edge lengths of its first (up to 64) inferred meshes."""
+        reference = None if dataset.rest is not None else np.asarray(dataset.inferred[:min(64, dataset.num_poses)])
+        return cls(dataset.faces, dataset.uv, dataset.rest, reference)
+
+    def reference_arrays(self) -> dict[str, np.ndarray]:
+        """What the features are measured against: {"rest_length": (e,) float64 rest edge
+        lengths, "groups": (n,) int64 seam groups}; `MeshGeometry(..., arrays=...)` rebuilds
+        the same geometry from them."""
+        return {"rest_length": self.rest_length.copy(), "groups": self.groups.copy()}
 
     def features(self, positions: np.ndarray) -> np.ndarray:
         """Per-vertex features of poses.
@@ -103,7 +129,8 @@ class MeshGeometry:
         return out
 
 
-def geometry_images(dataset, poses, sampler, parent: np.ndarray, batch: int = 64) -> np.ndarray:
+def geometry_images(dataset, poses, sampler, parent: np.ndarray, batch: int = 64,
+                    geometry: MeshGeometry | None = None) -> np.ndarray:
     """Geometry images of the inferred meshes of some poses.
 
     Args:
@@ -112,13 +139,14 @@ def geometry_images(dataset, poses, sampler, parent: np.ndarray, batch: int = 64
         sampler: `AtlasSampler` of the (possibly subdivided) texcoord mesh.
         parent: (n',2) parent map from the dataset mesh to the sampler's mesh.
         batch: poses rasterized per `to_image` call.
+        geometry: the features' reference (a trained model's); None: the dataset's own
+            (`MeshGeometry.of_dataset`).
 
     Returns:
         (K, 9, R, R) float32, row 0 at v ≈ 0; 0 outside the (dilated) charts.
     """
     poses = [int(p) for p in poses]
-    geometry = MeshGeometry(dataset.faces, dataset.uv, dataset.rest,
-                            None if dataset.rest is not None else np.asarray(dataset.inferred[:min(64, dataset.num_poses)]))
+    geometry = MeshGeometry.of_dataset(dataset) if geometry is None else geometry
     r = sampler.resolution
     out = np.empty((len(poses), NUM_CHANNELS, r, r), dtype=np.float32)
     for start in range(0, len(poses), batch):

@@ -40,7 +40,7 @@ def _architecture_keys(cls, d: dict[str, Any]) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
-class ModelConfig:
+class PaperConfig:
     """Architecture of a `TSNN`.
 
     Attributes:
@@ -88,7 +88,7 @@ class ModelConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "ModelConfig":
+    def from_dict(cls, d: dict[str, Any]) -> "PaperConfig":
         d = _architecture_keys(cls, d)
         config = cls(**{k: (None if d[k] is None else float(d[k]) if k == "dropout" else int(d[k])) for k in d})
         config.validate()
@@ -105,7 +105,7 @@ class TSNN(nn.Module):
     the input; `output_scale` () float32, the displacement unit the last layer works in.
     """
 
-    def __init__(self, config: ModelConfig):
+    def __init__(self, config: PaperConfig):
         super().__init__()
         config.validate()
         self.config = config
@@ -325,7 +325,7 @@ def build_network(arch: dict[str, Any]) -> nn.Module:
     """
     kind = arch.get("arch", "paper")
     if kind == "paper":
-        return TSNN(ModelConfig.from_dict({k: v for k, v in arch.items() if k != "arch"}))
+        return TSNN(PaperConfig.from_dict({k: v for k, v in arch.items() if k != "arch"}))
     if kind == "unet":
         return UNet(UNetConfig.from_dict(arch))
     if kind == "gp":

@@ -1,11 +1,10 @@
 """The model directory a TSNN or `gp` model lives in (model.safetensors, config.json, a
-picture): written once here and read back here, so its keys are known in one place.
+picture, and a `unet`'s geometry.npz): written here; config.json's keys are
+`mvtex.tsnn.config.ModelConfig`'s.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -13,9 +12,13 @@ from typing import Any
 import numpy as np
 
 from mvtex.data.mesh import apply_parent, subdivide
+from mvtex.tsnn.config import (GEOMETRY_FILE, MODEL_FORMAT, MODEL_VERSION, READABLE_VERSIONS, ModelConfig,
+                               mesh_fingerprint)
+from mvtex.util.errors import InputError
 from mvtex.util.output import atomic_path
 
-MODEL_FORMAT = "mvtex-tsnn"
+__all__ = ["MODEL_FORMAT", "MODEL_VERSION", "READABLE_VERSIONS", "TrainResult", "TrainedCameras", "mesh_fingerprint",
+           "rebuild_mesh"]
 
 
 @dataclass(frozen=True)
@@ -70,30 +73,6 @@ class TrainedCameras:
                 "models": {c: m.to_json() for c, m in self.models.items()}, "kept": list(self.kept)}
 
 
-MODEL_VERSION = 3
-# version 1: paper architecture, one camera, no "arch" key; version 2: the base mesh named
-# by its SHA-256 ("base_mesh_sha256"), version 3 by `mvtex.util.fingerprint` ("base_mesh")
-READABLE_VERSIONS = (1, 2, 3)
-
-
-def mesh_fingerprint(faces: np.ndarray, uv: np.ndarray) -> str:
-    """The fingerprint of a base mesh's faces (int32) and uv (float32): ties a model to its mesh."""
-    from mvtex.util.fingerprint import fingerprint
-
-    return fingerprint(np.asarray(faces, dtype=np.int32), np.asarray(uv, dtype=np.float32))
-
-
-def made_for_mesh(mesh_record: dict, faces: np.ndarray, uv: np.ndarray) -> bool:
-    """Whether a config.json "mesh" record names this base mesh (in either key a model
-    directory has used)."""
-    if "base_mesh" in mesh_record:
-        return mesh_record["base_mesh"] == mesh_fingerprint(faces, uv)
-    h = hashlib.sha256()  # models written before version 3
-    h.update(np.ascontiguousarray(faces, dtype=np.int32).tobytes())
-    h.update(np.ascontiguousarray(uv, dtype=np.float32).tobytes())
-    return mesh_record.get("base_mesh_sha256") == h.hexdigest()
-
-
 def rebuild_mesh(faces: np.ndarray, uv: np.ndarray, subdiv: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The texcoord-set mesh made from a dataset mesh: (faces (m',3) int32, uv (n',2) float32,
     parent (n',2) int32) after `subdiv` midpoint subdivisions."""
@@ -135,14 +114,14 @@ def _kept_model(path: Path, key: str) -> TrainResult | None:
     records inputs `key`; None if there is none, it is unreadable or it was trained from
     other inputs."""
     try:
-        meta = json.loads((path / "config.json").read_text())
-        if not (isinstance(meta, dict) and meta.get("inputs") == key and (path / "model.safetensors").is_file()):
+        config = ModelConfig.read(path)
+        if config.inputs != key or not (path / "model.safetensors").is_file():
             return None
-        return TrainResult(camera=meta["camera"], cameras=list(meta["cameras"]), arch=meta["options"]["arch"],
-                           out=str(path), device=meta["device"], resolution=meta["architecture"].get("resolution"),
-                           epochs_run=meta["epochs_run"], best_epoch=meta["best_epoch"], seconds=meta["seconds"],
-                           num_poses={k: len(v) for k, v in meta["split"].items()}, losses=meta["losses"])
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return TrainResult(camera=config.camera, cameras=list(config.cameras), arch=config.options["arch"],
+                           out=str(path), device=config.device, resolution=config.architecture.get("resolution"),
+                           epochs_run=config.epochs_run, best_epoch=config.best_epoch, seconds=config.seconds,
+                           num_poses={k: len(v) for k, v in config.split.items()}, losses=config.losses)
+    except (InputError, OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 
 
@@ -165,9 +144,12 @@ def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
     fig.savefig(path, format="png")
 
 
-def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
+def _write_model(out: Path, model, config: ModelConfig, geometry: dict[str, np.ndarray] | None = None) -> None:
+    """Write a model directory atomically: the weights, config.json, its picture and, given
+    `geometry` (a `unet`'s reference arrays, `MeshGeometry.reference_arrays`), geometry.npz."""
     from safetensors.torch import save
 
+    arch = config.architecture
     with atomic_path(out) as tmp:
         tmp.mkdir()
         state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
@@ -177,16 +159,19 @@ def _write_model(out: Path, model, meta: dict[str, Any]) -> None:
         # limit) is then an OSError the writer policy names the output by, not safetensors' own
         # error type.
         (tmp / "model.safetensors").write_bytes(save(state, metadata={"format": MODEL_FORMAT}))
-        (tmp / "config.json").write_text(json.dumps(meta, indent=2) + "\n")
-        if meta["architecture"]["arch"] == "gp":
+        if geometry is not None:
+            with open(tmp / GEOMETRY_FILE, "wb") as f:
+                np.savez(f, **geometry)
+        config.write(tmp)
+        if arch["arch"] == "gp":
             _relevance_plot(tmp / "relevance.png", model.relevance(),
-                            f"gp {meta['camera']}: relevance of the pose coordinates "
-                            f"({meta['architecture']['num_train']} training poses)")
+                            f"gp {config.camera}: relevance of the pose coordinates "
+                            f"({arch['num_train']} training poses)")
         else:
-            arch = meta["architecture"]["arch"]
-            _loss_plot(tmp / "loss.png", meta["history"], meta["best_epoch"],
-                       f"{arch} model of {'camera ' + meta['camera'] if meta['camera'] else 'all cameras'} "
-                       + (f"({meta['architecture']['resolution']}², " if "resolution" in meta["architecture"] else "(")
-                       + f"best epoch {meta['best_epoch']})"
-                       + ("\nthe error of d within its principal components" if arch == "mlp" else ""),
-                       axis=LOSS_AXIS.get(arch, LOSS_AXIS["paper"]))
+            name = arch["arch"]
+            _loss_plot(tmp / "loss.png", config.history, config.best_epoch,
+                       f"{name} model of {'camera ' + config.camera if config.camera else 'all cameras'} "
+                       + (f"({arch['resolution']}², " if "resolution" in arch else "(")
+                       + f"best epoch {config.best_epoch})"
+                       + ("\nthe error of d within its principal components" if name == "mlp" else ""),
+                       axis=LOSS_AXIS.get(name, LOSS_AXIS["paper"]))

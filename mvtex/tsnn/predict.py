@@ -20,17 +20,16 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mvtex.data.camera import MAX_COORDINATE_M, check_camera_name
-from mvtex.data.rig import save_rig
+from mvtex.data.camera import Camera
+from mvtex.data.rig import Rig, save_rig
 from mvtex.data.texcoords import (MAX_DISPLACEMENT, RIG_FILE, UNCERTAINTY_DTYPE, check_uncertainty, dataset_record,
                                   rig_record, write_header)
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
-from mvtex.tsnn.geometry import geometry_images
-from mvtex.tsnn.modeldir import MODEL_FORMAT, READABLE_VERSIONS, made_for_mesh, rebuild_mesh
-from mvtex.data.limits import MAX_SUBDIV
-from mvtex.tsnn.options import MAX_RESOLUTION, MAX_WIDTH
+from mvtex.tsnn.config import CONFIG_FILE, GEOMETRY_FILE, ModelConfig
+from mvtex.tsnn.geometry import MeshGeometry, geometry_images
+from mvtex.tsnn.modeldir import rebuild_mesh
 from mvtex.util.errors import InputError, OptionError
-from mvtex.util.files import create_npy, read_json, write_npy_rows
+from mvtex.util.files import create_npy, load_npz, write_npy_rows
 from mvtex.util.output import atomic_path, writer
 
 _BLOCK = 256  # poses predicted (and written) at a time
@@ -41,22 +40,37 @@ class LoadedModel:
     """A model directory opened for inference.
 
     Attributes:
-        path: the directory. meta: config.json.
-        camera: its camera name; None for a camera-conditioned model.
-        cameras: the training cameras, name -> (3,4) cam_from_world (None for a one-camera
-            model, whose camera is implicit).
-        network: the `TSNN`, `UNet` or `PoseGP` in eval mode on the CPU.
+        path: the directory. config: its config.json (`ModelConfig`).
+        network: the `TSNN`, `UNet`, `PoseGP` or `PoseMLP` in eval mode on the CPU.
+        geometry: a `unet`'s geometry reference (`MeshGeometry.reference_arrays`, from
+            geometry.npz), or None (other architectures; a `unet` stored without one
+            measures against the set's rest shape).
     """
 
     path: Path
-    camera: str | None
-    meta: dict[str, Any]
+    config: ModelConfig
     network: Any
-    cameras: dict[str, Any] | None = None
+    geometry: dict[str, np.ndarray] | None = None
+
+    @property
+    def camera(self) -> str | None:
+        """Its camera name; None for a camera-conditioned model."""
+        return self.config.camera
+
+    @property
+    def cameras(self) -> dict[str, np.ndarray] | None:
+        """The training cameras of a camera-conditioned model, name -> (3,4) cam_from_world;
+        None for a one-camera model (its camera is implicit)."""
+        return dict(self.config.cameras) if self.conditioned else None
+
+    @property
+    def meta(self) -> dict[str, Any]:
+        """config.json as a dict."""
+        return self.config.to_json()
 
     @property
     def subdiv(self) -> int:
-        return int(self.meta["mesh"]["subdiv"])
+        return int(self.config.mesh.subdiv)
 
     @property
     def conditioned(self) -> bool:
@@ -67,88 +81,52 @@ class LoadedModel:
     def needs_geometry(self) -> bool:
         return hasattr(self.network, "geometry_mean")
 
-
-def _require(meta: dict, file: Path, key: str, kind: type | tuple[type, ...]):
-    value = meta.get(key)
-    if not isinstance(value, kind):
-        raise InputError(file, f"missing or malformed '{key}'")
-    return value
+    def recorded_camera(self, name: str) -> Camera | None:
+        """The training camera `name` whole (`mvtex.data.camera.Camera`) as config.json
+        records it, or None (not one of its cameras, or a model stored without the record)."""
+        rig = self.config.rig
+        return rig[name] if rig is not None and name in rig.names else None
 
 
 def load_model(path: str | os.PathLike) -> LoadedModel:
     """Open a model directory written by `mvtex.tsnn.train.train`.
 
     Raises:
-        InputError: naming config.json or model.safetensors when either is missing,
-            malformed, or does not match the other.
+        InputError: naming config.json (and the key), model.safetensors or geometry.npz when
+            one is missing, malformed, or does not match the others.
     """
+    from mvtex.util.checks import as_path
+
+    path = as_path(path, "path")
+    if not path.is_dir():
+        raise InputError(path, "model directory not found")
+    config = ModelConfig.read(path)
+    network = _network(config, path / CONFIG_FILE, path / "model.safetensors")
+    geometry = None
+    if config.geometry is not None:
+        geometry = load_npz(path / GEOMETRY_FILE)
+        if set(geometry) != {"rest_length", "groups"} or geometry["rest_length"].dtype.kind != "f" \
+                or geometry["groups"].dtype.kind not in "iu":
+            raise InputError(path / GEOMETRY_FILE, "needs arrays rest_length (float) and groups (integer), has "
+                             + ", ".join(f"{k} {v.dtype}" for k, v in sorted(geometry.items())))
+    return LoadedModel(path=path, config=config, network=network, geometry=geometry)
+
+
+def _network(config: ModelConfig, file: Path, weights: Path):
+    """The network of `config` with the weights of `weights`, in eval mode. It is built on
+    the "meta" device (no memory) and compared with the file before anything is allocated:
+    config.json cannot make us allocate more than the weights file holds."""
     import torch
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
     from mvtex.tsnn.model import build_network
 
-    from mvtex.util.checks import as_path
-
-    path = as_path(path, "path")
-    if not path.is_dir():
-        raise InputError(path, "model directory not found")
-    file = path / "config.json"
-    meta = read_json(file)
-    if not isinstance(meta, dict) or meta.get("format") != MODEL_FORMAT:
-        raise InputError(file, f'not a TSNN model (format must be "{MODEL_FORMAT}")')
-    if meta.get("version") not in READABLE_VERSIONS:
-        raise InputError(file, f"unsupported version {meta.get('version')!r} "
-                         f"(readable: {', '.join(map(str, READABLE_VERSIONS))})")
-    camera = meta.get("camera")
-    if not (camera is None or isinstance(camera, str)):
-        raise InputError(file, "malformed 'camera' (a name, or null for a camera-conditioned model)")
-    if camera is not None:
-        try:
-            check_camera_name(camera)
-        except ValueError as err:
-            raise InputError(file, str(err)) from None
-    arch = _require(meta, file, "architecture", dict)
-    mesh = _require(meta, file, "mesh", dict)
-    for key in ("subdiv", "num_base_vertices", "num_vertices"):
-        if not isinstance(mesh.get(key), int) or isinstance(mesh.get(key), bool) or mesh[key] < 0:
-            raise InputError(file, f"missing or malformed 'mesh.{key}'")
-    if not isinstance(mesh.get("base_mesh", mesh.get("base_mesh_sha256")), str):
-        raise InputError(file, "missing or malformed 'mesh.base_mesh'")
-    if mesh["subdiv"] > MAX_SUBDIV:
-        raise InputError(file, f"mesh.subdiv is {mesh['subdiv']}, at most {MAX_SUBDIV} is supported")
-    # Sizes are checked, and the network built on the "meta" device (no memory), before the
-    # weights file is read: config.json cannot make us allocate more than the file holds.
-    widths = arch.get("widths") if isinstance(arch.get("widths"), (list, tuple)) else ()
-    sizes = [arch.get("resolution"), arch.get("width"), arch.get("min_width"), *widths]
-    if any(isinstance(v, (int, float)) and not isinstance(v, bool) and v > limit
-           for v, limit in zip(sizes, [MAX_RESOLUTION] + [MAX_WIDTH] * (len(sizes) - 1))):
-        raise InputError(file, f"architecture too large (resolution at most {MAX_RESOLUTION}, "
-                         f"channels at most {MAX_WIDTH})")
     try:
         with torch.device("meta"):
-            network = build_network(arch)
+            network = build_network(config.architecture)
     except (TypeError, ValueError, OverflowError) as err:
         raise InputError(file, f"bad 'architecture' ({err})") from None
-    conditioned = bool(getattr(network.config, "view", False))
-    if conditioned == (camera is not None):
-        raise InputError(file, "'camera' must be null exactly when the architecture is conditioned on the view")
-    cameras = None
-    if conditioned:
-        raw = meta.get("cameras")
-        try:
-            cameras = {str(k): np.asarray(v, dtype=np.float64) for k, v in raw.items()}
-        except (AttributeError, TypeError, ValueError):
-            cameras = None
-        if not cameras or any(v.shape != (3, 4) or not np.all(np.isfinite(v)) or np.abs(v).max() > MAX_COORDINATE_M
-                              for v in cameras.values()):
-            raise InputError(file, "'cameras' must map camera names to finite 3x4 cam_from_world matrices (entries "
-                             f"at most {MAX_COORDINATE_M:g} in magnitude)")
-    if hasattr(network, "geometry_mean"):  # the U-Net rebuilds its input images: it needs the atlas
-        dilation = meta.get("atlas", {}).get("dilation") if isinstance(meta.get("atlas"), dict) else None
-        if not isinstance(dilation, int) or isinstance(dilation, bool) or not 0 <= dilation <= 64:
-            raise InputError(file, "missing or malformed 'atlas.dilation'")
-    weights = path / "model.safetensors"
     if not weights.is_file():
         raise InputError(weights, "file not found")
     try:
@@ -168,10 +146,10 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
                          f"config.json needs {tuple(expected[bad[0]].shape)}")
     if not all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point()):
         raise InputError(weights, "NaN or infinite weights")
-    network = build_network(arch)
+    network = build_network(config.architecture)
     network.load_state_dict({**network.state_dict(), **state})  # optional buffers absent: their defaults
     network.eval()
-    return LoadedModel(path=path, camera=camera, meta=meta, network=network, cameras=cameras)
+    return network
 
 
 def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, *, geometry: np.ndarray | None = None,
@@ -291,20 +269,64 @@ def _jobs(loaded: list[LoadedModel], rig) -> list[tuple[str, LoadedModel, np.nda
     return [(name, m, view) for name, (m, view) in jobs.items()]
 
 
+def check_serves(model: LoadedModel, dataset, subdiv: int) -> None:
+    """Refuse (InputError naming the model's config.json and the dataset, in one line) a
+    model that cannot serve this dataset: another base mesh (vertex count, faces or uv),
+    another subdivision level than the other models, another pose dimension. Nothing else
+    of the training dataset is asked: a model serves every set of its garment (its own
+    dataset, an inference set of new frames, a corrected set), whatever its rest shape."""
+    file = model.path / CONFIG_FILE
+    mesh = model.config.mesh
+    if model.subdiv != subdiv:
+        raise InputError(file, f"subdivision level {model.subdiv} differs from the other models' ({subdiv}); "
+                         "one texcoord set has one mesh: predict models of one level together")
+    if mesh.num_base_vertices != dataset.num_vertices:
+        raise InputError(file, f"made for a mesh of {mesh.num_base_vertices} vertices, {dataset.path} has "
+                         f"{dataset.num_vertices}")
+    if not mesh.made_for(dataset.faces, dataset.uv):
+        raise InputError(file, f"made for another mesh than {dataset.path} (the same {dataset.num_vertices} "
+                         "vertices, other faces or uv): import the frames with the training mesh's faces and uv")
+    pose_dim = model.network.config.pose_dim
+    if pose_dim != dataset.poses.shape[1]:
+        raise InputError(file, f"expects {pose_dim}-dimensional poses, {dataset.path} has {dataset.poses.shape[1]}-"
+                         "dimensional ones")
+
+
+def _recorded_rig(jobs) -> tuple[Rig | None, list[Path]]:
+    """The rig the models were trained for, camera by camera in the order predicted, from
+    their config.json; with the models that do not record their cameras (older ones)."""
+    cameras, unrecorded = [], []
+    for name, m, _ in jobs:
+        camera = m.recorded_camera(name)
+        if camera is not None:
+            cameras.append(camera)
+        elif m.path not in unrecorded:
+            unrecorded.append(m.path)
+    return (Rig(tuple(cameras)) if not unrecorded else None), unrecorded
+
+
 @writer("predict", inputs=lambda a: (a["dataset"], a["models"]))
 def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike, *, poses: Sequence[int],
             rig=None, progress: bool = True, device: str = "cpu", overwrite: bool = False) -> Path:
     """Run networks over poses and write a texcoord set.
 
+    A model serves every dataset of its mesh and pose dimension (`check_serves`): its
+    training dataset, or an inference set of new frames (DESIGN §4), for which it predicts
+    exactly what it predicts for the same pose vectors and inferred meshes in its own.
+
     Args:
-        dataset: the `mvtex.data.dataset.Dataset` (its mesh, inferred meshes and pose vectors).
+        dataset: the `mvtex.data.dataset.Dataset` (its mesh, inferred meshes and pose vectors;
+            gt is not read).
         models: model directories (same subdivision level): one-camera models and/or a
             camera-conditioned one.
         out: texcoord set directory to write (atomically).
         poses: dataset pose indices, in the order of the set's rows.
         rig: a `mvtex.data.rig.Rig`: predict its cameras (a one-camera model serves its own
             camera, a camera-conditioned model every other camera of the rig). None: every
-            model's own camera(s).
+            model's own camera(s), and the set records the cameras the models were trained
+            for (OUT/rig.yaml, from their config.json), so that triangulate, views, preview
+            and eval need no rig; models stored without that record leave the set without
+            one (said on stderr).
         progress: progress bar over cameras on stderr.
         device: where to run the networks.
         overwrite: replace another command's output at `out` (never files mvtex did not
@@ -318,6 +340,8 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
             for one camera, a model made for another mesh or pose size, a rig camera no
             model can predict.
     """
+    import sys
+
     from mvtex.data.dataset import as_dataset
     from mvtex.data.rig import as_rig
     from mvtex.util.checks import as_path
@@ -339,39 +363,37 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     loaded = [load_model(m) for m in models]
     first = loaded[0]
     for m in loaded:
-        cfg = m.path / "config.json"
-        if m.subdiv != first.subdiv:
-            raise InputError(cfg, f"subdivision level {m.subdiv} differs from {first.path} ({first.subdiv}); "
-                             "one texcoord set has one mesh: predict models of one level together")
-        if m.meta["mesh"]["num_base_vertices"] != dataset.num_vertices or \
-                not made_for_mesh(m.meta["mesh"], dataset.faces, dataset.uv):
-            raise InputError(cfg, f"made for another mesh ({m.meta['mesh']['num_base_vertices']} vertices) than "
-                             f"{dataset.path} ({dataset.num_vertices} vertices, or different faces/uv)")
-        if m.network.config.pose_dim != dataset.poses.shape[1]:
-            raise InputError(cfg, f"expects {m.network.config.pose_dim}-dimensional poses, "
-                             f"{dataset.path} has {dataset.poses.shape[1]}")
+        check_serves(m, dataset, first.subdiv)
     jobs = _jobs(loaded, rig)
     if rig is not None:
         unserved = [c for c in rig.names if c not in {name for name, _, _ in jobs}]
         if unserved:
             raise InputError(out, f"no model predicts camera(s) {', '.join(unserved)} of the rig: give a model "
                              "per camera or a camera-conditioned one")
+    names = [name for name, _, _ in jobs]
+    cameras, unrecorded = (rig.select(names), []) if rig is not None else _recorded_rig(jobs)
     faces, uv, parent = rebuild_mesh(dataset.faces, dataset.uv, first.subdiv)
-    if len(uv) != first.meta["mesh"]["num_vertices"]:
-        raise InputError(first.path / "config.json", f"mesh.num_vertices {first.meta['mesh']['num_vertices']} but "
-                         f"the dataset mesh subdivided {first.subdiv} time(s) has {len(uv)}")
+    if len(uv) != first.config.mesh.num_vertices:
+        raise InputError(first.path / CONFIG_FILE, f"mesh.num_vertices {first.config.mesh.num_vertices} but the "
+                         f"mesh of {dataset.path} subdivided {first.subdiv} time(s) has {len(uv)}")
+    references = {}
+    for m in loaded:
+        if m.geometry is not None:
+            try:
+                references[m.path] = MeshGeometry(dataset.faces, dataset.uv, arrays=m.geometry)
+            except ValueError as err:
+                raise InputError(m.path / GEOMETRY_FILE, f"does not fit {dataset.path}: {err}") from None
     x = np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), -1)
     samplers: dict[tuple[int, int], AtlasSampler] = {}  # (resolution, dilation) -> the models' atlas
-    names = [name for name, _, _ in jobs]
     # Block by block of poses, written into the files as they come: memory stays that of
     # one block (d of 10,000 poses and 24k vertices is 1.9 GB per camera).
     with atomic_path(out) as tmp, tqdm(total=len(poses) * len(jobs), desc="predict", unit="image",
                                        disable=not progress) as bar:
         tmp.mkdir()
         record = {"dataset": dataset_record(dataset), "models": {name: str(m.path) for name, m, _ in jobs}}
-        if rig is not None:
-            record["rig"] = rig_record(rig.select(names))
-            save_rig(rig.select(names), tmp / RIG_FILE)  # the set records its cameras: --rig defaults to them
+        if cameras is not None:
+            record["rig"] = rig_record(cameras)
+            save_rig(cameras, tmp / RIG_FILE)  # the set records its cameras: --rig defaults to them
         write_header(tmp, faces=faces, uv=uv, parent=parent, source="tsnn", subdiv=first.subdiv, poses=poses,
                      cameras=names, **record)
         uncertain = {name for name, m, _ in jobs if getattr(m.network, "has_uncertainty", False)}
@@ -384,15 +406,17 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
         for start in range(0, len(poses), _BLOCK):
             rows = poses[start:start + _BLOCK]
             index = range(start, start + len(rows))
-            geometry: dict[tuple[int, int], np.ndarray] = {}
+            geometry: dict[tuple, np.ndarray] = {}
             for name, m, view in jobs:
                 g = None
                 if m.needs_geometry:
-                    key = (m.network.config.resolution, int(m.meta["atlas"]["dilation"]))
+                    atlas = (m.network.config.resolution, int(m.config.dilation))
+                    key = (*atlas, m.path if m.path in references else None)
                     if key not in geometry:
-                        if key not in samplers:
-                            samplers[key] = AtlasSampler(faces, uv, key[0], dilation=key[1], source=m.path)
-                        geometry[key] = geometry_images(dataset, rows, samplers[key], parent)
+                        if atlas not in samplers:
+                            samplers[atlas] = AtlasSampler(faces, uv, atlas[0], dilation=atlas[1], source=m.path)
+                        geometry[key] = geometry_images(dataset, rows, samplers[atlas], parent,
+                                                        geometry=references.get(m.path))
                     g = geometry[key]
                 d = predict_displacements(m, x[start:start + len(rows)], uv, geometry=g, cam_from_world=view,
                                           device=device)
@@ -406,4 +430,8 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
                         + ("" if row is None else f" at pose {int(rows[row])}") + ": the model is broken; train it again"))
                     write_npy_rows(tmp / name / "uncertainty.npy", index, std)
                 bar.update(len(rows))
+    if unrecorded:  # said once the set is written (an error would make it a second line)
+        print(f"mvtex predict: warning: {unrecorded[0] / CONFIG_FILE} records no cameras (a model trained before "
+              f"models recorded them): {out} records no rig; give --rig to predict, or to the commands that read "
+              "the set", file=sys.stderr)
     return out

@@ -23,11 +23,11 @@ predictive uncertainty.
 A model directory holds:
 
     model.safetensors   the state dict (weights, normalisation buffers)
-    config.json         {"format": "mvtex-tsnn", "version": 2, "camera" (null: conditioned
-                         on the camera), "cameras" (name -> cam_from_world of the training
-                         cameras), "architecture", "mesh" (subdiv, vertex counts, base-mesh
-                         hash), "atlas", "split", "options", "losses", "history",
-                         "inputs" (content fingerprint of what it was trained from), ...}
+    config.json         `mvtex.tsnn.config.ModelConfig`: the camera (null: conditioned on the
+                        camera), the training cameras whole ("rig"), the architecture, the
+                        mesh it serves, the inputs' fingerprint and the training record
+    geometry.npz        `unet`: the reference of its geometry images (rest edge lengths,
+                        seam groups), so that it serves every set of its garment
     loss.png            training and validation loss per epoch (networks)
     relevance.png       which pose coordinates move which principal component of d (gp)
 """
@@ -44,11 +44,16 @@ from typing import Sequence
 
 import numpy as np
 
-from mvtex.tsnn.modeldir import (MODEL_FORMAT, MODEL_VERSION, TrainResult, _write_model, mesh_fingerprint,
-                                 rebuild_mesh)
+from mvtex.tsnn.config import (GEOMETRY_FILE, MODEL_VERSION, MeshRecord, ModelConfig, camera_record,
+                               mesh_fingerprint, training_rig)
+from mvtex.tsnn.geometry import MeshGeometry
+from mvtex.tsnn.modeldir import TrainResult, _write_model, rebuild_mesh
 from mvtex.tsnn.options import TrainOptions
+from mvtex.tsnn.samples import DisplacementRows, Forward, Samples, sample_losses, weighted_mse
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.output import writer
+
+__all__ = ["TrainOptions", "dataset_fingerprint", "resolve_options", "train", "train_camera"]
 
 
 def resolve_options(options: TrainOptions) -> TrainOptions:
@@ -99,89 +104,6 @@ def _split(dataset, texcoords) -> dict[str, list[int]]:
     return split
 
 
-class _Data:
-    """Targets of (pose, camera) samples of one split, as tensors on the training device.
-
-    Attributes:
-        x: (S,P) pose vectors. d: (S,n',2) targets. w: (S,n') loss weights.
-        pose_row: (S,) index of the sample's pose in `poses` (and in `geometry`).
-        camera: (S,) index of the sample's camera in the trainer's camera list.
-        geometry: (K,G,R,R) geometry images of `poses` (unet only) or None.
-    """
-
-    def __init__(self, dataset, texcoords, cameras: list[str], poses: list[int], weight_assigned: float, device,
-                 geometry=None):
-        import torch
-
-        n = len(texcoords.uv)
-        pairs = [(row, c) for row in range(len(poses)) for c in range(len(cameras))]
-        d = np.zeros((len(pairs), n, 2), np.float32)
-        a = np.zeros((len(pairs), n), bool)
-        for i, (row, c) in enumerate(pairs):
-            d[i] = texcoords.displacement(cameras[c], poses[row])
-            a[i] = texcoords.assigned(cameras[c], poses[row])
-        bad = [cameras[c] for i, (_, c) in enumerate(pairs) if not np.all(np.isfinite(d[i]))]
-        if bad:
-            raise InputError(texcoords.path / bad[0] / "displacement.npy", "NaN or infinite displacements")
-        self.poses = poses
-        self.d_numpy = d
-        rows = np.array([row for row, _ in pairs], dtype=np.int64)
-        pose_vectors = np.asarray(dataset.poses[poses], dtype=np.float32).reshape(len(poses), dataset.poses.shape[1])
-        self.x = torch.from_numpy(pose_vectors[rows] if len(pairs) else np.zeros((0, dataset.poses.shape[1]),
-                                                                                     np.float32)).to(device)
-        self.pose_row = torch.from_numpy(rows).to(device)
-        self.camera = torch.from_numpy(np.array([c for _, c in pairs], dtype=np.int64)).to(device)
-        self.d = torch.from_numpy(d).to(device)
-        self.w = torch.from_numpy(np.where(a, weight_assigned, 1.0).astype(np.float32)).to(device)
-        self.geometry = None if geometry is None else torch.from_numpy(geometry).to(device)
-
-    def __len__(self) -> int:
-        return len(self.d)
-
-
-class _Forward:
-    """Runs a network on samples of a `_Data`, whatever its architecture."""
-
-    def __init__(self, model, cam_from_world=None):
-        self.model = model
-        self.cam_from_world = cam_from_world  # (C,3,4) tensor of the trainer's cameras, or None
-
-    def __call__(self, data: _Data, idx, poses=None):
-        x = data.x[idx] if poses is None else poses
-        if not hasattr(self.model, "geometry_mean"):  # the paper's decoder: the pose alone
-            return self.model(x)
-        cams = self.cam_from_world[data.camera[idx]] if self.model.config.view else None
-        return self.model(x, data.geometry[data.pose_row[idx]], cams)
-
-
-def _weighted_mse(pred, target, weight):
-    return ((pred - target).square().sum(-1) * weight).sum() / weight.sum()
-
-
-def _evaluate(predict, data: _Data, batch_size: int) -> dict[str, float]:
-    """Weighted MSE, unweighted RMSE and the zero predictor's weighted MSE over a sample set.
-
-    Args:
-        predict: (data, idx) -> (len(idx),n',2) per-vertex d of those samples (model in eval mode).
-    """
-    import torch
-
-    if len(data) == 0:
-        return {}
-    se_w = w_sum = se = zero_w = 0.0
-    with torch.no_grad():
-        for start in range(0, len(data), batch_size):
-            idx = torch.arange(start, min(start + batch_size, len(data)), device=data.d.device)
-            pred = predict(data, idx)
-            e = (pred - data.d[idx]).square().sum(-1)
-            se_w += float((e * data.w[idx]).sum())
-            w_sum += float(data.w[idx].sum())
-            se += float(e.sum())
-            zero_w += float((data.d[idx].square().sum(-1) * data.w[idx]).sum())
-    n = len(data) * data.d.shape[1]
-    return {"loss": se_w / w_sum, "rmse": math.sqrt(se / n), "zero_loss": zero_w / w_sum}
-
-
 def train_camera(dataset, texcoords, camera: str, out: str | os.PathLike, options: TrainOptions = TrainOptions(),
                  progress: bool = True) -> TrainResult:
     """Train the texture sliding network of one camera (`train` with a camera name)."""
@@ -205,10 +127,11 @@ def dataset_fingerprint(dataset) -> str:
 
 
 def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: dict, options: TrainOptions,
-                dataset_hash: str | None = None) -> str:
+                dataset_hash: str | None = None, rig=None) -> str:
     """Content fingerprint of everything a model is trained from: the dataset's inferred
     shapes, poses and mesh (and its body, when it has one), the texcoord set's mesh, poses
-    and the cameras' arrays, the split, the cameras' views and the resolved options.
+    and the cameras' arrays, the split, the cameras' views, the cameras whole (`rig`, what
+    config.json records of them, `training_rig`) and the resolved options.
     config.json records it as "inputs"; `train_cameras` keeps a camera's model that records
     the key it would train with (the same inputs train the same model: bit for bit for `gp`)."""
     from mvtex.util.fingerprint import fingerprint, fingerprint_record
@@ -219,6 +142,7 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
         "texcoords": {"mesh": fingerprint(texcoords.faces, texcoords.uv, texcoords.parent), "poses": texcoords.poses,
                       "cameras": {c: texcoords.fingerprint(c) for c in cameras}},
         "views": views, "split": split, "options": asdict(options),
+        "rig": None if rig is None else {cam.name: camera_record(cam) for cam in rig},
     }
     return fingerprint_record(record)
 
@@ -236,7 +160,9 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         camera: train one camera's network; None: one network on every camera of the set,
             conditioned on the camera (`unet` only; needs `rig`).
         rig: a `mvtex.data.rig.Rig` holding the set's cameras (their extrinsics are the
-            network's view inputs); needed when `camera` is None.
+            network's view inputs); needed when `camera` is None. config.json records the
+            training cameras whole (`predict` without a rig records them as the set's rig):
+            from `rig`, else from the texcoord set's record of them.
         options: see `TrainOptions`.
         train_poses: train on these poses of the training split only (learning curves);
             None: every training pose of the set.
@@ -292,6 +218,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             raise InputError(texcoords.path, f"cameras {', '.join(missing)} of the texcoord set are not in the rig "
                              f"(it has {', '.join(rig.names)})")
     views = {c: rig[c].cam_from_world.tolist() for c in cameras} if rig is not None and camera is None else {}
+    cameras_whole = training_rig(rig, texcoords, cameras)
     texcoords.check_dataset(dataset)
     faces, uv, parent = _check_texcoord_mesh(dataset, texcoords)
     split = _split(dataset, texcoords)
@@ -302,6 +229,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             raise OptionError("train_poses", "holds no training pose of the texcoord set")
     device = torch.device(options.device)
     t0 = time.perf_counter()
+    reference = MeshGeometry.of_dataset(dataset) if options.arch == "unet" else None
 
     previous_deterministic = torch.are_deterministic_algorithms_enabled()
     try:
@@ -314,39 +242,34 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
                 result = _train_mlp(dataset, texcoords, cameras[0], split, options, progress)
             else:
                 result = _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options, device,
-                                progress)
+                                progress, reference)
     finally:
         torch.use_deterministic_algorithms(previous_deterministic)
     model, config, history, best_epoch, losses = result
     seconds = time.perf_counter() - t0
 
-    meta = {
-        "format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": camera,
-        "inputs": _inputs_key(dataset, texcoords, cameras, views, split, options),
-        "cameras": views or {camera: None},
-        "architecture": config.to_dict(),
-        "pose_normalisation": {"mean": model.pose_mean.cpu().tolist(), "std": model.pose_std.cpu().tolist()},
-        "output_scale": float(model.output_scale),
-        "mesh": {"subdiv": texcoords.subdiv, "num_base_vertices": int(dataset.num_vertices),
-                 "num_vertices": int(len(uv)), "num_faces": int(len(faces)),
-                 "base_mesh": mesh_fingerprint(dataset.faces, dataset.uv)},
-        "atlas": {"convention": "texel (r, c) centre at (u, v) = ((c+0.5)/R, (r+0.5)/R); row 0 at v=0",
-                  "dilation": options.dilation},
-        "dataset": {"path": str(dataset.path), "name": dataset.name},
-        "texcoords": {"path": str(texcoords.path), "source": texcoords.source, "subdiv": texcoords.subdiv},
-        "split": split,
-        "options": asdict(options),
-        "device": str(device),
-        "torch_version": torch.__version__,
-        "epochs_run": len(history["train"]), "best_epoch": best_epoch,
-        "seconds": round(seconds, 2),
-        "losses": losses,
-        "history": history,
-    }
-    _write_model(out, model, meta)
+    record = ModelConfig(
+        camera=camera, version=MODEL_VERSION,
+        inputs=_inputs_key(dataset, texcoords, cameras, views, split, options, rig=cameras_whole),
+        cameras={c: np.asarray(v) for c, v in views.items()} or {camera: None}, rig=cameras_whole,
+        architecture=config.to_dict(),
+        pose_normalisation={"mean": model.pose_mean.cpu().tolist(), "std": model.pose_std.cpu().tolist()},
+        output_scale=float(model.output_scale),
+        mesh=MeshRecord(subdiv=texcoords.subdiv, num_base_vertices=int(dataset.num_vertices),
+                        num_vertices=int(len(uv)), num_faces=int(len(faces)),
+                        base_mesh=mesh_fingerprint(dataset.faces, dataset.uv)),
+        atlas={"convention": "texel (r, c) centre at (u, v) = ((c+0.5)/R, (r+0.5)/R); row 0 at v=0",
+               "dilation": options.dilation},
+        geometry=None if reference is None else {"file": GEOMETRY_FILE},
+        dataset={"path": str(dataset.path), "name": dataset.name},
+        texcoords={"path": str(texcoords.path), "source": texcoords.source, "subdiv": texcoords.subdiv},
+        split=split, options=asdict(options), device=str(device), torch_version=torch.__version__,
+        epochs_run=len(history["train"]), best_epoch=best_epoch, seconds=round(seconds, 2), losses=losses,
+        history=history)
+    _write_model(out, model, record, None if reference is None else reference.reference_arrays())
     return TrainResult(camera=camera, cameras=list(cameras), arch=options.arch, out=str(out), device=str(device),
-                       resolution=getattr(config, "resolution", None), epochs_run=meta["epochs_run"],
-                       best_epoch=best_epoch, seconds=meta["seconds"], num_poses={k: len(v) for k, v in split.items()},
+                       resolution=getattr(config, "resolution", None), epochs_run=record.epochs_run,
+                       best_epoch=best_epoch, seconds=record.seconds, num_poses={k: len(v) for k, v in split.items()},
                        losses=losses)
 
 
@@ -356,18 +279,18 @@ def _masked_stats(images: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.
     return values.mean(1), values.std(1)
 
 
-def _build(options: TrainOptions, sampler, train: _Data, views: dict, pose_dim: int, geometry_train):
+def _build(options: TrainOptions, sampler, train: Samples, views: dict, pose_dim: int, geometry_train):
     """The network with its normalisation set from the training samples."""
     import torch
 
-    from mvtex.tsnn.model import TSNN, ModelConfig, UNet, UNetConfig
+    from mvtex.tsnn.model import TSNN, PaperConfig, UNet, UNetConfig
 
     mean_d = train.d_numpy.mean(axis=0)  # (n',2): the pose-independent part of d
     scale = float(np.sqrt(np.mean((train.d_numpy - mean_d) ** 2))) if len(train) > 1 else 0.0
     scale = max(scale, 1e-4)  # uv units; keeps a constant target from dividing by zero
     x_train = train.x.cpu().numpy()
     if options.arch == "paper":
-        config = ModelConfig(pose_dim=pose_dim, resolution=options.resolution, width=options.width,
+        config = PaperConfig(pose_dim=pose_dim, resolution=options.resolution, width=options.width,
                              min_width=options.min_width, dropout=options.dropout)
         model = TSNN(config)
         model.set_normalisation(x_train.mean(0), x_train.std(0), scale)
@@ -401,7 +324,8 @@ def _build(options: TrainOptions, sampler, train: _Data, views: dict, pose_dim: 
     return model, config
 
 
-def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options: TrainOptions, device, progress):
+def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options: TrainOptions, device, progress,
+           reference=None):
     import torch
     from tqdm import tqdm
 
@@ -413,17 +337,17 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
     if options.arch == "unet":
         from mvtex.tsnn.geometry import geometry_images
 
-        geometry = {k: geometry_images(dataset, split[k], sampler, parent) for k in split}
-    data = {k: _Data(dataset, texcoords, cameras, split[k], options.weight_assigned, device, geometry[k])
+        geometry = {k: geometry_images(dataset, split[k], sampler, parent, geometry=reference) for k in split}
+    data = {k: Samples(dataset, texcoords, cameras, split[k], options.weight_assigned, device, geometry[k])
             for k in split}
     train = data["train"]
     monitor = "val" if len(data["val"]) else "train"
     model, config = _build(options, sampler, train, views, int(dataset.poses.shape[1]), geometry["train"])
     model.to(device)
     cams = torch.tensor([views[c] for c in cameras], dtype=torch.float32, device=device) if views else None
-    forward = _Forward(model, cams)
+    forward = Forward(model, cams)
 
-    def vertices(data: _Data, idx):
+    def vertices(data: Samples, idx):
         return sampler.sample(forward(data, idx), grid)
 
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
@@ -450,7 +374,7 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
                 noise = torch.randn(x.shape, generator=generator).to(device)
                 x = x + options.pose_noise * model.pose_std * noise
             pred = sampler.sample(forward(train, idx, x), grid)
-            loss = _weighted_mse(pred, train.d[idx], train.w[idx])
+            loss = weighted_mse(pred, train.d[idx], train.w[idx])
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
@@ -459,7 +383,7 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
         history["train"].append(total / max(1, sum(len(order[s:s + options.batch_size]) for s in starts)))
         if monitor == "val":
             model.eval()
-            history["val"].append(_evaluate(vertices, data["val"], 64)["loss"])
+            history["val"].append(sample_losses(vertices, data["val"], 64)["loss"])
         score = history[monitor][-1]
         if score < best[0]:
             best = (score, epoch, {k: v.detach().clone() for k, v in model.state_dict().items()})
@@ -471,27 +395,8 @@ def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options
     if best[2] is not None:
         model.load_state_dict(best[2])
     model.eval()
-    losses = {k: _evaluate(vertices, v, 64) for k, v in data.items() if len(v)}
+    losses = {k: sample_losses(vertices, v, 64) for k, v in data.items() if len(v)}
     return model.cpu(), config, history, best[1], losses
-
-
-class _Rows:
-    """One camera's displacements of some poses, read `d[rows]` at a time from the texcoord
-    set: (len(rows), n', 2) float32. Lets `gp` fit thousands of training poses without
-    holding their d whole."""
-
-    def __init__(self, texcoords, camera: str, poses: list[int]):
-        self.texcoords, self.camera, self.poses = texcoords, camera, poses
-        self.shape = (len(poses), len(texcoords.uv), 2)
-
-    def __len__(self) -> int:
-        return len(self.poses)
-
-    def __getitem__(self, rows) -> np.ndarray:
-        out = np.stack([self.texcoords.displacement(self.camera, self.poses[int(r)]) for r in np.atleast_1d(rows)])
-        if not np.all(np.isfinite(out)):
-            raise InputError(self.texcoords.path / self.camera / "displacement.npy", "NaN or infinite displacements")
-        return out
 
 
 def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, device, progress):
@@ -514,16 +419,16 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, dev
             bar.refresh()
         bar.update(done - bar.n)
 
-    model = fit_pose_gp(pose_vectors, _Rows(texcoords, camera, train_poses), components=options.components,
+    model = fit_pose_gp(pose_vectors, DisplacementRows(texcoords, camera, train_poses), components=options.components,
                         progress=advance, device=device)
     bar.close()
     scored = dict(split, train=[train_poses[i] for i in evenly_spaced(len(train_poses), MAX_TRAIN)])
-    data = {k: _Data(dataset, texcoords, [camera], scored[k], options.weight_assigned, "cpu") for k in scored}
+    data = {k: Samples(dataset, texcoords, [camera], scored[k], options.weight_assigned, "cpu") for k in scored}
 
-    def vertices(data: _Data, idx):
+    def vertices(data: Samples, idx):
         return model(data.x[idx])
 
-    losses = {k: _evaluate(vertices, v, 256) for k, v in data.items() if len(v)}
+    losses = {k: sample_losses(vertices, v, 256) for k, v in data.items() if len(v)}
     return model, model.config, {"train": [], "val": []}, 0, losses
 
 
@@ -538,24 +443,24 @@ def _train_mlp(dataset, texcoords, camera: str, split, options: TrainOptions, pr
 
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
-    val = _Data(dataset, texcoords, [camera], split["val"], options.weight_assigned, "cpu")
+    val = Samples(dataset, texcoords, [camera], split["val"], options.weight_assigned, "cpu")
     bar = tqdm(desc=f"train {camera} (mlp, {len(train_poses)} poses)", unit="step", disable=not progress)
 
     def advance(done: int, total: int) -> None:
         bar.total = total
         bar.update(done - bar.n)
 
-    model, history = fit_pose_mlp(pose_vectors, _Rows(texcoords, camera, train_poses), val.x.numpy(), val.d_numpy,
+    model, history = fit_pose_mlp(pose_vectors, DisplacementRows(texcoords, camera, train_poses), val.x.numpy(), val.d_numpy,
                                   components=options.components, hidden=options.width, members=options.members,
                                   seed=options.seed, lr=options.lr, progress=advance)
     bar.close()
     scored = dict(split, train=[train_poses[i] for i in evenly_spaced(len(train_poses), MAX_TRAIN)])
-    data = {k: (val if k == "val" else _Data(dataset, texcoords, [camera], scored[k], options.weight_assigned, "cpu"))
+    data = {k: (val if k == "val" else Samples(dataset, texcoords, [camera], scored[k], options.weight_assigned, "cpu"))
             for k in scored}
 
-    def vertices(data: _Data, idx):
+    def vertices(data: Samples, idx):
         return model(data.x[idx])
 
-    losses = {k: _evaluate(vertices, v, 256) for k, v in data.items() if len(v)}
+    losses = {k: sample_losses(vertices, v, 256) for k, v in data.items() if len(v)}
     best = history.pop("best_epoch")
     return model, model.config, history, max(best), losses

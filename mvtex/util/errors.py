@@ -63,3 +63,9 @@ class OutputError(InputError):
     naming the output being written even when the operating system named no file. Nothing
     is left half-written: the temporaries are removed (a resumable run keeps its
     ``OUT.partial``). It is an `InputError` (exit code 2 from the CLI)."""
+
+
+class NoGroundTruthError(InputError):
+    """What needs the ground-truth cloth, asked of a dataset that has none (an inference set,
+    DESIGN §4): `str(err)` is "DATASET: an inference set, no ground truth (gt.npy): slide
+    needs the ground-truth cloth". It is an `InputError` (exit code 2 from the CLI)."""

@@ -22,6 +22,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from mvtex.data.dataset import as_dataset
 from mvtex.data.rig import Rig
 
 CURVES = ("baseline", "blend", "reconstruct", "direct TS")
@@ -57,6 +58,8 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
     from mvtex.views.novel import novel_views
     from mvtex.views.synthesizer import ViewOptions
 
+    dataset = as_dataset(dataset)
+    dataset.require_gt("measuring views against gt")
     poses = texcoords.poses if poses is None else [int(p) for p in poses]
     cameras = Rig(tuple(interpolate_camera(rig, w, n) for w, n in zip(weights, names)))
     out = {"views": list(names), "weights": [dict(w) for w in weights], "poses": poses,

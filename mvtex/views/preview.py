@@ -13,7 +13,9 @@ T_G, the inferred cloth with T_G ("inferred": what the predictor alone gives) an
 (subdivided) inferred cloth with the eye's texcoords ("texcoords"). SSIM and PSNR
 (scikit-image) of each inferred render against the gt render are computed over the
 garment's bounding box (the pixels that differ from the background in any of the three
-renders, grown by 4 px): the constant background would otherwise inflate both.
+renders, grown by 4 px): the constant background would otherwise inflate both. An inference
+set (no gt) has no gt render: its preview skips the scores (null in preview.json) and the
+gt row of comparison.png.
 
 Output (OUT, written atomically as a whole):
     stereo.png       left eye | right eye, the inferred cloth with the eyes' texcoords
@@ -51,20 +53,22 @@ class EyeScores:
     """One eye's scores against the gt render: (inferred with T_G, texcoords) each.
 
     Attributes:
-        ssim, psnr: (inferred, texcoords) SSIM and PSNR (dB; 99 for identical images).
+        ssim, psnr: (inferred, texcoords) SSIM and PSNR (dB; 99 for identical images); None
+            for a dataset without gt (nothing to score against).
         weights: the array cameras' weights of the eye's texcoords.
         box: (row0, row1, col0, col1) of the pixels scored (the garment's bounding box).
     """
 
-    ssim: tuple[float, float]
-    psnr: tuple[float, float]
+    ssim: tuple[float, float] | None
+    psnr: tuple[float, float] | None
     weights: dict[str, float]
     box: tuple[int, int, int, int]
 
     def to_json(self) -> dict:
-        return {"ssim": {"inferred": self.ssim[0], "texcoords": self.ssim[1]},
-                "psnr": {"inferred": self.psnr[0], "texcoords": self.psnr[1]},
-                "weights": self.weights, "box": list(self.box)}
+        def pair(p):
+            return None if p is None else {"inferred": p[0], "texcoords": p[1]}
+
+        return {"ssim": pair(self.ssim), "psnr": pair(self.psnr), "weights": self.weights, "box": list(self.box)}
 
 
 @dataclass(frozen=True)
@@ -80,12 +84,14 @@ class Preview:
     options: PreviewOptions
     files: list[str]
     convergence: dict | None = None
+    ground_truth: bool = True
 
     def to_json(self) -> dict:
+        over = "garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)" \
+            if self.ground_truth else None
         return {"pose": self.pose, "eyes": {k: v.to_json() for k, v in self.eyes.items()}, "viewpoint": self.viewpoint,
                 "ipd": self.options.ipd, "method": self.method, "source": self.source, "texcoords": self.texcoords,
-                "convergence": self.convergence,
-                "scores_over": "garment bounding box (non-background pixels of gt/inferred/texcoords renders + margin)",
+                "convergence": self.convergence, "ground_truth": self.ground_truth, "scores_over": over,
                 "options": asdict(self.options), "files": self.files}
 
 
@@ -175,7 +181,7 @@ class _Eyes:
         self.dataset, self.rig, self.tc, self.pose, self.array = dataset, rig, texcoords, int(pose), array
         self.synth = ViewSynthesizer(dataset, rig, texcoords, ViewOptions(method=method))
         self.state = self.synth.prepare(pose, progress=progress)
-        self.gt = np.asarray(dataset.gt[pose], np.float64)
+        self.gt = np.asarray(dataset.gt[pose], np.float64) if dataset.has_gt else None
         self.inferred = np.asarray(dataset.inferred[pose], np.float64)
         self.inferred_sub = texcoords.positions(self.inferred)
         self.body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
@@ -194,15 +200,17 @@ class _Eyes:
         T, weights = self.texcoords(eye)
         gl, body = self.synth.gl, self.body
         out = {"weights": weights, "texcoords": _render(gl, self.inferred_sub, self.tc.faces, T, eye, body)}
+        shapes = [x for x in (self.gt, self.inferred) if x is not None]
         if with_references:
-            out["gt"] = _render(gl, self.gt, self.dataset.faces, self.dataset.uv, eye, body)
+            if self.gt is not None:
+                out["gt"] = _render(gl, self.gt, self.dataset.faces, self.dataset.uv, eye, body)
             out["inferred"] = _render(gl, self.inferred, self.dataset.faces, self.dataset.uv, eye, body)
         out["cloth"] = ()
         if body is not None and with_references:  # where the cloth shows: the scores' box
             from mvtex.render.raster import rasterize
 
             out["cloth"] = tuple(rasterize(gl, x, self.dataset.faces, eye, attributes=False, occluder=body).mask
-                                 for x in (self.gt, self.inferred))
+                                 for x in shapes)
         return out
 
 
@@ -228,7 +236,8 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     """`mvtex preview`: the stereo pair of one pose (see the module docstring).
 
     Args:
-        dataset: `Dataset` (gt is read for the reference renders and the scores).
+        dataset: `Dataset` (gt is read for the reference renders and the scores; an
+            inference set gets the pictures without them, its scores None).
         rig: the array. texcoords: the array's `TexcoordSet`.
         pose: dataset pose index (one of the set's poses).
         out: output directory; an existing one must be an earlier preview (it is replaced),
@@ -284,26 +293,30 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     try:
         renders = {"left": eyes.render(left), "right": eyes.render(right)}
         scores = {}
+        shown = ("gt", "inferred", "texcoords") if dataset.has_gt else ("inferred", "texcoords")
         for name, r in renders.items():
-            box = garment_box([r["gt"], r["inferred"], r["texcoords"]], options.margin, r["cloth"])
-            s_inf, p_inf = image_scores(r["gt"], r["inferred"], box)
-            s_tc, p_tc = image_scores(r["gt"], r["texcoords"], box)
-            H, W = r["gt"].shape[:2]
-            scores[name] = EyeScores(ssim=(s_inf, s_tc), psnr=(p_inf, p_tc), weights=r["weights"],
+            box = garment_box([r[k] for k in shown], options.margin, r["cloth"])
+            ssim = psnr = None
+            if dataset.has_gt:
+                s_inf, p_inf = image_scores(r["gt"], r["inferred"], box)
+                s_tc, p_tc = image_scores(r["gt"], r["texcoords"], box)
+                ssim, psnr = (s_inf, s_tc), (p_inf, p_tc)
+            H, W = r["inferred"].shape[:2]
+            scores[name] = EyeScores(ssim=ssim, psnr=psnr, weights=r["weights"],
                                      box=(int(box[0].start or 0), int(box[0].stop or H), int(box[1].start or 0),
                                           int(box[1].stop or W)))
         files = ["stereo.png", "anaglyph.png", "comparison.png", "preview.json"] + (["path.gif"] if options.path else [])
         converged = convergence(viewpoint, options.ipd, cloth)
         report = Preview(pose=pose, eyes=scores, viewpoint={"weights": weights, "centre": viewpoint.center.tolist()},
                          method=options.method, source=texcoords.source, texcoords=str(texcoords.path),
-                         options=options, files=files, convergence=converged)
+                         options=options, files=files, convergence=converged, ground_truth=dataset.has_gt)
         with atomic_path(out) as tmp:
             tmp.mkdir()
             L, R = renders["left"], renders["right"]
             save_png(tmp / "stereo.png", side_by_side([L["texcoords"], R["texcoords"]], gap=0))
             save_png(tmp / "anaglyph.png", anaglyph(L["texcoords"], R["texcoords"], converged["shift_px"]))
-            rows = [[L[k], R[k]] for k in ("gt", "inferred", "texcoords")]
-            labels = ["gt", "inferred T_G", f"{texcoords.source} {options.method}"]
+            rows = [[L[k], R[k]] for k in shown]
+            labels = ["gt", "inferred T_G", f"{texcoords.source} {options.method}"][-len(shown):]
             save_png(tmp / "comparison.png", grid_image(rows, col_labels=["left", "right"], row_labels=labels))
             if options.path:
                 _write_path_gif(tmp / "path.gif", eyes, rig, array, options, progress)

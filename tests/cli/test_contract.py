@@ -5,6 +5,7 @@ were made from."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import socket
@@ -245,7 +246,8 @@ def test_model_files_have_the_modes_of_other_outputs(tmp_path, tiny_dataset):
     from mvtex.tsnn.predict import load_model
 
     model = load_model(fake_model(tmp_path / "m", tiny_dataset))
-    _write_model(tmp_path / "again", model.network, {**model.meta, "history": {"train": [1.0], "val": [1.0]}, "best_epoch": 1})
+    config = dataclasses.replace(model.config, history={"train": [1.0], "val": [1.0]}, best_epoch=1)
+    _write_model(tmp_path / "again", model.network, config)
     modes = {p.name: p.stat().st_mode & 0o777 for p in (tmp_path / "again").iterdir()}
     assert modes["model.safetensors"] == modes["config.json"], modes
 

@@ -695,3 +695,41 @@ def test_mlp_learns_the_field_through_train_and_predict(field_data, tmp_path, mo
     assert np.mean(np.sum((pred - truth) ** 2, -1)) < 0.3 * np.mean(np.sum((truth - mean_train) ** 2, -1))
     out = predict(dataset, [tmp_path / "m"], tmp_path / "pred", poses=test, progress=False)
     assert np.array_equal(open_texcoords(out, dataset.num_vertices).displacement("cam", test[0]), pred[0])
+
+
+def test_unet_predicts_the_same_for_an_inference_set_of_another_rest(rig_data, tmp_path):
+    """A unet measures its geometry images against the reference it was trained with
+    (geometry.npz), so an inference set of the same inferred meshes and poses, whose rest is
+    its first frame instead of the flat rest, gets the same d. Measured against the set's
+    own rest (a model stored without geometry.npz) it would not."""
+    import shutil
+
+    from mvtex.data.dataset import save_dataset
+    from mvtex.data.texcoords import open_texcoords
+    from mvtex.tsnn.predict import predict
+    from mvtex.tsnn.train import TrainOptions, train
+
+    ds, rig, tc, _ = rig_data
+    train(ds, tc, tmp_path / "m", rig=rig, options=TrainOptions(epochs=1, resolution=16, widths=(8, 16), device="cpu"),
+          progress=False)
+    assert (tmp_path / "m" / "geometry.npz").is_file()
+    test = ds.split["test"]
+    save_dataset(tmp_path / "frames", faces=ds.faces, uv=ds.uv, gt=None, inferred=np.asarray(ds.inferred)[test],
+                 poses=np.asarray(ds.poses)[test])
+    predict(ds, [tmp_path / "m"], tmp_path / "own", poses=test, rig=rig, progress=False)
+    predict(tmp_path / "frames", [tmp_path / "m"], tmp_path / "new", poses=list(range(len(test))), rig=rig,
+            progress=False)
+    own, new = open_texcoords(tmp_path / "own"), open_texcoords(tmp_path / "new")
+    diff = max(np.abs(own.displacement(c, p) - new.displacement(c, i)).max()
+               for c in rig.names for i, p in enumerate(test))
+    assert diff <= 1e-6
+    shutil.copytree(tmp_path / "m", tmp_path / "old")
+    (tmp_path / "old" / "geometry.npz").unlink()
+    meta = json.loads((tmp_path / "old" / "config.json").read_text())
+    del meta["geometry"]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    predict(tmp_path / "frames", [tmp_path / "old"], tmp_path / "old_new", poses=list(range(len(test))), rig=rig,
+            progress=False)
+    old_new = open_texcoords(tmp_path / "old_new")
+    assert max(np.abs(own.displacement(c, p) - old_new.displacement(c, i)).max()
+               for c in rig.names for i, p in enumerate(test)) > 1e-5
