@@ -130,7 +130,7 @@ def targets(sb: Sandbox) -> dict:
                          lambda: dict(dataset=ds, texcoords=tc, pose=0, out=sb.out("scene"), rig=rig,
                                       options=mvtex.ExportOptions(texture_size=64, viewer=False)),
                          {"dataset": NOT_TEXT, "texcoords": NOT_TEXT, "pose": HOSTILE, "out": NOT_TEXT,
-                          "rig": NOT_TEXT, "options": HOSTILE, "rig_source": NOT_TEXT}),
+                          "rig": NOT_TEXT, "options": HOSTILE}),
         "render_pose": (mvtex.render_pose, lambda: dict(dataset=ds, rig=rig, pose=0, out=sb.out("render"),
                                                         progress=False),
                         {"dataset": NOT_TEXT, "rig": NOT_TEXT, "pose": HOSTILE, "out": NOT_TEXT,

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import mmap
 import os
+import threading
 import zipfile
 import zlib
 from pathlib import Path
@@ -178,13 +179,20 @@ def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
             np.savez_compressed(f, **arrays)
 
 
+_HEADER_LOCK = threading.Lock()
+"""Held while NumPy reads a .npy header: it parses it with `ast`, and CPython 3.11 before
+3.11.8 raises "AST constructor recursion depth mismatch" when threads parse at once (a Dask
+worker with several threads)."""
+
+
 def load_npy(path: str | os.PathLike, mmap: bool = True) -> np.ndarray:
     """Load a .npy (memory-mapped by default), never unpickling."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file not found")
     try:
-        array = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
+        with _HEADER_LOCK:
+            array = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
     except (ValueError, OSError, EOFError, MemoryError) as err:
         raise InputError(path, f"not a readable .npy array ({err})") from None
     if not isinstance(array, np.ndarray):  # np.load opens a .npz archive too

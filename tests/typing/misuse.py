@@ -16,5 +16,5 @@ mvtex.SlideOptions(fill="nearest")  # misuse
 mvtex.evaluate(dataset, rig, "ts").ratio_materials  # misuse
 mvtex.triangulate_pose(dataset, rig, mvtex.open_texcoords("ts"), "32", "recon")  # misuse
 report = mvtex.triangulate_pose(dataset, rig, mvtex.open_texcoords("ts"), 32, "recon")
-print(report.rmse_m.reconstructed + "mm")  # misuse
+print(report.num_triangulated + " vertices")  # misuse
 mvtex.train(dataset, mvtex.open_texcoords("ts"), "model", camera=3)  # misuse
