@@ -121,13 +121,12 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--json", type=Path, help="also write the rows here")
     args = parser.parse_args(argv)
 
-    from mvtex.data.dataset import load_dataset, reference_shape
+    from mvtex.data.dataset import load_dataset, parse_pose_spec, reference_shape
     from mvtex.data.rig import load_rig, resolve_rig
     from mvtex.render.context import GLContext
     from mvtex.sliding.options import SlideOptions
     from mvtex.sliding.pose import slide_pose
     from mvtex.sliding.topology import body_topology, build_topology
-    from mvtex.data.dataset import parse_pose_spec
 
     options = SlideOptions(subdiv=args.subdiv)
     rows = []

@@ -23,7 +23,7 @@ import numpy as np
 
 import mvtex.render.raster
 import mvtex.sliding.fill
-import mvtex.sliding.kernels
+import mvtex.sliding.hits
 import mvtex.sliding.pose
 from mvtex.data.dataset import load_dataset, reference_shape
 from mvtex.data.rig import as_rig
@@ -33,11 +33,11 @@ from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import displacement_from_hits
 from mvtex.sliding.topology import build_topology
 
-TIMED = {  # step -> (module, function) whose calls are summed
-    "raster": (mvtex.render.raster, "rasterize_pair"),
-    "occluder": (mvtex.sliding.kernels, "nearest_occluder"),
-    "first_hits": (mvtex.sliding.kernels, "first_hits"),
-    "inside": (mvtex.sliding.kernels, "seen_from_inside"),
+TIMED = {  # step -> (the module that calls it, the function's name there) whose calls are summed
+    "raster": (mvtex.sliding.hits, "rasterize_pair"),
+    "occluder": (mvtex.sliding.hits, "nearest_occluder"),
+    "first_hits": (mvtex.sliding.hits, "first_hits"),
+    "inside": (mvtex.sliding.hits, "compiled_seen_from_inside"),
     "fill": (mvtex.sliding.pose, "fill"),
     "solve": (mvtex.sliding.fill, "solve_spd"),
 }

@@ -33,7 +33,6 @@ import sys
 import time
 from pathlib import Path
 
-
 LABELS = {"gp": "`gp`", "mlp": "`mlp` (5 members)", "ts": "TS + 1 (the target)"}
 
 

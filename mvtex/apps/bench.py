@@ -12,31 +12,40 @@ rule after that (`sliding.displacement_from_hits`: back faces, edge breaking, fi
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import platform
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.data.camera import Camera
+from mvtex.data.dataset import as_dataset, load_dataset, reference_shape
 from mvtex.data.limits import MAX_SUBDIV
-from mvtex.data.rig import Rig, check_outside_body, check_sees
+from mvtex.data.rig import Rig, as_rig, check_outside_body, check_sees
+from mvtex.evaluation.evaluate import ImageEvaluator
+from mvtex.render.context import GLContext
 from mvtex.sliding.hits import Hits, find_hits_raster, in_front, intersect_pairs, owning_vertices
+from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import displacement_from_hits
 from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
-from mvtex.util.parallel import check_backend
+from mvtex.util.checks import as_index, as_indices
+from mvtex.util.errors import OptionError
+from mvtex.util.parallel import check_backend, configure_threads, worker_count
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 
 
 def _intersector(positions: np.ndarray, faces: np.ndarray):
-    import trimesh
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
+    import trimesh  # noqa: PLC0415 (loaded on use)
+    from trimesh.ray.ray_pyembree import RayMeshIntersector  # noqa: PLC0415 (loaded on use)
 
     return RayMeshIntersector(trimesh.Trimesh(vertices=positions, faces=faces, process=False))
 
@@ -66,7 +75,6 @@ def find_hits_embree(gt: np.ndarray, inferred: np.ndarray, faces: np.ndarray, X:
     """Same contract as `sliding.find_hits_raster`, by ray casting with Embree (the body,
     if given, in a scene of its own: it is in the pixels' scene, hides a vertex it meets
     before the vertex and a gt hit it meets before the hit)."""
-    from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
 
     n = len(X)
     origin = camera.center
@@ -144,9 +152,6 @@ def _worker_pass(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats: 
     """In a worker process: warm up, wait for the other workers, then time `repeats`
     passes over `jobs` ((pose, camera name) pairs) on the raster path. Returns (number of
     jobs, fastest pass in seconds)."""
-    from mvtex.data.dataset import load_dataset, reference_shape
-    from mvtex.render.context import GLContext
-    from mvtex.util.parallel import configure_threads
 
     configure_threads(1)
     ds = load_dataset(dataset_path, validate=False)
@@ -171,10 +176,6 @@ def _bench_workers(dataset_path: str, rig: Rig, jobs: list, subdiv: int, repeats
     """Raster-path jobs/s of `workers` processes running side by side, each on its share
     of the jobs (start-up, topology and warm-up excluded: the processes start timing
     together, behind a barrier)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    from mvtex.util.parallel import worker_count
 
     workers = worker_count(workers)  # never more processes than cores
     ctx = mp.get_context("spawn")
@@ -260,8 +261,6 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
     Returns:
         A `BenchResult`.
     """
-    from mvtex.util.checks import as_index, as_indices
-    from mvtex.util.errors import OptionError
 
     poses = None if poses is None else as_indices(poses, "poses")
     subdiv, repeats = as_index(subdiv, "subdiv"), as_index(repeats, "repeats")
@@ -269,11 +268,6 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         raise OptionError("subdiv", f"must be an integer in [0, {MAX_SUBDIV}], got {subdiv}")
     if not 1 <= repeats <= 100:
         raise OptionError("repeats", f"must be an integer in [1, 100], got {repeats}")
-    from tqdm import tqdm
-
-    from mvtex.data.dataset import as_dataset, reference_shape
-    from mvtex.data.rig import as_rig
-    from mvtex.render.context import GLContext
 
     check_backend(workers)
     ds = as_dataset(dataset)
@@ -287,7 +281,6 @@ def run_bench(dataset, rig, *, poses: Sequence[int] | None = None, subdiv: int =
         with GLContext() as own:
             return run_bench(ds, rig, poses=poses, subdiv=subdiv, repeats=repeats, progress=progress,
                              workers=workers, ctx=own)
-    from mvtex.evaluation.evaluate import ImageEvaluator
 
     options = SlideOptions(subdiv=subdiv)
     topo = build_topology(ds.faces, ds.uv, reference_shape(ds), subdiv)

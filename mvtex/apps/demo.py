@@ -25,6 +25,7 @@ from pathlib import Path
 from mvtex.apps.options import DemoOptions
 from mvtex.util.output import writer
 
+
 def _step(name: str, progress: bool) -> float:
     if progress:
         import sys

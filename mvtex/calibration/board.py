@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mvtex.util.checks import as_path, check_instance
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.options import NO_DEFAULT, Options, knob
-from mvtex.util.output import writer
+from mvtex.util.output import atomic_path, writer
 
 SPEC_PATTERN = re.compile(r"^charuco:(\d+)x(\d+):([0-9.eE+-]+):([0-9.eE+-]+):(DICT_\w+)$")
 
@@ -56,7 +57,7 @@ class BoardSpec(Options):
     dictionary: str = knob(NO_DEFAULT, "an OpenCV predefined dictionary, e.g. DICT_5X5_100", flag=False)
 
     def validate(self) -> None:
-        import cv2
+        import cv2  # noqa: PLC0415 (loaded on use)
 
         if not 0 < self.marker_m < self.square_m:
             raise OptionError("marker_m", f"must be in (0, square_m), got square_m {self.square_m:g} and "
@@ -80,7 +81,7 @@ class BoardSpec(Options):
     @cached_property
     def cv_board(self):
         """The `cv2.aruco.CharucoBoard`."""
-        import cv2
+        import cv2  # noqa: PLC0415 (loaded on use)
 
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, dictionary)
@@ -93,7 +94,7 @@ class BoardSpec(Options):
 
 def parse_board_spec(text: str) -> BoardSpec:
     """Parse `charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT`; anything else raises InputError."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     match = SPEC_PATTERN.match(str(text).strip())
     if not match:
@@ -156,7 +157,6 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
     Returns:
         {"path", "spec", "pixels_per_square", "dpi", "width_px", "height_px", "width_mm", "height_mm"}.
     """
-    from mvtex.util.checks import as_path, check_instance
 
     check_instance(spec, BoardSpec, "spec")
     path = as_path(path, "path")
@@ -166,10 +166,8 @@ def write_board_png(spec: BoardSpec, path: str | os.PathLike, *, dpi: float | No
             raise OptionError(key, f"must be a finite number, got {value!r:.60}")
     if pixels_per_square is not None and not float(pixels_per_square).is_integer():
         raise OptionError("pixels_per_square", f"must be an integer, got {pixels_per_square!r}")
-    import cv2
-    from PIL import Image, PngImagePlugin
-
-    from mvtex.util.output import atomic_path
+    import cv2  # noqa: PLC0415 (loaded on use)
+    from PIL import Image, PngImagePlugin  # noqa: PLC0415 (loaded on use)
 
     path = Path(path)
     if dpi is not None and pixels_per_square is not None:
@@ -231,7 +229,7 @@ class BoardDetector:
     """`cv2.aruco.CharucoDetector` for one board, made once and reused over images."""
 
     def __init__(self, spec: BoardSpec):
-        import cv2
+        import cv2  # noqa: PLC0415 (loaded on use)
 
         self.spec = spec
         charuco = cv2.aruco.CharucoParameters()
@@ -241,7 +239,7 @@ class BoardDetector:
 
     def detect(self, image: np.ndarray) -> Detection:
         """Detect the chessboard corners in a gray (H,W) or colour (H,W,3) uint8 image."""
-        import cv2
+        import cv2  # noqa: PLC0415 (loaded on use)
 
         image = np.asarray(image)
         if image.ndim == 3:

@@ -30,15 +30,18 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import coo_matrix
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from mvtex.calibration.board import BoardDetector, BoardSpec, Detection
-from mvtex.calibration.options import CalibrateOptions
 from mvtex.calibration.images import CameraImages, camera_image_size, read_gray
+from mvtex.calibration.options import CalibrateOptions
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
+from mvtex.util.checks import as_list, check_instance
 from mvtex.util.errors import InputError, OptionError
-
-
 
 CALIBRATION_FORMAT = "mvtex-calibration"
 
@@ -139,7 +142,7 @@ def _spread(points: np.ndarray) -> bool:
 
 
 def _intrinsic_flags(distortion: str) -> int:
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     flags = 0
     if "k3" not in distortion:
@@ -168,7 +171,7 @@ def calibrate_intrinsics(obs: Observations, spec: BoardSpec, distortion: str) ->
     Returns:
         K (3,3), dist (5,), RMS (px), and the cam_from_board (4,4) of each of its frames.
     """
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     corners = spec.corners
     object_points = [corners[d.ids].astype(np.float32) for d in obs.detections]
@@ -191,7 +194,7 @@ def calibrate_intrinsics(obs: Observations, spec: BoardSpec, distortion: str) ->
 def _scan_focal(object_points: list, image_points: list, image_size: tuple[int, int]) -> np.ndarray:
     """(3,3) K with the principal point at the image centre and the focal length (from
     0.2 to 5 image diagonals) under which per-view planar PnP reprojects best."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     width, height = image_size
     diagonal = float(np.hypot(width, height))
@@ -212,7 +215,6 @@ def _scan_focal(object_points: list, image_points: list, image_size: tuple[int, 
 
 
 def _pose(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
 
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec(rvec).as_matrix()
@@ -229,7 +231,6 @@ def _inverse(T: np.ndarray) -> np.ndarray:
 
 def _average_pose(poses: Sequence[np.ndarray]) -> np.ndarray:
     """Rotation mean (chordal) and median translation of rigid transforms (4,4)."""
-    from scipy.spatial.transform import Rotation
 
     T = np.eye(4)
     T[:3, :3] = Rotation.from_matrix(np.stack([p[:3, :3] for p in poses])).mean().as_matrix()
@@ -289,7 +290,6 @@ def project_distorted(points: np.ndarray, rotvec: np.ndarray, tvec: np.ndarray, 
 
 def _matrices(rotvecs: np.ndarray) -> np.ndarray:
     """(k,3) Rodrigues vectors -> (k,3,3) rotation matrices."""
-    from scipy.spatial.transform import Rotation
 
     return Rotation.from_rotvec(rotvecs).as_matrix().reshape(-1, 3, 3)
 
@@ -332,7 +332,6 @@ class _Problem:
 
     def pack(self, intrinsics: dict[str, np.ndarray], cam_from_world: dict[str, np.ndarray],
              world_from_board: np.ndarray) -> np.ndarray:
-        from scipy.spatial.transform import Rotation
 
         x = np.zeros(self.size)
         for i, name in enumerate(self.names):
@@ -373,7 +372,6 @@ class _Problem:
 
     def sparsity(self):
         """(2N, size) 0/1 pattern: which parameters each residual depends on."""
-        from scipy.sparse import coo_matrix
 
         n = len(self.points)
         columns = [self.cam_index[:, None] * self.n_intr + np.arange(self.n_intr),
@@ -406,17 +404,13 @@ def calibrate(cameras: Sequence[CameraImages], options: CalibrateOptions, *, pro
         InputError: unreadable images, a camera with too few usable frames, a camera that
             shares no frame with the others, an unknown reference camera.
     """
-    from mvtex.util.checks import check_instance
 
     check_instance(options, CalibrateOptions, "options")
-    from mvtex.util.checks import as_list
 
     cameras = as_list(cameras, "cameras", CameraImages, "CameraImages (`find_images`)")
     if not cameras:
         raise OptionError("cameras", "must be a non-empty list of CameraImages (`find_images`)")
-    import cv2
-    from scipy.optimize import least_squares
-    from tqdm import tqdm
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     names = [c.name for c in cameras]
     root = next(iter(cameras[0].files.values())).parent.parent

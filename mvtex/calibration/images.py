@@ -77,7 +77,7 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
         InputError: naming the file when it is not a readable image, or larger than
             `mvtex.data.camera.MAX_IMAGE_SIZE` on a side (checked before any memory is taken).
     """
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415 (loaded on use)
 
     try:
         with open(path, "rb") as file:
@@ -139,7 +139,7 @@ def _stderr_kept() -> Iterator[list[str]]:
 def _open(path: Path, gray: bool = False):
     """The image of `path` decoded whole by Pillow, or InputError naming it; with `gray`, a
     JPEG is decoded to its luma directly (as libjpeg does for OpenCV's gray reads)."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415 (loaded on use)
 
     image_size(path)  # the header's size is checked before anything is decoded
     try:
@@ -165,7 +165,7 @@ def read_gray(path: str | os.PathLike) -> np.ndarray:
         InputError: naming the file: unreadable, truncated, larger than MAX_IMAGE_SIZE a
             side (from the header, before decoding).
     """
-    from PIL import ImageOps
+    from PIL import ImageOps  # noqa: PLC0415 (loaded on use)
 
     path = Path(path)
     image = ImageOps.exif_transpose(_open(path, gray=True))
@@ -201,7 +201,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 
 
 def _read_16bit_color(path: Path) -> np.ndarray:
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     data = np.fromfile(path, np.uint8)
     with _stderr_kept():

@@ -4,6 +4,8 @@ the calibration and its pictures (the rig, the reprojection residuals).
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 from pathlib import Path
 
@@ -13,7 +15,9 @@ from mvtex.calibration.board import BoardSpec
 from mvtex.calibration.calibrate import CALIBRATION_FORMAT, CalibrateOptions, Calibration, calibrate
 from mvtex.calibration.images import find_images
 from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, save_rig
+from mvtex.util.checks import as_path, check_instance
+from mvtex.util.output import atomic_path, claim_file, claim_output
 
 
 def write_calibration(calibration: Calibration, rig_file: str | os.PathLike,
@@ -26,10 +30,6 @@ def write_calibration(calibration: Calibration, rig_file: str | os.PathLike,
     Returns:
         {"rig": path, "pictures": [paths]}.
     """
-    import json
-
-    from mvtex.data.rig import save_rig
-    from mvtex.util.output import atomic_path
 
     rig_file = Path(rig_file)
     files = []
@@ -64,10 +64,6 @@ def calibrate_folder(images: str | os.PathLike, rig_file: str | os.PathLike, opt
     the record and pictures of the calibration). Both outputs follow the writer policy of
     `mvtex.util.output`: an existing rig file is replaced only with `overwrite`, neither
     output may be, hold or lie inside the image folder."""
-    import contextlib
-
-    from mvtex.util.checks import as_path, check_instance
-    from mvtex.util.output import claim_file, claim_output
 
     images, rig_file = as_path(images, "images"), as_path(rig_file, "rig_file")
     pictures = as_path(pictures, "pictures", optional=True)
@@ -98,8 +94,8 @@ def plot_rig(rig: Rig, path: str | os.PathLike, *, board: BoardSpec | None = Non
     Drawn in the cameras' mean axes: right, forward (mean viewing direction) and up (mean
     of the cameras' -y), so a rig looks upright whichever world frame it uses.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415 (loaded on use)
+    from matplotlib.figure import Figure  # noqa: PLC0415 (loaded on use)
 
     up = -np.mean([cam.R[1] for cam in rig], axis=0)
     up /= np.linalg.norm(up)
@@ -126,7 +122,7 @@ def plot_rig(rig: Rig, path: str | os.PathLike, *, board: BoardSpec | None = Non
         everything += boards
     pts = np.vstack(everything)
     scale = max(float(np.ptp(pts, axis=0).max()), 0.1)
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # noqa: PLC0415 (loaded on use)
 
     colors = colormaps["viridis"](np.linspace(0, 1, max(len(boards), 1)))
     for i, b in enumerate(boards):
@@ -158,8 +154,8 @@ def plot_rig(rig: Rig, path: str | os.PathLike, *, board: BoardSpec | None = Non
 def plot_residuals(calibration: Calibration, path: str | os.PathLike, *, columns: int = 3) -> None:
     """Per camera, each detected corner over the image with its reprojection residual
     (arrow, magnified) coloured by its length in pixels."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415 (loaded on use)
+    from matplotlib.figure import Figure  # noqa: PLC0415 (loaded on use)
 
     names = calibration.rig.names
     cols = min(columns, len(names))
@@ -192,7 +188,6 @@ def plot_residuals(calibration: Calibration, path: str | os.PathLike, *, columns
 
 
 def _save_figure(fig, path: str | os.PathLike) -> None:
-    from mvtex.util.output import atomic_path
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")

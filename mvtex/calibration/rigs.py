@@ -9,12 +9,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.calibration.images import read_image
+from mvtex.calibration.output import plot_rig
 from mvtex.data.camera import undistort_image, undistorted_camera
 from mvtex.data.rig import Rig, save_rig, undistort_rig
+from mvtex.formats.colmap import read_rig, write_rig
 from mvtex.util.errors import InputError, OptionError
-from mvtex.util.output import writer
+from mvtex.util.files import save_png, write_json
+from mvtex.util.output import atomic_path, writer
 
 UNDISTORT_FORMAT = "mvtex-undistorted"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -49,7 +53,6 @@ def write_pinhole_rig(rig: Rig, out: str | os.PathLike, alpha: float | None = No
 def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, overwrite: bool = False) -> Path:
     """Write a rig as a COLMAP model (PINHOLE cameras, one image `<camera>.png` each) into
     the folder `out` (written whole, then renamed in)."""
-    from mvtex.formats.colmap import write_rig
 
     out = Path(out)
     distorted = [cam.name for cam in rig if np.any(cam.dist != 0)]
@@ -65,7 +68,6 @@ def export_colmap(rig: Rig, out: str | os.PathLike, *, text: bool = False, overw
 @writer("rig", file=True, inputs=lambda a: (a["model"],))
 def import_colmap(model: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool = False) -> Rig:
     """Read the cameras of a COLMAP model (PINHOLE or SIMPLE_PINHOLE) and write them as a rig."""
-    from mvtex.formats.colmap import read_rig
 
     rig = read_rig(model)
     save_rig(rig, out)
@@ -75,7 +77,6 @@ def import_colmap(model: str | os.PathLike, out: str | os.PathLike, *, overwrite
 @writer("rig", file=True)
 def plot_rig_file(rig: Rig, out: str | os.PathLike, title: str = "", *, overwrite: bool = False) -> None:
     """A 3-D picture of the rig (frusta and names) as PNG."""
-    from mvtex.calibration.output import plot_rig
 
     plot_rig(rig, Path(out), title=title)
 
@@ -114,10 +115,6 @@ def undistort_folder(images: str | os.PathLike, rig: Rig, out: str | os.PathLike
     Returns:
         {"num_images", "cameras": {name: count}, "rig", "alpha"}.
     """
-    from tqdm import tqdm
-
-    from mvtex.util.files import save_png, write_json
-    from mvtex.util.output import atomic_path
 
     images, out = Path(images), Path(out)
     if not images.is_dir():

@@ -5,14 +5,19 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from mvtex.calibration.board import BoardSpec, board_image
 from mvtex.data.camera import Camera
 from mvtex.render.context import GLContext
 from mvtex.render.quad import QuadRenderer
+from mvtex.util.files import save_png
+
 
 class BoardRenderer:
     """Renders the printed board (a textured quad, white margin included) seen by a camera,
@@ -120,7 +125,6 @@ def random_board_poses(rig, spec: BoardSpec, count: int, *, target=(0.0, 0.0, 0.
     Returns:
         (count,4,4) float64 world_from_board.
     """
-    from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(seed)
     first = rig.cameras[0]
@@ -165,11 +169,6 @@ def render_calibration_images(rig, spec: BoardSpec, world_from_board: np.ndarray
         world_from_board: (f,4,4) board poses.
         renderer: reuse a BoardRenderer (made here, and released, if None).
     """
-    import sys
-
-    from tqdm import tqdm
-
-    from mvtex.util.files import save_png
 
     out = Path(out)
     rng = np.random.default_rng(seed)

@@ -331,7 +331,7 @@ def undistorted_camera(camera: Camera, alpha: float | None = None) -> Camera:
     if alpha is None:
         K = camera.K
     else:
-        import cv2
+        import cv2  # noqa: PLC0415 (loaded on use)
 
         if not 0.0 <= float(alpha) <= 1.0:
             raise OptionError("alpha", f"must be in [0, 1], got {alpha}")
@@ -352,7 +352,7 @@ def undistort_image(image: np.ndarray, camera: Camera, pinhole: Camera) -> np.nd
     Returns:
         (pinhole.height, pinhole.width[, C]) image of the same dtype.
     """
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     image = np.asarray(image)
     if image.shape[:2] != (camera.height, camera.width):

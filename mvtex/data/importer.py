@@ -4,17 +4,22 @@ ground-truth meshes an inference set (DESIGN §4): the frames a trained model se
 
 from __future__ import annotations
 
+import glob
 import glob as globlib
+import logging
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.data.camera import MAX_COORDINATE_M
 from mvtex.data.dataset import save_dataset, validate_body_faces
-from mvtex.util.output import writer
-from mvtex.util.errors import InputError
+from mvtex.util.checks import as_path
+from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import load_npy
+from mvtex.util.output import writer
 
 MESH_SUFFIXES = (".obj", ".ply")
 
@@ -74,10 +79,8 @@ def _ply_face_count(file: str) -> int | None:
 
 
 def _read_mesh(file: str):
-    import logging
-    import warnings
 
-    import trimesh
+    import trimesh  # noqa: PLC0415 (loaded on use)
 
     if Path(file).suffix.lower() == ".obj":
         _check_obj_text(file)
@@ -129,7 +132,6 @@ def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray
     nb = len(first.vertices)
     validate_body_faces(faces, nb, files[0])  # the body's own file named, not the dataset being made
     positions = np.empty((count, nb, 3), dtype=np.float32)
-    from tqdm import tqdm
 
     for k, file in enumerate(tqdm(files, desc="import body", unit="pose", disable=not progress)):
         mesh = first if k == 0 else _read_mesh(file)
@@ -138,7 +140,6 @@ def _read_body(files: list[str], progress: bool) -> tuple[np.ndarray, np.ndarray
 
 
 def _inputs(a: dict) -> list:
-    import glob
 
     # Only what names files: an argument of another type is refused by the function itself.
     named = [a[k] for k in ("gt_glob", "inferred_glob", "body_glob") if isinstance(a[k], (str, os.PathLike))]
@@ -168,8 +169,6 @@ def import_sequences(out: str | os.PathLike, gt_glob: str | None = None, inferre
         InputError: naming the file: no match, a mesh of another vertex count or
             connectivity, NaN, pose rows or body meshes of another frame count.
     """
-    from mvtex.util.checks import as_path
-    from mvtex.util.errors import OptionError
 
     out = as_path(out, "out")
     poses_file = as_path(poses_file, "poses_file", optional=True)
@@ -205,7 +204,6 @@ def import_sequences(out: str | os.PathLike, gt_glob: str | None = None, inferre
         rest = _check_same_mesh(_read_mesh(os.fspath(rest_mesh)), os.fspath(rest_mesh), n, faces, source)
     gt = np.empty((len(inf_files), n, 3), dtype=np.float32) if gt_files is not None else None
     inferred = np.empty((len(inf_files), n, 3), dtype=np.float32)
-    from tqdm import tqdm
 
     pairs = list(zip(gt_files or [None] * len(inf_files), inf_files))
     for k, (g, i) in enumerate(tqdm(pairs, desc="import", unit="pose", disable=not progress)):

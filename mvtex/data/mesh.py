@@ -12,6 +12,7 @@ from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
 
 
 def edges(faces: np.ndarray) -> np.ndarray:
@@ -269,7 +270,6 @@ def uv_charts(faces: np.ndarray, n: int) -> np.ndarray:
 
     UV seams are split vertices, so each UV chart is one component.
     """
-    import scipy.sparse.csgraph as csgraph
 
     return csgraph.connected_components(adjacency(faces, n), directed=False)[1].astype(np.int64)
 

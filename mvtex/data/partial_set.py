@@ -15,8 +15,15 @@ from mvtex.data.texcoord_header import TexcoordHeader
 from mvtex.data.texcoords import LAYOUT, RIG_FILE, write_header
 from mvtex.util.errors import InputError
 from mvtex.util.files import create_npy, load_npy, save_npy, write_npy_rows
-from mvtex.util.output import (atomic_path, foreign_entries, forget, mark_output, remove_leftovers, replace_path,
-                               written_by_mvtex)
+from mvtex.util.output import (
+    atomic_path,
+    foreign_entries,
+    forget,
+    mark_output,
+    remove_leftovers,
+    replace_path,
+    written_by_mvtex,
+)
 
 
 class PartialSet:

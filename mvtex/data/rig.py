@@ -14,7 +14,11 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from mvtex.data.camera import MAX_IMAGE_SIZE, Camera, undistorted_camera
+from mvtex.util.checks import as_list
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.files import read_row
+from mvtex.util.output import atomic_path, claim_file
+from mvtex.util.resources import resource_path
 
 RIG_FORMAT = "mvtex-rig"
 
@@ -40,7 +44,6 @@ class Rig:
     source: Path | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
-        from mvtex.util.checks import as_list
 
         object.__setattr__(self, "cameras", tuple(as_list(self.cameras, "cameras", what="Camera")))
         if self.source is not None:
@@ -77,7 +80,6 @@ class Rig:
     def select(self, names: Sequence[str] | None) -> "Rig":
         """The sub-rig with these camera names (all if None or empty), from the same source;
         unknown names raise InputError naming the rig's file."""
-        from mvtex.util.checks import as_list
 
         if names is None:
             return self
@@ -117,9 +119,7 @@ def save_rig(rig: Rig, path: str | os.PathLike, *, overwrite: bool = False) -> N
     Raises:
         OptionError: `rig` is not a `Rig`, or a camera would not read back as it is.
     """
-    import cv2
-
-    from mvtex.util.output import atomic_path, claim_file
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     if not isinstance(rig, Rig):
         raise OptionError("rig", f"must be a Rig, got {type(rig).__name__}")
@@ -169,7 +169,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
     """Read an mvtex-rig YAML, or a built-in rig by name (`stereo`, `square4`,
     `trapezoid12`); any problem raises InputError naming the file. Every camera is checked
     by `Camera` (the same checks `save_rig` makes)."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     if not isinstance(path, (str, os.PathLike)):
         raise OptionError("rig", f"must be a rig file path or a built-in rig name, got {type(path).__name__}")
@@ -291,7 +291,6 @@ def check_outside_body(rig: Rig, dataset, poses: Sequence[int]) -> None:
     robust to small holes); it is computed only where the centre is inside the body's
     bounding box at that pose. Without a body nothing is checked.
     """
-    from mvtex.util.files import read_row
 
     body = getattr(dataset, "body", None)
     if body is None:
@@ -323,7 +322,6 @@ def as_rig(rig: "Rig | str | os.PathLike") -> Rig:
 
 def builtin_rig_file(name: str) -> Path:
     """Path of a rig shipped with mvtex (`stereo`, `square4`, `trapezoid12`)."""
-    from mvtex.util.resources import resource_path
 
     return resource_path("calib", f"{name}.yaml")
 

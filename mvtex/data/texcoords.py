@@ -18,6 +18,7 @@ texcoords.json is `mvtex.data.texcoord_header.TexcoordHeader`; the resumable wri
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -169,7 +170,6 @@ class TexcoordSet:
         """Refuse (InputError) a dataset other than the one this set was made from: its mesh
         (vertex count, and the fingerprint of faces and uv where recorded) and its content
         (`mvtex.data.dataset.content_fingerprint`, where recorded)."""
-        from mvtex.util.fingerprint import fingerprint
 
         header = self.path / "texcoords.json"
         if self.num_base_vertices != dataset.num_vertices:
@@ -223,7 +223,6 @@ class TexcoordSet:
 def _mesh_fingerprint_0_1(faces: np.ndarray, uv: np.ndarray) -> str:
     """The "mesh" fingerprint texcoord sets of mvtex 0.1 recorded (SHA-1 of shapes, dtypes and
     bytes), so that `check_dataset` reads them."""
-    import hashlib
 
     h = hashlib.sha1()
     for a in (np.ascontiguousarray(faces), np.ascontiguousarray(uv)):
@@ -253,7 +252,6 @@ def rig_record(rig) -> dict:
 def dataset_record(dataset) -> dict:
     """What a texcoord set records of the dataset it was made from (`TexcoordSet.check_dataset`
     compares a dataset with it)."""
-    from mvtex.util.fingerprint import fingerprint
 
     return {"path": str(Path(dataset.path).resolve()), "name": dataset.name, "num_poses": dataset.num_poses,
             "num_vertices": dataset.num_vertices, "mesh": fingerprint(dataset.faces, dataset.uv),

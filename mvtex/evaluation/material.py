@@ -7,8 +7,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+import scipy.sparse as sp
 
 from mvtex.data.camera import Camera
+from mvtex.evaluation.kernels import locate
+from mvtex.render.context import context_or_new
+from mvtex.render.raster import check_mesh, interpolate, rasterize, rasterize_uv
+from mvtex.util.checks import as_array, as_index, check_shape
+from mvtex.util.errors import OptionError
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
@@ -39,14 +45,6 @@ class MaterialMap:
 
     def __init__(self, faces: np.ndarray, uv: np.ndarray, rest: np.ndarray, resolution: int = 2048, *,
                  ctx: GLContext | None = None):
-        import scipy.sparse as sp
-
-        from mvtex.render.context import context_or_new
-        from mvtex.render.raster import rasterize_uv
-
-        from mvtex.render.raster import check_mesh
-        from mvtex.util.checks import as_array, as_index, check_shape
-        from mvtex.util.errors import OptionError
 
         uv, faces = check_mesh(uv, faces, "uv", dims=2)
         self.faces = faces.astype(np.int64)
@@ -85,7 +83,6 @@ class MaterialMap:
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """Rest positions (k,3) float64 of the material points named by uv points (k,2)."""
-        from mvtex.evaluation.kernels import locate
 
         points = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
         out, inside = locate(points, self.ids, self.faces, self.uv, self.rest, self.face_ring.indptr,
@@ -134,7 +131,6 @@ def material_error_image(ctx: GLContext, gt_positions: np.ndarray, faces_gt: np.
             two meshes show, in meters; NaN where not covered by both meshes.
         rmse: sqrt(mean error²) over the covered pixels, meters (NaN if none).
     """
-    from mvtex.render.raster import interpolate, rasterize
 
     r_g = rasterize(ctx, np.asarray(gt_positions, np.float64), np.asarray(faces_gt), camera)
     r_i = rasterize(ctx, np.asarray(inf_positions, np.float64), np.asarray(faces_inf), camera)

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mvtex.data.camera import Camera
+from mvtex.render.raster import interpolate, rasterize
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
@@ -32,7 +33,6 @@ def texcoord_image(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, tex
         (H,W,2) float32 uv per pixel (0 on background), and the `Raster` it came from
         (`.mask` is where the mesh covers the pixel).
     """
-    from mvtex.render.raster import interpolate, rasterize
 
     raster = rasterize(ctx, np.asarray(positions, np.float64), np.asarray(faces), camera, attributes=True)
     return interpolate(np.asarray(texcoords, np.float64), raster, faces), raster

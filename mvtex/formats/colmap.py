@@ -17,14 +17,15 @@ import numpy as np
 from mvtex.data.camera import Camera
 from mvtex.data.rig import Rig
 from mvtex.util.checks import check_shape
-from mvtex.util.errors import InputError
+from mvtex.util.errors import InputError, OutputError
+from mvtex.util.output import atomic_path
 
 COLMAP_PIXEL_OFFSET = 0.5
 
 
 def _pycolmap():
     try:
-        import pycolmap
+        import pycolmap  # noqa: PLC0415 (loaded on use)
     except ImportError as err:  # a failed native import
         raise RuntimeError(f"pycolmap is needed for COLMAP models ({err}); pip install pycolmap") from err
     return pycolmap
@@ -157,8 +158,6 @@ def write_model(reconstruction, path: str | os.PathLike, text: bool = False) -> 
     Raises:
         OutputError: naming `path`, when the written model does not read back whole.
     """
-    from mvtex.util.errors import OutputError
-    from mvtex.util.output import atomic_path
 
     pycolmap = _pycolmap()
     path = Path(path)

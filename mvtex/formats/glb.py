@@ -12,6 +12,8 @@ from typing import Sequence
 
 import numpy as np
 
+from mvtex.util.output import atomic_path
+
 
 def export_glb(path: str | os.PathLike, meshes: Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
                spacing: float = 1.25, body: tuple[np.ndarray, np.ndarray, Sequence[int]] | None = None) -> Path:
@@ -26,9 +28,7 @@ def export_glb(path: str | os.PathLike, meshes: Sequence[tuple[str, np.ndarray, 
     Positions are kept in world axes, only centred: the built-in data is y-up with the
     cameras on +z, glTF's convention, so a viewer opens on the garment's front.
     """
-    import trimesh
-
-    from mvtex.util.output import atomic_path
+    import trimesh  # noqa: PLC0415 (loaded on use)
 
     width = max(float(np.ptp(np.asarray(p)[:, 0])) for _, p, _, _ in meshes)
     scene = trimesh.Scene()
@@ -105,10 +105,8 @@ def scene_glb(path: str | os.PathLike, *, positions: np.ndarray, faces: np.ndarr
         body: (positions (nb,3), faces (mb,3), normals (nb,3), RGB) or None.
         extras: JSON-serialisable data about the scene.
     """
-    import trimesh
-    from PIL import Image
-
-    from mvtex.util.output import atomic_path
+    import trimesh  # noqa: PLC0415 (loaded on use)
+    from PIL import Image  # noqa: PLC0415 (loaded on use)
 
     positions = np.asarray(positions, np.float64)
     n = len(positions)

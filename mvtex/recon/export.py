@@ -20,9 +20,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.data.rig import Rig
+from mvtex.formats.colmap import point_reconstruction, track_tables
+from mvtex.formats.ply import write_ply
 from mvtex.recon.triangulate import ReconOptions, Reconstruction
+from mvtex.render.context import context_or_new
+from mvtex.render.pictures import comparison_picture, comparison_scales, error_colors, texture_colors
+from mvtex.render.shading import render_textured
+from mvtex.util.files import save_png, write_json
+from mvtex.util.output import atomic_path
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
@@ -31,7 +39,6 @@ if TYPE_CHECKING:
 @contextlib.contextmanager
 def _atomic_dir(path: Path) -> Iterator[Path]:
     """`io.atomic_path` for a directory: yields the created temporary directory."""
-    from mvtex.util.output import atomic_path
 
     with atomic_path(path) as tmp:
         tmp.mkdir()
@@ -63,14 +70,6 @@ def export_reconstruction(out: str | os.PathLike, rec: Reconstruction, rig: Rig,
     Returns:
         The directory written.
     """
-    from tqdm import tqdm
-
-    from mvtex.formats.colmap import point_reconstruction, track_tables
-    from mvtex.formats.ply import write_ply
-    from mvtex.render.context import context_or_new
-    from mvtex.render.pictures import comparison_picture, comparison_scales, error_colors, texture_colors
-    from mvtex.render.shading import render_textured
-    from mvtex.util.files import save_png, write_json
 
     out = Path(out)
     names = [c for c in rig.names if c in rec.observations]

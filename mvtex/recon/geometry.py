@@ -31,10 +31,11 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from mvtex.data.camera import Camera, image_contains
+from mvtex.data.camera import Camera, _as_float_array, image_contains
 from mvtex.data.mesh import rms_distance
-from mvtex.util.checks import check_shape
+from mvtex.util.checks import as_list, check_shape
 from mvtex.util.errors import OptionError
 
 MIN_TRIANGULATION_ANGLE_DEG = 1.0
@@ -53,7 +54,6 @@ def camera_arrays(cameras: Sequence[Camera]) -> tuple[np.ndarray, np.ndarray, np
 
 def _cameras(cameras) -> list[Camera]:
     """The cameras argument as a list of Camera (a Rig will do); OptionError otherwise."""
-    from mvtex.util.checks import as_list
 
     return as_list(cameras, "cameras", Camera, "Camera (or a Rig)")
 
@@ -319,7 +319,6 @@ def _triangulate_block(cameras, pixels: np.ndarray, weights: np.ndarray, iterati
 
 def _as_array(value, name: str) -> np.ndarray:
     """`value` as a float64 array; OptionError naming `name` when it is not numbers."""
-    from mvtex.data.camera import _as_float_array
 
     return _as_float_array(value, name)
 
@@ -362,8 +361,7 @@ def surface_distance(points: np.ndarray, positions: np.ndarray, faces: np.ndarra
     Returns:
         (N,) float64 distances.
     """
-    import trimesh.triangles
-    from scipy.spatial import cKDTree
+    import trimesh.triangles  # noqa: PLC0415 (loaded on use)
 
     points = np.asarray(points, dtype=np.float64)
     check_shape(points, "points", ("N", 3))

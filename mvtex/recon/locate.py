@@ -21,10 +21,14 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import scipy.sparse as sp
+from tqdm import tqdm
 
 from mvtex.data.camera import Camera
 from mvtex.data.mesh import barycentric_2d
 from mvtex.recon.geometry import in_image
+from mvtex.render.context import GLContext, context_or_new
+from mvtex.render.raster import rasterize, rasterize_uv
+from mvtex.sliding.hits import nearest_body_hit
 from mvtex.util.checks import check_shape
 
 if TYPE_CHECKING:
@@ -65,8 +69,6 @@ def locate_uv(points: np.ndarray, faces: np.ndarray, texcoords: np.ndarray, reso
         point_index (h,) int64, face_index (h,) int64, bary (h,3) float64: one row per
         (point, containing triangle) pair, sorted by point.
     """
-    from mvtex.render.context import context_or_new
-    from mvtex.render.raster import rasterize_uv
 
     points = np.asarray(points, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -284,11 +286,6 @@ def collect_hypotheses(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces:
         another of the vertex's hypotheses in that camera: a point on a shared edge),
         "occluded" (by the cloth) and "hidden_by_body" (seen past the cloth, not past the body).
     """
-    from tqdm import tqdm
-
-    from mvtex.render.context import GLContext
-    from mvtex.render.raster import rasterize
-    from mvtex.sliding.hits import nearest_body_hit
 
     if ctx is None:
         with GLContext() as own:

@@ -15,8 +15,8 @@ from mvtex.util.errors import InputError
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
-from mvtex.recon.report import ReconReport, reconstruction_report
 from mvtex.recon.options import check_observation_count
+from mvtex.recon.report import ReconReport, reconstruction_report
 from mvtex.recon.triangulate import ReconOptions, reconstruct
 from mvtex.util.output import writer
 

@@ -49,9 +49,17 @@ from mvtex.data.camera import Camera
 from mvtex.data.mesh import weld_groups, welded_adjacency
 from mvtex.data.rig import Rig
 from mvtex.recon.consensus import HypothesisLedger, Vote, screen_hypotheses, vote
-from mvtex.recon.geometry import (MIN_TRIANGULATION_ANGLE_DEG, camera_arrays, observed, project_points,
-                                  projection_jacobian, reprojection_errors, surface_distance, triangulate_points,
-                                  triangulation_angles)
+from mvtex.recon.geometry import (
+    MIN_TRIANGULATION_ANGLE_DEG,
+    camera_arrays,
+    observed,
+    project_points,
+    projection_jacobian,
+    reprojection_errors,
+    surface_distance,
+    triangulate_points,
+    triangulation_angles,
+)
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
 from mvtex.recon.options import MIN_SIGMA_PX, ReconOptions, check_observation_count
 from mvtex.util.checks import check_shape

@@ -12,10 +12,12 @@ from contextlib import contextmanager
 from functools import lru_cache
 from typing import Iterator
 
+from mvtex.util.errors import InputError
+from mvtex.util.resources import resource_path
+
 
 @lru_cache(maxsize=None)
 def _shader_source(name: str) -> str:
-    from mvtex.util.resources import resource_path
 
     return resource_path("shaders", name).read_text()
 
@@ -37,7 +39,7 @@ class GLContext:
     """
 
     def __init__(self, backend: str | None = "egl"):
-        import moderngl
+        import moderngl  # noqa: PLC0415 (loaded on use)
 
         errors = []
         self.mgl = None
@@ -108,7 +110,6 @@ class GLContext:
         if key not in self._targets:
             wide = 2 * width if kind == "pair" else width
             if max(wide, height) > self.max_size:
-                from mvtex.util.errors import InputError
 
                 raise InputError(None, f"an image of {width}x{height} pixels is larger than this OpenGL draws "
                                  f"({self.max_size} pixels a side at most); use smaller camera images")

@@ -13,6 +13,20 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
+from mvtex.data.mesh import vertex_normals, vertex_strain_energy, weld_groups
+from mvtex.render.context import context_or_new
+from mvtex.render.raster import interpolate, rasterize
+from mvtex.render.shading import (
+    BODY_RGB,
+    CLOTH_RGB,
+    _with_body,
+    fabric_colors,
+    garment_box,
+    render_shaded,
+    render_textured,
+    scaled_camera,
+)
+
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 
@@ -22,7 +36,7 @@ BACKGROUND = (24, 24, 28)
 
 def colormap(values: np.ndarray, vmin: float, vmax: float, name: str = "jet") -> np.ndarray:
     """Values (...) -> colours (..., 3) uint8 of a matplotlib colormap over [vmin, vmax] (clipped)."""
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # noqa: PLC0415 (loaded on use)
 
     x = np.clip((np.asarray(values, np.float64) - vmin) / (vmax - vmin), 0.0, 1.0)
     return (colormaps[name](x)[..., :3] * 255.0 + 0.5).astype(np.uint8)
@@ -52,7 +66,7 @@ def heatmap(error: np.ndarray, vmax: float | ColorScale = 0.04, *,
 
 def label(image: np.ndarray, text: str, *, scale: float = 0.5) -> np.ndarray:
     """Copy of an RGB uint8 image with `text` written in its top-left corner."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     out = np.ascontiguousarray(np.asarray(image, dtype=np.uint8).copy())
     thick = max(1, int(round(2 * scale)))
@@ -82,14 +96,14 @@ def side_by_side(images: Sequence[np.ndarray], labels: Sequence[str] | None = No
 
 def _text(canvas: np.ndarray, text: str, x: int, y: int, scale: float = 0.4,
           color: tuple[int, int, int] = (235, 235, 235)) -> None:
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     cv2.putText(canvas, text, (int(x), int(y)), cv2.FONT_HERSHEY_SIMPLEX, scale, color, 1, cv2.LINE_AA)
 
 
 def _vertical_text(text: str, height: int, scale: float = 0.45, background=BACKGROUND) -> np.ndarray:
     """`text` written bottom to top, centred in a (height, h, 3) strip."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
     strip = np.full((h + base + 6, max(height, w + 4), 3), background, np.uint8)
@@ -141,7 +155,7 @@ class ColorScale:
 
     def colors(self, values: np.ndarray) -> np.ndarray:
         """Values (...) -> (..., 3) uint8 (NaN drawn as vmin)."""
-        from matplotlib import colormaps
+        from matplotlib import colormaps  # noqa: PLC0415 (loaded on use)
 
         x = np.nan_to_num(self.normalized(values), nan=0.0)
         return (colormaps[self.name](x)[..., :3] * 255.0 + 0.5).astype(np.uint8)
@@ -204,7 +218,7 @@ def colorbar(height: int, vmax: float | ColorScale = 0.04, width: int = 96, unit
     top, bottom = 10, height - 10
     bar_w = 16
     positions = np.linspace(1.0, 0.0, bottom - top)
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # noqa: PLC0415 (loaded on use)
 
     ramp = (colormaps[scale.name](positions)[:, :3] * 255 + 0.5).astype(np.uint8)
     canvas[top:bottom, 4:4 + bar_w] = ramp[:, None, :]
@@ -235,7 +249,7 @@ def legend(entries: Sequence[tuple[tuple[int, int, int], str]], width: int, *, s
            background: tuple[int, int, int] = BACKGROUND) -> np.ndarray:
     """A (h, width, 3) legend: one row per (RGB, text) entry, a colour swatch then the text
     (long texts wrap)."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     rows: list[tuple[tuple[int, int, int] | None, str]] = []
     room = width - 34
@@ -262,7 +276,7 @@ def legend(entries: Sequence[tuple[tuple[int, int, int], str]], width: int, *, s
 
 def caption(text: str, width: int, *, scale: float = 0.55, background: tuple[int, int, int] = BACKGROUND) -> np.ndarray:
     """A (h, width, 3) strip with `text` written on it, wrapped to the width: a picture's title."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     lines, line = [], ""
     for word in text.split():
@@ -299,7 +313,7 @@ def busiest_window(a: np.ndarray, b: np.ndarray, mask: np.ndarray, size: int) ->
     """The size x size pixel window (u0, v0, u1, v1; pixel edges) where two pictures of the
     same view differ most (sum of absolute luminance differences inside `mask`): where the
     wrinkles of one are missing from the other."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     diff = np.abs(np.asarray(a, np.float32).mean(axis=2) - np.asarray(b, np.float32).mean(axis=2)) * mask
     h, w = diff.shape
@@ -323,7 +337,7 @@ def grid_image(rows: Sequence[Sequence[np.ndarray]], col_labels: Sequence[str] |
     scaled down to at most `max_width` pixels, tile by tile, so the full-size canvas is
     never allocated.
     """
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     h = max(image.shape[0] for row in rows for image in row)
     w = max(image.shape[1] for row in rows for image in row)
@@ -355,7 +369,6 @@ def strain_colors(strain: np.ndarray, scale: float) -> np.ndarray:
 
 def texture_colors(uv: np.ndarray, size: int = 1024) -> np.ndarray:
     """The fabric texture's colour at each texture coordinate (n,2) -> (n,3) uint8 (nearest texel)."""
-    from mvtex.render.shading import fabric_colors
 
     return fabric_colors(uv, size)
 
@@ -376,10 +389,6 @@ def render_vertex_colors(positions: np.ndarray, faces: np.ndarray, colors: np.nd
     Returns:
         (H,W,3) uint8 RGB image.
     """
-    from mvtex.data.mesh import vertex_normals, weld_groups
-    from mvtex.render.context import context_or_new
-    from mvtex.render.raster import interpolate, rasterize
-    from mvtex.render.shading import BODY_RGB, _with_body
 
     if body is not None:
         colors = np.concatenate([np.asarray(colors, np.float64), np.tile(np.asarray(BODY_RGB, np.float64),
@@ -406,7 +415,6 @@ def comparison_scales(faces: np.ndarray, gt: np.ndarray, inferred: np.ndarray, r
     (`fit_scale`: top at their 99th percentile, in mm), and "strain", the signed edge strain
     against `rest` of all three meshes on one symmetric linear scale (top at the 99th
     percentile of |strain|)."""
-    from mvtex.data.mesh import vertex_strain_energy
 
     gt = np.asarray(gt, np.float64)
     errors = [np.linalg.norm(np.asarray(x, np.float64) - gt, axis=1) for x in (inferred, reconstructed)]
@@ -419,7 +427,7 @@ def comparison_scales(faces: np.ndarray, gt: np.ndarray, inferred: np.ndarray, r
 
 
 def _outline(image: np.ndarray, box: tuple[float, float, float, float], color=ZOOM_RGB) -> np.ndarray:
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     out = np.ascontiguousarray(image.copy())
     u0, v0, u1, v1 = (int(round(b + 0.5)) for b in box)
@@ -452,9 +460,6 @@ def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray
     Returns:
         (H',W',3) uint8 RGB picture.
     """
-    from mvtex.data.mesh import vertex_strain_energy
-    from mvtex.render.context import context_or_new
-    from mvtex.render.shading import BODY_RGB, CLOTH_RGB, garment_box, render_shaded, render_textured, scaled_camera
 
     scales = comparison_scales(faces, gt, inferred, reconstructed, rest) if scales is None else scales
     meshes = {"gt": gt, "inferred": inferred, "reconstruction": reconstructed}
@@ -471,7 +476,6 @@ def comparison_picture(camera, faces: np.ndarray, uv: np.ndarray, gt: np.ndarray
         geometry = [render_shaded(ctx, x, faces, camera, body=body) for x in meshes.values()]
         box = garment_box(gt, camera, margin=0.0)
         size = max(32, int(0.4 * max(box[2] - box[0], box[3] - box[1])))
-        from mvtex.render.raster import rasterize
 
         cloth = rasterize(ctx, np.asarray(gt, np.float64), faces, camera, attributes=False, occluder=body).mask
         window = busiest_window(geometry[0], geometry[1], cloth, size)

@@ -22,11 +22,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.data.camera import Camera
-from mvtex.data.dataset import Dataset
-from mvtex.data.rig import Rig, check_outside_body, check_sees
-from mvtex.data.texcoords import TexcoordSet
+from mvtex.data.dataset import Dataset, as_dataset
+from mvtex.data.rig import Rig, as_rig, check_outside_body, check_sees
+from mvtex.data.texcoords import TexcoordSet, as_texcoords
+from mvtex.render import raster as gl
+from mvtex.render.context import GLContext
+from mvtex.render.pictures import grid_image, side_by_side
+from mvtex.render.shading import garment_box, render_shaded, render_textured, scaled_camera
+from mvtex.util.checks import as_index, as_path
 from mvtex.util.errors import InputError
 from mvtex.util.files import read_row, save_png, write_json
 from mvtex.util.output import atomic_path, writer
@@ -83,17 +89,12 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
     Returns:
         {"pose": k, "cameras": [...], "files": [...]} (paths relative to out).
     """
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import as_texcoords
-    from mvtex.util.checks import as_index, as_path
 
     dataset = as_dataset(dataset)
     rig = as_rig(rig)
     texcoord_set = None if texcoord_set is None else as_texcoords(texcoord_set, "texcoord_set")
     pose = as_index(pose, "pose")
     out = as_path(out, "out")
-    from mvtex.render.context import GLContext
 
     if not 0 <= pose < dataset.num_poses:
         raise InputError(dataset.path, f"pose {pose} out of range (dataset has {dataset.num_poses} poses)")
@@ -115,11 +116,6 @@ def render_pose(dataset: Dataset, rig: Rig, pose: int, out: str | os.PathLike, *
 
 def _render_into(out: Path, dataset: Dataset, rig: Rig, pose: int, texcoord_set: TexcoordSet | None, raster: bool,
                  progress: bool, ctx: GLContext) -> dict:
-    from tqdm import tqdm
-
-    from mvtex.render import raster as gl
-    from mvtex.render.pictures import side_by_side
-    from mvtex.render.shading import garment_box, render_shaded, render_textured, scaled_camera
 
     files, tiles = [], []
     body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
@@ -150,7 +146,6 @@ def _render_into(out: Path, dataset: Dataset, rig: Rig, pose: int, texcoord_set:
         save_png(out / cam.name / "shaded_zoom.png", side_by_side(zooms, list(views)))
         files.append(f"{cam.name}/shaded_zoom.png")
         tiles.append(row + zooms)
-    from mvtex.render.pictures import grid_image
 
     shown = ["gt", "inferred"] if dataset.has_gt else ["inferred"]
     labels = shown + [f"{what} geometry, zoom" for what in shown]

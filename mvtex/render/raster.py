@@ -21,14 +21,14 @@ import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.render.context import GLContext
+from mvtex.util.checks import as_array, as_index, check_instance, check_shape
+from mvtex.util.errors import OptionError
 
 
 def check_mesh(positions, faces, name: str = "positions", dims: int = 3, size: str = "n",
                faces_size: str = "m") -> tuple[np.ndarray, np.ndarray]:
     """Positions (n,dims) finite float64 and faces (m,3) integer indices into them, checked
     before anything reaches GL (OptionError naming the argument)."""
-    from mvtex.util.checks import as_array, check_shape
-    from mvtex.util.errors import OptionError
 
     positions = as_array(positions, name)
     sizes = check_shape(positions, name, (size, dims))
@@ -44,8 +44,6 @@ def check_mesh(positions, faces, name: str = "positions", dims: int = 3, size: s
 
 
 def _check_draw(ctx, camera=False, occluder=None):
-    from mvtex.util.checks import check_instance
-    from mvtex.util.errors import OptionError
 
     check_instance(ctx, GLContext, "ctx")
     if camera is not False:
@@ -113,7 +111,7 @@ def _deindexed(points: np.ndarray, faces: np.ndarray) -> bytes:
 
 def _draw_ids(ctx: GLContext, points3: np.ndarray, faces: np.ndarray, width: int, height: int, clip: np.ndarray,
               depth_test: bool, attributes: bool) -> Raster:
-    import moderngl
+    import moderngl  # noqa: PLC0415 (loaded on use)
 
     if len(faces) == 0:
         empty = np.full((height, width), -1, np.int32)
@@ -202,8 +200,6 @@ def rasterize_uv(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, width: int, 
     (DESIGN §3). Only texels whose centre is inside a triangle are written; where
     triangles overlap in uv, the last drawn wins. `depth` is 0.
     """
-    from mvtex.util.checks import as_index
-    from mvtex.util.errors import OptionError
 
     _check_draw(ctx)
     uv, faces = check_mesh(uv, faces, "uv", dims=2)
@@ -345,7 +341,7 @@ def rasterize_pair_attributes(ctx: GLContext, base_positions: np.ndarray, subdiv
 
 def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, camera: Camera, levels: int,
                pixels, occluder, attributes: bool) -> PairRaster:
-    import moderngl
+    import moderngl  # noqa: PLC0415 (loaded on use)
 
     camera.require_renderable()
     base_positions = np.asarray(base_positions, np.float64)
@@ -443,8 +439,6 @@ def _draw_pair(ctx: GLContext, base_positions, subdivided_positions, faces, came
 
 def interpolate(values: np.ndarray, raster: Raster, faces: np.ndarray) -> np.ndarray:
     """Per-vertex values (n,C) interpolated at every pixel, (H,W,C) float32; 0 on background."""
-    from mvtex.util.checks import as_array, check_instance, check_shape
-    from mvtex.util.errors import OptionError
 
     check_instance(raster, Raster, "raster")
     values = as_array(values, "values")

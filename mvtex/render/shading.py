@@ -9,8 +9,10 @@ from functools import lru_cache
 import numpy as np
 
 from mvtex.data.camera import MAX_IMAGE_SIZE, Camera
+from mvtex.data.mesh import face_normals, vertex_normals, weld_groups
 from mvtex.render.context import GLContext
-from mvtex.render.raster import clip_from_camera, depth_range
+from mvtex.render.raster import _check_draw, check_mesh, clip_from_camera, depth_range
+from mvtex.util.checks import as_array, check_shape
 
 
 @lru_cache(maxsize=4)
@@ -60,7 +62,7 @@ def fabric_colors(uv: np.ndarray, size: int = 1024) -> np.ndarray:
 
 
 def _fabric_gl(ctx: GLContext, size: int):
-    import moderngl
+    import moderngl  # noqa: PLC0415 (loaded on use)
 
     if size not in ctx._fabric:
         # GL texture row 0 is v = 0: the same order as `fabric_texture`, uploaded as is.
@@ -92,7 +94,7 @@ def _draw(ctx: GLContext, vao, big: Camera, background: tuple[int, int, int], bi
     """Draw `vao` (inside the caller's `with ctx.mgl`) into a colour target of `big`'s size
     over `background`, depth-tested with culling off (the projection mirrors winding), after
     `bind()`; the (H,W,3) uint8 RGB readback, OpenCV row order."""
-    import moderngl
+    import moderngl  # noqa: PLC0415 (loaded on use)
 
     fbo = ctx._target("color", big.width, big.height)
     fbo.use()
@@ -107,7 +109,7 @@ def _draw(ctx: GLContext, vao, big: Camera, background: tuple[int, int, int], bi
 
 def _downsampled(img: np.ndarray, camera: Camera, s: int) -> np.ndarray:
     """A render supersampled by `s` brought back to `camera`'s size (area average)."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     if s > 1:
         img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
@@ -132,11 +134,6 @@ def render_textured(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, te
     Returns:
         (H,W,3) uint8 RGB image, OpenCV row order.
     """
-
-    from mvtex.data.mesh import vertex_normals, weld_groups
-
-    from mvtex.render.raster import _check_draw, check_mesh
-    from mvtex.util.checks import as_array, check_shape
 
     body = _check_draw(ctx, camera, body)
     camera.require_renderable()
@@ -238,8 +235,6 @@ def render_shaded(ctx: GLContext, positions: np.ndarray, faces: np.ndarray, came
     Returns:
         (H,W,3) uint8 RGB image, OpenCV row order.
     """
-
-    from mvtex.data.mesh import face_normals, vertex_normals, weld_groups
 
     camera.require_pinhole()
     positions = np.asarray(positions, np.float64)

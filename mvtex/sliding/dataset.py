@@ -9,6 +9,7 @@ pose subset, on their order or on the number of workers.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from dataclasses import dataclass
@@ -16,19 +17,26 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from tqdm import tqdm
 
-from mvtex.data.rig import Rig, check_outside_body, check_sees
+from mvtex.data.dataset import as_dataset, load_dataset, reference_shape, reference_shape_source
+from mvtex.data.partial_set import PartialSet
+from mvtex.data.rig import Rig, as_rig, check_outside_body, check_sees, save_rig
+from mvtex.data.texcoord_header import TexcoordHeader
+from mvtex.data.texcoords import RIG_FILE, dataset_record, rig_record
+from mvtex.render.context import GLContext
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.pose import slide_pose
 from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
-from mvtex.util.files import read_row
+from mvtex.util.checks import as_path, check_instance
+from mvtex.util.errors import InputError
+from mvtex.util.files import dumps_strict, load_npy, read_row
+from mvtex.util.fingerprint import fingerprint, fingerprint_record
 from mvtex.util.output import writer
-from mvtex.util.parallel import ThreadState, WorkerState, check_backend, worker_count
+from mvtex.util.parallel import ThreadState, WorkerState, check_backend, configure_threads, map_unordered, worker_count
 
 if TYPE_CHECKING:
     from mvtex.data.dataset import Dataset
-    from mvtex.render.context import GLContext
-from mvtex.util.parallel import configure_threads
 
 _CHUNK = 8  # poses per task: amortises task overhead, keeps results small (≈1 MB)
 
@@ -69,8 +77,6 @@ _WORKER = ThreadState()
 
 def _open_state(spec: _Spec) -> _WorkerState:
     """A worker's state for a run (a run in this process puts its own in place up front)."""
-    from mvtex.data.dataset import load_dataset, reference_shape
-    from mvtex.render.context import GLContext
 
     configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
@@ -136,15 +142,6 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     Returns:
         Path of the finished texcoord set.
     """
-    from tqdm import tqdm
-
-    from mvtex.data.dataset import as_dataset, reference_shape
-    from mvtex.data.rig import as_rig, save_rig
-    from mvtex.data.partial_set import PartialSet
-    from mvtex.data.texcoords import RIG_FILE
-    from mvtex.util.fingerprint import fingerprint_record
-
-    from mvtex.util.checks import as_path, check_instance
 
     check_backend(workers, scheduler)
     out = as_path(out, "out")
@@ -183,11 +180,9 @@ def slide_dataset(dataset, rig, out: str | os.PathLike, *, poses: list[int], opt
     if workers == 1 and not scheduler:
         # The jobs run in this process and reuse what was just built.
         if ctx is None:
-            from mvtex.render.context import GLContext
 
             ctx = own_ctx = GLContext()
         _WORKER.set(spec.key, _WorkerState(ctx, False, ds, topo, _body_topology(ds, topo)))
-    from mvtex.util.parallel import map_unordered
 
     bar = tqdm(total=len(poses) * len(rig), initial=partial.rows_done, desc="slide", unit="job",
                disable=not progress, file=sys.stderr)
@@ -210,8 +205,6 @@ def slide_complete(dataset, rig, out: str | os.PathLike, *, poses: list[int], op
     """Whether `out` already holds the finished result of `slide_dataset` with these
     arguments (same poses, cameras, options, rig and dataset content): calling it again
     returns at once."""
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
 
     ds = as_dataset(dataset)
     ds.require_gt("texture sliding (slide)")
@@ -222,12 +215,6 @@ def slide_complete(dataset, rig, out: str | os.PathLike, *, poses: list[int], op
 
 def _slide_record(ds, rig, options: SlideOptions) -> dict:
     """What texcoords.json records of a slide run besides its header (as the file holds it)."""
-    import json
-
-    from mvtex.data.dataset import reference_shape, reference_shape_source
-    from mvtex.data.texcoords import dataset_record, rig_record
-    from mvtex.util.files import dumps_strict
-    from mvtex.util.fingerprint import fingerprint
 
     record = {
         "options": options.to_json(),
@@ -241,9 +228,6 @@ def _slide_record(ds, rig, options: SlideOptions) -> dict:
 def _complete(out: Path, record: dict, poses: list[int], cameras: list[str], subdiv: int) -> bool:
     """Whether `out` is a finished slide set of this run: texcoords.json with the same
     poses, cameras, subdivision and record, and every camera's arrays in their shapes."""
-    from mvtex.data.texcoord_header import TexcoordHeader
-    from mvtex.util.errors import InputError
-    from mvtex.util.files import load_npy
 
     if not (out / "texcoords.json").is_file() or (out.with_name(out.name + ".partial")).exists():
         return False

@@ -33,8 +33,12 @@ import threading
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
+from scipy.sparse.linalg import splu, spsolve
 
+from mvtex.data.dataset import validate_mesh
 from mvtex.data.mesh import adjacency, edges
+from mvtex.util.checks import as_array, check_shape
+from mvtex.util.errors import InputError, OptionError
 
 METHODS = ("harmonic", "fmm")
 
@@ -66,7 +70,7 @@ def laplacian_matrix(positions: np.ndarray, faces: np.ndarray, kind: str = "cota
     p = np.ascontiguousarray(positions, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     if kind == "cotan":
-        import potpourri3d as pp3d
+        import potpourri3d as pp3d  # noqa: PLC0415 (loaded on use)
 
         with np.errstate(divide="ignore", invalid="ignore"):
             L = pp3d.cotan_laplacian(p, f)
@@ -75,7 +79,7 @@ def laplacian_matrix(positions: np.ndarray, faces: np.ndarray, kind: str = "cota
             # every mesh.
             return laplacian_matrix(p, f, "intrinsic")
     elif kind == "intrinsic":
-        import robust_laplacian
+        import robust_laplacian  # noqa: PLC0415 (loaded on use)
 
         L = robust_laplacian.mesh_laplacian(p, f)[0]
     else:
@@ -168,7 +172,6 @@ class FillSystem:
         (a third of a factorisation's time on a ~6k unknown system) is skipped.
         """
         if self._rank is None:
-            from scipy.sparse.linalg import splu
 
             L = self.laplacian
             # L is singular (constants); a tiny diagonal shift makes it factorisable. Only
@@ -217,9 +220,6 @@ def fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned:
         (n,C) array of values' dtype (float64 if values is integer); assigned rows are the
         input rows unchanged, bit for bit. Parts of the mesh with no assigned vertex get 0.
     """
-    from mvtex.data.dataset import validate_mesh
-    from mvtex.util.checks import as_array, check_shape
-    from mvtex.util.errors import InputError, OptionError
 
     if not isinstance(method, str) or method not in METHODS:
         raise OptionError("method", f"must be one of {', '.join(METHODS)}, got {method!r:.60}")
@@ -320,7 +320,7 @@ def solve_spd(lower: tuple[np.ndarray, np.ndarray, np.ndarray], k: int, rhs: np.
     is solved by SuperLU with partial pivoting instead. cvxopt's `cholmod.options` are set for the call
     and restored, under a lock (cvxopt keeps them in one module-level dict).
     """
-    from cvxopt import cholmod, matrix, spmatrix
+    from cvxopt import cholmod, matrix, spmatrix  # noqa: PLC0415 (loaded on use)
 
     values, rows, cols = lower
     b = np.array(rhs, dtype=np.float64, order="F", copy=True)
@@ -346,7 +346,6 @@ def solve_spd(lower: tuple[np.ndarray, np.ndarray, np.ndarray], k: int, rhs: np.
         finally:
             cholmod.options.clear()
             cholmod.options.update(saved)
-    from scipy.sparse.linalg import spsolve
 
     full = sp.coo_matrix((values, (rows, cols)), shape=(k, k)).tocsc()
     full = (full + sp.tril(full, k=-1).T).tocsc()
@@ -358,7 +357,7 @@ def heat_distance(positions: np.ndarray, faces: np.ndarray, sources: np.ndarray)
 
     Vertices not referenced by any face, or in a component with no source, get +inf.
     """
-    import potpourri3d as pp3d
+    import potpourri3d as pp3d  # noqa: PLC0415 (loaded on use)
 
     n = len(positions)
     used = np.zeros(n, bool)

@@ -23,11 +23,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mvtex.data.camera import Camera
+from mvtex.data.mesh import vertex_normals
+from mvtex.render.raster import body_offsets, rasterize_pair
+from mvtex.sliding.kernels import bin_faces, first_hits, nearest_occluder
+from mvtex.sliding.kernels import nearest_body_hit as kernel
+from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
+from mvtex.sliding.options import SlideOptions
+from mvtex.sliding.topology import BodyTopology, SlideTopology
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
-from mvtex.sliding.options import SlideOptions
-from mvtex.sliding.topology import BodyTopology, SlideTopology
 
 _BARY_EPS = 1e-9
 
@@ -185,7 +190,6 @@ def bin_body(camera: Camera, positions: np.ndarray, faces: np.ndarray, pixels: n
     rows = int((hi[1] - lo[1]) // tile) + 1
     proj, z = camera.project(positions)
     if compiled:
-        from mvtex.sliding.kernels import bin_faces
 
         start, binned, everywhere = bin_faces(np.ascontiguousarray(proj), np.ascontiguousarray(z), faces,
                                               float(lo[0]), float(lo[1]), float(tile), columns, rows, _BIN_MARGIN)
@@ -241,7 +245,6 @@ def nearest_body_hit(camera: Camera, positions: np.ndarray, faces: np.ndarray, p
     pixels = np.ascontiguousarray(np.where(ahead[:, None], pixels, 0.0))
     bins = bin_body(camera, positions, faces, pixels[ahead], compiled=compiled)
     if compiled:
-        from mvtex.sliding.kernels import nearest_body_hit as kernel
 
         return kernel(origin, dirs, pixels, ahead, bins.c0, bins.r0, bins.tile, bins.columns, bins.rows, bins.start,
                       bins.faces, bins.everywhere, positions, faces)
@@ -283,7 +286,6 @@ class Hits:
 def seen_from_inside(X: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """(n,) bool: the area-weighted vertex normal of X (faces CCW from outside) points away
     from the camera at `origin`."""
-    from mvtex.data.mesh import vertex_normals
 
     return np.einsum("ij,ij->i", vertex_normals(X, faces), X - origin) > 0
 
@@ -373,7 +375,6 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
             the ray can meet, in float64), not from the raster windows, which miss faces
             seen edge-on at the body's silhouette.
     """
-    from mvtex.render.raster import body_offsets, rasterize_pair
 
     n = len(X)
     m = len(faces)
@@ -403,8 +404,6 @@ def find_hits_raster(ctx: GLContext, gt: np.ndarray, inferred: np.ndarray, faces
     # same surface as their subdivided children).
     dirs = X[cand] - origin
     if compiled:
-        from mvtex.sliding.kernels import first_hits, nearest_occluder
-        from mvtex.sliding.kernels import seen_from_inside as compiled_seen_from_inside
 
         faces64 = np.ascontiguousarray(faces, dtype=np.int64)
         origin64 = np.ascontiguousarray(origin, dtype=np.float64)

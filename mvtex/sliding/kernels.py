@@ -37,6 +37,7 @@ a second per process.
 from __future__ import annotations
 
 import numpy as np
+
 from mvtex.util.compiled import compiled as _compiled
 
 _BARY_EPS = 1e-9  # the same as sliding._BARY_EPS

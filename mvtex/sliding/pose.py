@@ -4,19 +4,18 @@ the fill (DESIGN §5 steps 4-6), and `slide_pose`, the whole job.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from mvtex.data.camera import Camera
 from mvtex.data.mesh import Subdivision
+from mvtex.render.context import GLContext
+from mvtex.render.raster import check_mesh
 from mvtex.sliding.fill import fill
-
-if TYPE_CHECKING:
-    from mvtex.render.context import GLContext
 from mvtex.sliding.hits import Hits, find_hits_raster
 from mvtex.sliding.options import SlideOptions
 from mvtex.sliding.topology import BodyTopology, SlideTopology, body_topology, build_topology
+from mvtex.util.checks import as_array, check_instance, check_shape
+from mvtex.util.errors import OptionError
 
 
 def displacement_from_hits(hits: Hits, gt_faces: np.ndarray, uv: np.ndarray, X: np.ndarray, topo: SlideTopology,
@@ -90,9 +89,6 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
         d: (n',2) float32 displacement T_N - T_G on the subdivided mesh, filled everywhere.
         assigned: (n',) bool, True where d came from the ray.
     """
-    from mvtex.render.raster import check_mesh
-    from mvtex.util.checks import as_array, check_instance, check_shape
-    from mvtex.util.errors import OptionError
 
     gt, faces = check_mesh(gt_positions, faces, "gt_positions")
     inferred, _ = check_mesh(inferred_positions, faces, "inferred_positions")
@@ -117,7 +113,6 @@ def slide_pose(gt_positions: np.ndarray, inferred_positions: np.ndarray, faces: 
     if body is not None:
         occluder = (np.asarray(body[0], np.float64), body_topo or body_topology(body[1], topology))
     if ctx is None:
-        from mvtex.render.context import GLContext
 
         with GLContext() as own:
             hits = find_hits_raster(own, gt, inferred, faces, X, topology, camera, options, body=occluder)

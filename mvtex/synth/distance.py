@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 from numba import prange
+from scipy.spatial import cKDTree
 
+from mvtex.data.mesh import vertex_normals
 from mvtex.util.compiled import compiled as _compiled
 
 
@@ -137,7 +139,6 @@ class SurfaceDistance:
 
     def __init__(self, rest_points: np.ndarray, body_rest: np.ndarray, body_faces: np.ndarray, neighbours: int = 12,
                  nearest: int = 4):
-        from scipy.spatial import cKDTree
 
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
         self.nearest = nearest
@@ -153,7 +154,6 @@ class SurfaceDistance:
 
     def __call__(self, points: np.ndarray, body_positions: np.ndarray) -> np.ndarray:
         """(n,) float64 signed distances (m) of points (n,3) to the body in positions (nb,3)."""
-        from mvtex.data.mesh import vertex_normals
 
         body = np.ascontiguousarray(body_positions, np.float64)
         out = np.empty(len(points))

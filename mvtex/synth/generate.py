@@ -18,17 +18,26 @@ real predictors' meshes do; the ground truth keeps clear of it (the statistics m
 
 from __future__ import annotations
 
+import json
 import os
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from tqdm import tqdm
 
-from mvtex.data.dataset import default_split
+from mvtex.data.dataset import default_split, metadata, validate_mesh
 from mvtex.data.mesh import edge_strain, edges
-from mvtex.synth.predictor import _CHUNK, fit_predictor
+from mvtex.synth import shirt, skirt
+from mvtex.synth.distance import SurfaceDistance
 from mvtex.synth.options import SynthOptions
-from mvtex.util.output import writer
+from mvtex.synth.predictor import _CHUNK, fit_predictor
+from mvtex.util.checks import as_path, check_instance
+from mvtex.util.files import create_npy
+from mvtex.util.output import atomic_path, writer
+
 
 @dataclass(frozen=True)
 class _Garment:
@@ -47,7 +56,6 @@ class _Garment:
 
 def _garment(garment: str) -> _Garment:
     if garment == "shirt":
-        from mvtex.synth import shirt
 
         faces, uv, rest = shirt.make_garment()
         material = shirt._Material(rest, uv)
@@ -59,7 +67,6 @@ def _garment(garment: str) -> _Garment:
         body_faces, body_rest = shirt.make_body()
         return _Garment(faces, uv, rest, shirt.POSE_DIM, shirt.sample_poses, shape, body_faces, body_rest,
                         shirt.pose_body)
-    from mvtex.synth import skirt
 
     body_faces, body_rest = skirt.make_body()
     return _Garment(*skirt.make_garment(), skirt.POSE_DIM, skirt.sample_poses, skirt.deform_with_info, body_faces,
@@ -90,9 +97,6 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out, progress: b
     Returns:
         (garment, poses, split, stats) as in `synthesize`.
     """
-    import sys
-
-    from tqdm import tqdm
 
     bar = tqdm(total=2 * options.num_poses, desc=f"synth {options.garment}", unit="shape", disable=not progress,
                file=sys.stderr)
@@ -101,7 +105,6 @@ def _generate(options: SynthOptions, gt_out, inferred_out, body_out, progress: b
     _, first = np.unique(garment.rest, axis=0, return_index=True)  # one vertex per distinct point
     distance = None
     if body_out is not None:
-        from mvtex.synth.distance import SurfaceDistance
 
         distance = SurfaceDistance(garment.rest[first], garment.body_rest, garment.body_faces)
     depths, wavelengths, peaks, clearance = [], [], [], []
@@ -212,7 +215,6 @@ def synthesize(options: SynthOptions = SynthOptions()) -> dict:
         inside the body) and inferred_inside_body_depth_m (the deepest of them).
 
     """
-    from mvtex.util.checks import check_instance
 
     check_instance(options, SynthOptions, "options")
     garment = _garment(options.garment)
@@ -231,7 +233,6 @@ class _RowFile:
     does not grow with K. Supports `obj[k] = rows`, `obj[block] = rows` and `obj[index]`."""
 
     def __init__(self, path, shape: tuple[int, ...]):
-        from mvtex.util.files import create_npy
 
         self.path = path
         self.shape = shape
@@ -274,15 +275,9 @@ def write_synth(path: str | os.PathLike, options: SynthOptions = SynthOptions(),
     Returns:
         A `SynthResult`; its `stats` are those of `synthesize`.
     """
-    from mvtex.util.checks import as_path, check_instance
 
     path = as_path(path, "path")
     check_instance(options, SynthOptions, "options")
-    import json
-    from pathlib import Path
-
-    from mvtex.data.dataset import metadata, validate_mesh
-    from mvtex.util.output import atomic_path
 
     path = Path(path)
     garment = _garment(options.garment)

@@ -66,7 +66,7 @@ def mesh_implicit(function, lo, hi, spacing: float) -> tuple[np.ndarray, np.ndar
     Returns:
         vertices (v,3) float64 and faces (f,3) int32.
     """
-    from skimage.measure import marching_cubes
+    from skimage.measure import marching_cubes  # noqa: PLC0415 (loaded on use)
 
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     counts = np.ceil((hi - lo) / spacing).astype(int) + 1

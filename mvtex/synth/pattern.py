@@ -9,6 +9,7 @@ material points.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 
 def sample_curve(points: np.ndarray, spacing: float, include_end: bool = False) -> np.ndarray:
@@ -59,8 +60,7 @@ def mesh_pattern(boundary: np.ndarray, spacing: float) -> tuple[np.ndarray, np.n
     Raises:
         RuntimeError: a boundary edge is missing from the triangulation (samples too sparse).
     """
-    from matplotlib.path import Path as PolygonPath
-    from scipy.spatial import Delaunay
+    from matplotlib.path import Path as PolygonPath  # noqa: PLC0415 (loaded on use)
 
     boundary = np.asarray(boundary, dtype=np.float64)
     polygon = PolygonPath(np.vstack([boundary, boundary[:1]]), closed=True)

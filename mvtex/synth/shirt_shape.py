@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from scipy.integrate import cumulative_trapezoid
 
 from mvtex.synth.mannequin import ellipsoid, elliptic_stack, mesh_implicit, round_cone, smooth_min
@@ -205,7 +207,6 @@ class Pattern:
 
 def _cotangent_laplacian(points: np.ndarray, faces: np.ndarray, ids: np.ndarray, n: int):
     """(n,n) cotangent Laplacian of a flat mesh (points (p,2)), its vertices renamed by ids."""
-    import scipy.sparse as sp
 
     corner = points[faces]
     rows, cols, values = [], [], []
@@ -223,7 +224,6 @@ def _cotangent_laplacian(points: np.ndarray, faces: np.ndarray, ids: np.ndarray,
 @lru_cache(maxsize=1)
 def pattern() -> Pattern:
     """The meshed, sewn pattern and its rest shape (computed once per process)."""
-    import scipy.sparse.linalg as spla
 
     pieces = []
     for front in (True, False):

@@ -17,8 +17,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from mvtex.data.mesh import barycentric_2d
+from mvtex.render.context import GLContext
+from mvtex.render.raster import Raster, interpolate, rasterize_uv
 from mvtex.util.errors import InputError
 
 if TYPE_CHECKING:
@@ -27,7 +30,7 @@ if TYPE_CHECKING:
 
 def vertex_grid(uv: np.ndarray):
     """`grid_sample` coordinates (1,1,n,2) float32 torch tensor of texcoords (n,2): 2·uv − 1."""
-    import torch
+    import torch  # noqa: PLC0415 (loaded on use)
 
     return torch.from_numpy(2.0 * np.asarray(uv, dtype=np.float32) - 1.0).view(1, 1, -1, 2)
 
@@ -42,7 +45,7 @@ def sample_atlas(images, grid):
     Returns:
         (B,n,C) tensor, differentiable with respect to `images`.
     """
-    import torch.nn.functional as F
+    import torch.nn.functional as F  # noqa: PLC0415 (loaded on use)
 
     g = grid.to(images.dtype).expand(images.shape[0], -1, -1, -1)
     out = F.grid_sample(images, g, mode="bilinear", padding_mode="border", align_corners=False)
@@ -65,7 +68,6 @@ def uv_overlap(ctx: GLContext, uv: np.ndarray, faces: np.ndarray, resolution: in
     Returns:
         (R,R) bool, True on texels covered more than once (row 0 at v ≈ 0).
     """
-    from mvtex.render.raster import rasterize_uv
 
     faces = np.asarray(faces)
     forward = rasterize_uv(ctx, uv, faces, resolution, resolution, attributes=False).tri_id
@@ -113,8 +115,6 @@ class AtlasSampler:
 
     def __init__(self, faces: np.ndarray, uv: np.ndarray, resolution: int, *, dilation: int = 2,
                  source: str | os.PathLike | None = None, ctx: GLContext | None = None):
-        from mvtex.render.context import GLContext
-        from mvtex.render.raster import Raster, rasterize_uv
 
         self.faces = np.asarray(faces, dtype=np.int32)
         self.uv = np.asarray(uv, dtype=np.float32)
@@ -144,7 +144,6 @@ class AtlasSampler:
         self._raster = Raster(tri_id=self.layout.tri_id, bary=self.layout.bary, depth=None)
 
     def _dilate(self, tri_id: np.ndarray, bary: np.ndarray) -> AtlasLayout:
-        from scipy.ndimage import distance_transform_edt
 
         covered = tri_id >= 0
         if not covered.any():
@@ -174,7 +173,6 @@ class AtlasSampler:
             (H,W,C) float32, linear inside each triangle, continued linearly `dilation` texels
             past chart borders, 0 elsewhere. Row 0 is v ≈ 0.
         """
-        from mvtex.render.raster import interpolate
 
         values = np.asarray(values)
         if values.ndim != 2 or values.shape[0] != self.num_vertices:
@@ -201,7 +199,7 @@ class AtlasSampler:
 
     def sample_numpy(self, image: np.ndarray) -> np.ndarray:
         """`sample` for one (H,W,C) numpy image; returns (n,C) float32."""
-        import torch
+        import torch  # noqa: PLC0415 (loaded on use)
 
         t = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None]
         with torch.no_grad():

@@ -9,19 +9,23 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from tqdm import tqdm
+
+from mvtex.data.dataset import as_dataset, load_dataset
+from mvtex.data.rig import load_rig
+from mvtex.data.texcoords import as_texcoords, open_texcoords, recorded_rig
 from mvtex.tsnn.config import training_rig
 from mvtex.tsnn.modeldir import TrainedCameras, TrainResult, _kept_model
 from mvtex.tsnn.train import TrainOptions, _inputs_key, _resolve, _split, dataset_fingerprint, train
+from mvtex.util.checks import as_list, as_path, check_instance
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.output import writer
+from mvtex.util.parallel import check_backend, configure_threads, map_unordered
 
 
 def _train_camera_task(dataset: str, texcoords: str, camera: str, out: str, options: TrainOptions) -> TrainResult:
     """In a worker: one camera's model from paths (torch on one thread: the workers already
     fill the cores)."""
-    from mvtex.data.dataset import load_dataset
-    from mvtex.data.texcoords import open_texcoords
-    from mvtex.util.parallel import configure_threads
 
     configure_threads(1)
     ds = load_dataset(dataset, validate=False)
@@ -45,10 +49,6 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     Returns:
         A `mvtex.tsnn.modeldir.TrainedCameras` (models: camera -> its `TrainResult`).
     """
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.texcoords import as_texcoords
-    from mvtex.tsnn.train import TrainOptions
-    from mvtex.util.checks import as_path, check_instance
 
     dataset = as_dataset(dataset)
     texcoords = as_texcoords(texcoords)
@@ -57,7 +57,6 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
     if isinstance(cameras, (str, bytes)) or not hasattr(cameras, "__iter__") \
             or not all(isinstance(c, str) for c in cameras) or not list(cameras):
         raise OptionError("cameras", f"must be a non-empty list of camera names, got {cameras!r:.60}")
-    from mvtex.util.parallel import check_backend, map_unordered
 
     out = Path(out)
     check_backend(workers, scheduler)
@@ -93,7 +92,6 @@ def train_cameras(dataset, texcoords, cameras: Sequence[str], out: str | os.Path
         for c in todo:
             models[c] = train(dataset, texcoords, out / c, camera=c, options=options, progress=progress)
     else:
-        from tqdm import tqdm
 
         with tqdm(total=len(cameras), initial=len(cameras) - len(todo), desc="train", unit="camera",
                   disable=not progress, file=sys.stderr) as bar:
@@ -121,9 +119,6 @@ def train_models(dataset, texcoords, out: str | os.PathLike, cameras: Sequence[s
         OptionError: an empty camera list; `workers` above 1 or a `scheduler` with fewer
             than two cameras; no rig for a network of every camera.
     """
-    from mvtex.data.rig import load_rig
-    from mvtex.data.texcoords import as_texcoords, recorded_rig
-    from mvtex.util.checks import as_list
 
     texcoords = as_texcoords(texcoords)
     names = None if cameras is None else as_list(cameras, "cameras", str, "camera names")

@@ -40,6 +40,7 @@ from mvtex.tsnn.options import MAX_RESOLUTION, MAX_WIDTH
 from mvtex.util.checks import as_path
 from mvtex.util.errors import InputError
 from mvtex.util.files import read_json
+from mvtex.util.fingerprint import fingerprint
 
 MODEL_FORMAT = "mvtex-tsnn"
 
@@ -58,7 +59,6 @@ GEOMETRY_FILE = "geometry.npz"
 
 def mesh_fingerprint(faces: np.ndarray, uv: np.ndarray) -> str:
     """The fingerprint of a base mesh's faces (int32) and uv (float32): ties a model to its mesh."""
-    from mvtex.util.fingerprint import fingerprint
 
     return fingerprint(np.asarray(faces, dtype=np.int32), np.asarray(uv, dtype=np.float32))
 

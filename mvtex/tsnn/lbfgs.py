@@ -13,8 +13,8 @@ and one stopping test keeps converged rows iterating until the slowest has finis
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 

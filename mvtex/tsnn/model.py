@@ -29,6 +29,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from mvtex.tsnn.gp import GPConfig, PoseGP
+from mvtex.tsnn.mlp import MLPConfig, PoseMLP
+
 
 def _architecture_keys(cls, d: dict[str, Any]) -> dict[str, Any]:
     """An `architecture` dict without its "arch" key; ValueError naming keys `cls` lacks."""
@@ -329,11 +332,9 @@ def build_network(arch: dict[str, Any]) -> nn.Module:
     if kind == "unet":
         return UNet(UNetConfig.from_dict(arch))
     if kind == "gp":
-        from mvtex.tsnn.gp import GPConfig, PoseGP
 
         return PoseGP(GPConfig.from_dict(arch))
     if kind == "mlp":
-        from mvtex.tsnn.mlp import MLPConfig, PoseMLP
 
         return PoseMLP(MLPConfig.from_dict(arch))
     raise ValueError(f"unknown arch {kind!r} (paper, unet, gp or mlp)")

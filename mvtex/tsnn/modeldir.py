@@ -12,8 +12,14 @@ from typing import Any
 import numpy as np
 
 from mvtex.data.mesh import apply_parent, subdivide
-from mvtex.tsnn.config import (GEOMETRY_FILE, MODEL_FORMAT, MODEL_VERSION, READABLE_VERSIONS, ModelConfig,
-                               mesh_fingerprint)
+from mvtex.tsnn.config import (
+    GEOMETRY_FILE,
+    MODEL_FORMAT,
+    MODEL_VERSION,
+    READABLE_VERSIONS,
+    ModelConfig,
+    mesh_fingerprint,
+)
 from mvtex.util.errors import InputError
 from mvtex.util.output import atomic_path
 

@@ -14,20 +14,32 @@ cameras it was trained on.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig, save_rig
-from mvtex.data.texcoords import (MAX_DISPLACEMENT, RIG_FILE, UNCERTAINTY_DTYPE, check_uncertainty, dataset_record,
-                                  rig_record, write_header)
+from mvtex.data.dataset import as_dataset
+from mvtex.data.rig import Rig, as_rig, save_rig
+from mvtex.data.texcoords import (
+    MAX_DISPLACEMENT,
+    RIG_FILE,
+    UNCERTAINTY_DTYPE,
+    check_uncertainty,
+    dataset_record,
+    rig_record,
+    write_header,
+)
 from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.config import CONFIG_FILE, GEOMETRY_FILE, ModelConfig
 from mvtex.tsnn.geometry import MeshGeometry, geometry_images
+from mvtex.tsnn.model import build_network
 from mvtex.tsnn.modeldir import rebuild_mesh
+from mvtex.util.checks import as_path
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import create_npy, load_npz, write_npy_rows
 from mvtex.util.output import atomic_path, writer
@@ -95,7 +107,6 @@ def load_model(path: str | os.PathLike) -> LoadedModel:
         InputError: naming config.json (and the key), model.safetensors or geometry.npz when
             one is missing, malformed, or does not match the others.
     """
-    from mvtex.util.checks import as_path
 
     path = as_path(path, "path")
     if not path.is_dir():
@@ -116,11 +127,9 @@ def _network(config: ModelConfig, file: Path, weights: Path):
     """The network of `config` with the weights of `weights`, in eval mode. It is built on
     the "meta" device (no memory) and compared with the file before anything is allocated:
     config.json cannot make us allocate more than the weights file holds."""
-    import torch
-    from safetensors import SafetensorError
-    from safetensors.torch import load_file
-
-    from mvtex.tsnn.model import build_network
+    import torch  # noqa: PLC0415 (loaded on use)
+    from safetensors import SafetensorError  # noqa: PLC0415 (loaded on use)
+    from safetensors.torch import load_file  # noqa: PLC0415 (loaded on use)
 
     try:
         with torch.device("meta"):
@@ -167,7 +176,7 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
     Returns:
         (K,n',2) float32 d.
     """
-    import torch
+    import torch  # noqa: PLC0415 (loaded on use)
 
     net = model.network.to(device)
     if getattr(net, "per_vertex", False):  # `gp`: d at the vertices, no atlas image
@@ -228,7 +237,7 @@ def predict_uncertainty(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, d
         (K,n') float32 in uv units (the root of the expected squared length of d's error),
         or None for a model that reports no uncertainty.
     """
-    import torch
+    import torch  # noqa: PLC0415 (loaded on use)
 
     net = model.network.to(device)
     if not getattr(net, "per_vertex", False) or not getattr(net, "has_uncertainty", False):
@@ -340,11 +349,6 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
             for one camera, a model made for another mesh or pose size, a rig camera no
             model can predict.
     """
-    import sys
-
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
-    from mvtex.util.checks import as_path
 
     dataset = as_dataset(dataset)
     out = as_path(out, "out")
@@ -354,7 +358,6 @@ def predict(dataset, models: Sequence[str | os.PathLike], out: str | os.PathLike
     if not hasattr(models, "__iter__") or isinstance(models, (bytes, dict)):
         raise OptionError("models", f"must be a list of model folder paths, got {type(models).__name__}")
     models = [as_path(m, "models") for m in models]
-    from tqdm import tqdm
 
     out = Path(out)
     if not models:

@@ -25,7 +25,7 @@ class Samples:
 
     def __init__(self, dataset, texcoords, cameras: list[str], poses: list[int], weight_assigned: float, device,
                  geometry=None):
-        import torch
+        import torch  # noqa: PLC0415 (loaded on use)
 
         n = len(texcoords.uv)
         pairs = [(row, c) for row in range(len(poses)) for c in range(len(cameras))]
@@ -78,7 +78,7 @@ def sample_losses(predict, data: Samples, batch_size: int) -> dict[str, float]:
     Args:
         predict: (data, idx) -> (len(idx),n',2) per-vertex d of those samples (model in eval mode).
     """
-    import torch
+    import torch  # noqa: PLC0415 (loaded on use)
 
     if len(data) == 0:
         return {}

@@ -44,8 +44,15 @@ from typing import Sequence
 
 import numpy as np
 
-from mvtex.tsnn.config import (GEOMETRY_FILE, MODEL_VERSION, MeshRecord, ModelConfig, camera_record,
-                               mesh_fingerprint, training_rig)
+from mvtex.tsnn.config import (
+    GEOMETRY_FILE,
+    MODEL_VERSION,
+    MeshRecord,
+    ModelConfig,
+    camera_record,
+    mesh_fingerprint,
+    training_rig,
+)
 from mvtex.tsnn.geometry import MeshGeometry
 from mvtex.tsnn.modeldir import TrainResult, _write_model, rebuild_mesh
 from mvtex.tsnn.options import TrainOptions

@@ -3,6 +3,9 @@
 
 from __future__ import annotations
 
+import numbers
+import os
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -82,8 +85,6 @@ def as_array(value, name: str, dtype=np.float64) -> np.ndarray:
 def as_path(value, name: str, *, optional: bool = False):
     """`value` as a `pathlib.Path`; OptionError naming `name` when it is no path (None unless
     `optional`, a number, a list)."""
-    import os
-    from pathlib import Path
 
     if value is None and optional:
         return None
@@ -108,7 +109,6 @@ def check_instance(value, cls, name: str):
 def as_index(value, name: str) -> int:
     """An integer argument (a pose index, a count): OptionError naming `name` unless it is an
     integer (not a bool; a float with an integer value will do)."""
-    import numbers
 
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, numbers.Real)):
         raise OptionError(name, f"must be an integer, got {value!r:.60}")

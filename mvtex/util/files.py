@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.lib import format as npformat
+from numpy.lib.format import open_memmap
 
 from mvtex.util.errors import InputError
 from mvtex.util.output import atomic_path
@@ -57,7 +59,6 @@ def read_row(array: np.ndarray, index: int) -> np.ndarray:
 
 def create_npy(path: str | os.PathLike, dtype, shape: tuple[int, ...]) -> None:
     """A new .npy file of `shape`, zero-filled (sparse on disk), for `write_npy_rows`."""
-    from numpy.lib.format import open_memmap
 
     open_memmap(path, mode="w+", dtype=dtype, shape=shape).flush()
 
@@ -225,7 +226,6 @@ def load_npz(path: str | os.PathLike, max_bytes: int = 1 << 31) -> dict[str, np.
 
 def _npz_sizes(path: Path) -> dict[str, int]:
     """Member name -> declared array bytes, checked against the member's stored size."""
-    from numpy.lib import format as npformat
 
     sizes = {}
     with zipfile.ZipFile(path) as archive:
@@ -249,7 +249,7 @@ def _npz_sizes(path: Path) -> dict[str, int]:
 
 def save_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an RGB (H,W,3) or gray (H,W) uint8 image as PNG, atomically."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     image = np.asarray(image)
     if image.ndim == 3:

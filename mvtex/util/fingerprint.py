@@ -8,7 +8,7 @@ import hashlib
 
 import numpy as np
 
-from mvtex.util.files import read_rows
+from mvtex.util.files import dumps_strict, read_rows
 
 
 def fingerprint(*arrays: np.ndarray, block_bytes: int = 1 << 24) -> str:
@@ -33,6 +33,5 @@ def fingerprint(*arrays: np.ndarray, block_bytes: int = 1 << 24) -> str:
 def fingerprint_record(record) -> str:
     """`fingerprint` of a JSON-like record (the bytes of its strict JSON, keys sorted): the
     key of a run's settings."""
-    from mvtex.util.files import dumps_strict
 
     return fingerprint(np.frombuffer(dumps_strict(record, sort_keys=True).encode(), np.uint8))

@@ -12,6 +12,8 @@ import os
 from pathlib import Path
 from typing import Iterable
 
+import numpy as np
+
 from mvtex.util.errors import InputError
 from mvtex.util.manifest import identity
 
@@ -68,7 +70,6 @@ def check_inputs(out: str | os.PathLike, inputs: Inputs) -> None:
 
 def array_files(*arrays) -> list[str]:
     """The files that memory-mapped arrays among `arrays` read (inputs of a writer)."""
-    import numpy as np
 
     files = []
     for array in arrays:
@@ -84,7 +85,6 @@ def input_paths(*sources) -> list[str]:
     """The files and folders behind a writer's inputs: paths that exist, `.path` of opened
     datasets, texcoord sets and models, the files of memory-mapped arrays; lists are
     walked, anything else (a `Rig` object, a built-in rig's name) is skipped."""
-    import numpy as np
 
     out: list[str] = []
     for source in sources:

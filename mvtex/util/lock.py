@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import os
 import stat
 from pathlib import Path
@@ -73,7 +74,6 @@ def locked(path: str | os.PathLike) -> Iterator[None]:
         InputError: naming `path`: another run holds it ("in use by pid N"), the lock file
             there is not mvtex's, or it cannot be created.
     """
-    import fcntl
 
     path = Path(path)
     lock = lock_path(path)

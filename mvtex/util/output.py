@@ -37,7 +37,9 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import errno
+import functools
 import glob
+import inspect
 import os
 import shutil
 import tempfile
@@ -45,11 +47,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, ParamSpec, TypeVar
 
+from mvtex import __version__
 from mvtex.util.errors import InputError, OptionError, OutputError
 from mvtex.util.inputs import Inputs, _inside, array_files, check_inputs, check_place, input_paths
 from mvtex.util.lock import locked
-from mvtex.util.manifest import (MARKER, TAG, TEMP_STAMP, is_real_dir, is_regular, is_temporary, lstat,
-                                 output_owner, read_manifest, temporary_for, walk, write_manifest, written_by_mvtex)
+from mvtex.util.manifest import (
+    MARKER,
+    TAG,
+    TEMP_STAMP,
+    is_real_dir,
+    is_regular,
+    is_temporary,
+    lstat,
+    output_owner,
+    read_manifest,
+    temporary_for,
+    walk,
+    write_manifest,
+    written_by_mvtex,
+)
 
 __all__ = ["MARKER", "TEMP_STAMP", "array_files", "atomic_path", "check_inputs", "check_output", "claim_file",
            "claim_output", "clear_output", "forget", "foreign_entries", "input_paths", "is_temporary", "mark_output",
@@ -78,7 +94,7 @@ def _temporary(target: Path, kind: str) -> Path:
     """A new hidden folder beside `target`, ``.NAME.mvtex-XXXXXXXX.<kind>``, stamped as mvtex's."""
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.{TAG}", suffix=f".{kind}", dir=target.parent))
     try:
-        import json
+        import json  # noqa: PLC0415 (loaded on use)
 
         (tmp / TEMP_STAMP).write_text(json.dumps({"temporary_for": target.name, "pid": os.getpid()}) + "\n")
     except BaseException:
@@ -137,7 +153,6 @@ def clear_output(path: str | os.PathLike, command: str | None = None) -> None:
 
 def _write_marker(directory: Path, command: str) -> None:
     """Write the manifest of `directory`: `command` wrote everything in it now."""
-    from mvtex import __version__
 
     write_manifest(directory, {"command": command, "mvtex": __version__, "files": walk(directory)[0]})
 
@@ -453,7 +468,6 @@ def _take(path: Path, command: str) -> None:
     """Make folder `path` (checked: empty, or all mvtex's) `command`'s to write in place: a
     new manifest where it has none, its own left as it is, another command's taken over
     (its list kept)."""
-    from mvtex import __version__
 
     marker = read_manifest(path)
     if marker is None or marker.get("command") != command:
@@ -545,8 +559,6 @@ def writer(command: str, *, out: str = "out", inputs: Callable[[Mapping[str, Any
     path for `command`, with the inputs that `inputs(arguments)` names (see `input_paths`).
     An output of None (nothing to write) is no claim.
     """
-    import functools
-    import inspect
 
     def wrap(function: Callable[_P, _R]) -> Callable[_P, _R]:
         signature = inspect.signature(function)

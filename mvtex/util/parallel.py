@@ -15,14 +15,24 @@ only then. Workers there must be able to import mvtex and read the same dataset 
 
 from __future__ import annotations
 
+import asyncio
+import ctypes
+import multiprocessing as mp
 import numbers
 import os
 import re
+import signal
+import socket
 import sys
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
+
+from mvtex.util.errors import OptionError
 
 MAX_WORKERS = 64
 """Most local worker processes a run accepts. Each worker holds its own GL context and a
@@ -47,9 +57,6 @@ def check_backend(workers: int | None = None, scheduler: str | None = None, *,
     connection, or where what answers is not a Dask scheduler (no answer to Dask's
     handshake and identity request within `timeout` seconds): before any work starts or
     anything is written. `timeout` None: SCHEDULER_TIMEOUT_S."""
-    import socket
-
-    from mvtex.util.errors import OptionError
 
     if workers is not None and (isinstance(workers, (bool, np.bool_)) or not isinstance(workers, numbers.Integral)
                                 or not 1 <= workers <= MAX_WORKERS):
@@ -77,13 +84,9 @@ def _check_dask_scheduler(address: str, timeout: float) -> None:
     identity request within `timeout` seconds (a port that accepts and stays silent, an HTTP
     server, another protocol). Runs in a thread of its own: the caller may be inside an
     event loop (a notebook)."""
-    import asyncio
-    from concurrent.futures import ThreadPoolExecutor
-
-    from mvtex.util.errors import OptionError
 
     try:
-        from distributed.comm import connect
+        from distributed.comm import connect  # noqa: PLC0415 (loaded on use)
     except ImportError as err:  # the original error, with the extra that provides it
         raise ImportError(f"{err}; a Dask scheduler needs `pip install mvtex[dist]`") from err
 
@@ -146,7 +149,6 @@ class ThreadState:
     """
 
     def __init__(self) -> None:
-        import threading
 
         self._local = threading.local()
 
@@ -179,10 +181,6 @@ class WorkerState:
 
 
 def _processes(fn, tasks: list, workers: int, max_in_flight: int) -> Iterator[Any]:
-    import multiprocessing as mp
-    import os
-    import threading
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     parent_death_signal = threading.current_thread() is threading.main_thread()
     with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_die_with_parent,
@@ -215,14 +213,9 @@ def _die_with_parent(parent_pid: int, parent_death_signal: bool) -> None:
     daemon thread also checks twice a second that the parent is still this process's
     parent and exits if not.
     """
-    import os
-    import signal
-    import threading
-    import time
 
     configure_threads(1)  # the workers fill the cores: one thread each, set before any library loads
     if parent_death_signal and sys.platform.startswith("linux"):
-        import ctypes
 
         PR_SET_PDEATHSIG = 1
         try:
@@ -242,7 +235,7 @@ def _die_with_parent(parent_pid: int, parent_death_signal: bool) -> None:
 
 def _dask(fn, tasks: list, address: str, max_in_flight: int | None) -> Iterator[Any]:
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client, as_completed  # noqa: PLC0415 (loaded on use)
     except ImportError as err:  # the original error, with the extra that provides it
         raise ImportError(f"{err}; a Dask scheduler needs `pip install mvtex[dist]`") from err
 
@@ -301,7 +294,6 @@ def configure_threads(threads: int | None = None) -> None:
     Library variables are read when a library loads, so call it before the first heavy
     import; torch's count is also set if torch is loaded already.
     """
-    import sys
 
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     if threads is None:

@@ -5,12 +5,15 @@ weighted quaternion averaging).
 
 from __future__ import annotations
 
+import numbers
 from typing import Mapping, Sequence
 
 import numpy as np
+from scipy.optimize import nnls
+from scipy.spatial.transform import Rotation, Slerp
 
-from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig
+from mvtex.data.camera import Camera, check_camera_name
+from mvtex.data.rig import Rig, as_rig
 from mvtex.util.errors import InputError, OptionError
 
 WEIGHT_TOLERANCE = 1e-6
@@ -43,7 +46,6 @@ def parse_weights(text: str) -> dict[str, float]:
 def check_weights(weights: Mapping[str, float], rig: Rig) -> dict[str, float]:
     """Weights of a view, validated: a mapping camera name -> number, known cameras, finite,
     ≥ 0, summing to 1 (±1e-6)."""
-    import numbers
 
     if not isinstance(weights, Mapping) or not weights:
         raise OptionError("weights", f"must map camera names to numbers, got {weights!r:.60}")
@@ -150,10 +152,6 @@ def interpolate_camera(rig: Rig, weights: Mapping[str, float], name: str) -> Cam
     Raises:
         InputError: the cameras' image sizes differ, or the weights are invalid.
     """
-    from scipy.spatial.transform import Rotation, Slerp
-
-    from mvtex.data.camera import check_camera_name
-    from mvtex.data.rig import as_rig
 
     rig = as_rig(rig)
     check_camera_name(name)
@@ -251,7 +249,6 @@ def weights_for_centre(rig: Rig, names: Sequence[str], centre: np.ndarray) -> di
     the array's hull); the midpoint of two neighbours gives them 0.5 each, the centre of a
     2x2 square 0.25 each.
     """
-    from scipy.optimize import nnls
 
     C = np.stack([rig[n].center for n in names])
     limit = 50 * len(names) + 100

@@ -24,6 +24,13 @@ import numpy as np
 
 from mvtex.data.dataset import as_dataset
 from mvtex.data.rig import Rig
+from mvtex.evaluation.evaluate import evaluate
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.util.output import atomic_path
+from mvtex.views.cameras import interpolate_camera
+from mvtex.views.novel import novel_views
+from mvtex.views.synthesizer import ViewOptions
 
 CURVES = ("baseline", "blend", "reconstruct", "direct TS")
 
@@ -51,12 +58,6 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
          "sqrt_mse": {curve: [per view mean]}, "sqrt_mse_same_chart": {curve: [...]}}
         (values in uv units; curve names from CURVES).
     """
-    from mvtex.evaluation.evaluate import evaluate
-    from mvtex.sliding.dataset import slide_dataset
-    from mvtex.sliding.options import SlideOptions
-    from mvtex.views.cameras import interpolate_camera
-    from mvtex.views.novel import novel_views
-    from mvtex.views.synthesizer import ViewOptions
 
     dataset = as_dataset(dataset)
     dataset.require_gt("measuring views against gt")
@@ -96,10 +97,10 @@ def measure_views(dataset, rig: Rig, texcoords, weights: Sequence[Mapping[str, f
 def plot_path(measured: dict, path: str | os.PathLike, parameter: Sequence[float], *, a: str, b: str,
               title: str = "") -> Path:
     """The two-camera plot: the uv error (all pixels | same-chart pixels) against t from a to b."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 (loaded on use)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 (loaded on use)
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), dpi=110)
     for ax, key, label in zip(axes, ("sqrt_mse", "sqrt_mse_same_chart"), ("all pixels", "same-chart pixels")):
@@ -121,10 +122,10 @@ def plot_path(measured: dict, path: str | os.PathLike, parameter: Sequence[float
 def plot_grid(measured: dict, path: str | os.PathLike, steps: int, corners: Sequence[str], *,
               key: str = "sqrt_mse_same_chart", title: str = "") -> Path:
     """The four-camera map: one heatmap of the uv error over the steps×steps views per curve."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 (loaded on use)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 (loaded on use)
 
     curves = [c for c in CURVES if c in measured[key] and c != "baseline"]
     values = {c: np.asarray(measured[key][c]).reshape(steps, steps) * 1e3 for c in curves}
@@ -151,9 +152,7 @@ def plot_grid(measured: dict, path: str | os.PathLike, steps: int, corners: Sequ
 
 
 def _save(fig, path: str | os.PathLike) -> Path:
-    import matplotlib.pyplot as plt
-
-    from mvtex.util.output import atomic_path
+    import matplotlib.pyplot as plt  # noqa: PLC0415 (loaded on use)
 
     path = Path(path)
     with atomic_path(path) as tmp:

@@ -13,12 +13,18 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.data.camera import Camera, check_camera_name
-from mvtex.data.rig import Rig, check_outside_body
+from mvtex.data.dataset import as_dataset, load_dataset
+from mvtex.data.partial_set import PartialSet
+from mvtex.data.rig import Rig, as_rig, check_outside_body, save_rig
+from mvtex.data.texcoords import as_texcoords, dataset_record, open_texcoords, rig_record
+from mvtex.util.checks import as_indices, as_path, check_instance
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.files import dumps_strict
 from mvtex.util.output import writer
-from mvtex.util.parallel import ThreadState, check_backend
+from mvtex.util.parallel import ThreadState, check_backend, configure_threads, map_unordered
 from mvtex.views.cameras import check_weights, interpolate_camera
 from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
 
@@ -43,9 +49,6 @@ _VIEW_STATE = ThreadState()  # each thread's synthesizer for the run it serves
 
 def _view_state(spec: _ViewSpec) -> "ViewSynthesizer":
     """A worker's synthesizer for a run."""
-    from mvtex.data.dataset import load_dataset
-    from mvtex.data.texcoords import open_texcoords
-    from mvtex.util.parallel import configure_threads
 
     configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
@@ -126,10 +129,6 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     Returns:
         A `NovelViews`; `.to_json()` is the JSON of `mvtex views --json`.
     """
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import as_texcoords
-    from mvtex.util.checks import as_indices, as_path, check_instance
 
     dataset = as_dataset(dataset)
     rig = as_rig(rig)
@@ -142,12 +141,6 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
     if isinstance(names, (str, bytes)) or not hasattr(names, "__iter__"):
         raise OptionError("names", f"must be a list of view names, got {type(names).__name__}")
     weights, names = list(weights), list(names)
-    from tqdm import tqdm
-
-    from mvtex.data.rig import save_rig
-    from mvtex.data.partial_set import PartialSet
-    from mvtex.data.texcoords import dataset_record, rig_record
-    from mvtex.util.files import dumps_strict
 
     check_backend(workers, scheduler)
     if len(weights) != len(names) or not names:
@@ -208,7 +201,6 @@ def novel_views(dataset, rig: Rig, texcoords, out: str | os.PathLike, weights: S
                 write(start, *_views_of_poses(synth, cameras, weights, poses[start:start + size],
                                               tick=lambda: bar.update(1)), counted=True)
         else:
-            from mvtex.util.parallel import map_unordered
 
             spec = _ViewSpec(dataset=str(Path(dataset.path).resolve()), rig=rig,
                              texcoords=str(Path(texcoords.path).resolve()), options=options,

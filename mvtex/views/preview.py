@@ -33,17 +33,27 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+from tqdm import tqdm
 
 from mvtex.data.camera import Camera
-from mvtex.data.rig import Rig, check_outside_body
+from mvtex.data.dataset import as_dataset
+from mvtex.data.rig import Rig, as_rig, check_outside_body
+from mvtex.data.texcoords import as_texcoords
+from mvtex.render.pictures import grid_image, label, side_by_side
+from mvtex.render.raster import rasterize
+from mvtex.render.shading import render_textured
+from mvtex.util.checks import as_index, as_path, check_instance
 from mvtex.util.errors import InputError, OptionError
-from mvtex.util.output import writer
+from mvtex.util.files import save_png, write_json
+from mvtex.util.output import atomic_path, writer
+from mvtex.views.cameras import check_weights, interpolate_camera, weights_for_centre
 from mvtex.views.options import PreviewOptions
+from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
 
 BACKGROUND = (40, 40, 46)
 
@@ -97,7 +107,6 @@ class Preview:
 
 def eye_cameras(viewpoint: Camera, ipd: float) -> tuple[Camera, Camera]:
     """The left and right eyes: the viewpoint moved by ∓ipd/2 along its x axis (image right)."""
-    from dataclasses import replace
 
     x_axis = viewpoint.R[0]  # camera x in world coordinates
     eyes = []
@@ -111,7 +120,6 @@ def _render(ctx, positions: np.ndarray, faces: np.ndarray, texcoords: np.ndarray
             body=None) -> np.ndarray:
     """The one place this module draws: (H,W,3) uint8 textured render in GL context `ctx`
     (with the body, if given, in its matte material)."""
-    from mvtex.render.shading import render_textured
 
     return render_textured(ctx, positions, faces, texcoords, camera, background=BACKGROUND, body=body)
 
@@ -136,7 +144,7 @@ def garment_box(images, margin: int = 4, masks=()) -> tuple[slice, slice]:
 def image_scores(reference: np.ndarray, image: np.ndarray, box: tuple[slice, slice]) -> tuple[float, float]:
     """SSIM and PSNR (dB) of an RGB uint8 image against a reference, inside `box`
     (PSNR of identical images, infinite, is reported as 99)."""
-    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity  # noqa: PLC0415 (loaded on use)
 
     a, b = reference[box], image[box]
     ssim = structural_similarity(a, b, channel_axis=2, data_range=255)
@@ -157,7 +165,7 @@ def anaglyph(left: np.ndarray, right: np.ndarray, shift_px: float = 0.0) -> np.n
     """Red-cyan anaglyph (H,W,3) uint8: red from the left eye, green and blue from the right,
     the left picture moved left and the right one right by `shift_px` / 2 each (the
     convergence: what was `shift_px` apart coincides); uncovered columns are the background."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     def moved(image: np.ndarray, dx: float) -> np.ndarray:
         if dx == 0:
@@ -176,7 +184,6 @@ class _Eyes:
     """Renders both eyes of one pose; texcoords through a `views.ViewSynthesizer`."""
 
     def __init__(self, dataset, rig: Rig, texcoords, pose: int, method: str, array: list[str], progress: bool):
-        from mvtex.views.synthesizer import ViewOptions, ViewSynthesizer
 
         self.dataset, self.rig, self.tc, self.pose, self.array = dataset, rig, texcoords, int(pose), array
         self.synth = ViewSynthesizer(dataset, rig, texcoords, ViewOptions(method=method))
@@ -190,7 +197,6 @@ class _Eyes:
         self.synth.release()
 
     def texcoords(self, eye: Camera) -> tuple[np.ndarray, dict[str, float]]:
-        from mvtex.views.cameras import weights_for_centre
 
         weights = weights_for_centre(self.rig, self.array, eye.center)
         d, _ = self.synth.view(self.state, eye, weights)
@@ -207,7 +213,6 @@ class _Eyes:
             out["inferred"] = _render(gl, self.inferred, self.dataset.faces, self.dataset.uv, eye, body)
         out["cloth"] = ()
         if body is not None and with_references:  # where the cloth shows: the scores' box
-            from mvtex.render.raster import rasterize
 
             out["cloth"] = tuple(rasterize(gl, x, self.dataset.faces, eye, attributes=False, occluder=body).mask
                                  for x in shapes)
@@ -248,10 +253,6 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     Returns:
         A `Preview`; `.to_json()` is preview.json (and `mvtex preview --json`).
     """
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import as_texcoords
-    from mvtex.util.checks import as_index, as_path, check_instance
 
     dataset = as_dataset(dataset)
     rig = as_rig(rig)
@@ -259,10 +260,6 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
     pose = as_index(pose, "pose")
     out = as_path(out, "out")
     check_instance(options, PreviewOptions, "options")
-    from mvtex.render.pictures import grid_image, side_by_side
-    from mvtex.util.files import save_png, write_json
-    from mvtex.util.output import atomic_path
-    from mvtex.views.cameras import check_weights, interpolate_camera
 
     pose = int(pose)
     if not 0 <= pose < dataset.num_poses:
@@ -328,12 +325,8 @@ def stereo_preview(dataset, rig: Rig, texcoords, pose: int, out: str | os.PathLi
 
 def _write_path_gif(path: Path, eyes: _Eyes, rig: Rig, array: list[str], options: PreviewOptions,
                     progress: bool) -> None:
-    import cv2
-    import imageio.v3 as iio
-    from tqdm import tqdm
-
-    from mvtex.render.pictures import label, side_by_side
-    from mvtex.views.cameras import interpolate_camera
+    import cv2  # noqa: PLC0415 (loaded on use)
+    import imageio.v3 as iio  # noqa: PLC0415 (loaded on use)
 
     frames = []
     for w in tqdm(_path_weights(array, options.frames_per_segment), desc="path", unit="frame",

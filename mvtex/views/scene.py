@@ -30,10 +30,16 @@ from pathlib import Path
 
 import numpy as np
 
-from mvtex.data.rig import Rig
+from mvtex.data.dataset import as_dataset
+from mvtex.data.mesh import vertex_normals, weld_groups
+from mvtex.data.rig import Rig, as_rig
+from mvtex.data.texcoords import as_texcoords, recorded_rig
 from mvtex.formats.glb import SceneCamera, scene_glb
+from mvtex.render.shading import BODY_RGB, fabric_texture
+from mvtex.util.checks import as_index, as_path, check_instance
 from mvtex.util.errors import InputError
-from mvtex.util.output import writer
+from mvtex.util.files import read_row, write_json
+from mvtex.util.output import atomic_path, writer
 from mvtex.views.options import ExportOptions
 
 SCENE_FORMAT = "mvtex-scene"
@@ -93,14 +99,6 @@ def export_scene(dataset, texcoords, pose: int, out: str | os.PathLike, *, rig: 
     Returns:
         A `SceneExport`; `.to_json()` is export.json (and `mvtex export --json`).
     """
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.mesh import vertex_normals, weld_groups
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import as_texcoords, recorded_rig
-    from mvtex.render.shading import BODY_RGB, fabric_texture
-    from mvtex.util.checks import as_index, as_path, check_instance
-    from mvtex.util.files import read_row, write_json
-    from mvtex.util.output import atomic_path
 
     dataset = as_dataset(dataset)
     texcoords = as_texcoords(texcoords)
@@ -169,7 +167,6 @@ def inline_scripts() -> str:
 
 def write_viewer_page(path: Path, glb: Path, title: str) -> Path:
     """viewer.html: the scene viewer filling the window, everything inside the page."""
-    from mvtex.util.output import atomic_path
 
     text = (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
             '<meta name="viewport" content="width=device-width,initial-scale=1">'

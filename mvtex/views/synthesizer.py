@@ -27,15 +27,21 @@ from typing import Mapping
 import numpy as np
 
 from mvtex.data.camera import Camera
+from mvtex.data.dataset import reference_shape
+from mvtex.data.mesh import charts_through_parent, uv_charts
 from mvtex.data.rig import Rig
+from mvtex.recon.locate import locate_uv
+from mvtex.recon.triangulate import ReconOptions, reconstruct
+from mvtex.render.context import GLContext
+from mvtex.render.raster import rasterize
+from mvtex.sliding.hits import intersect_pairs
+from mvtex.sliding.options import SlideOptions
+from mvtex.sliding.pose import slide_pose
+from mvtex.sliding.topology import body_topology, build_topology
 from mvtex.util.errors import InputError
 from mvtex.util.files import read_row
 from mvtex.views.cameras import _single
 from mvtex.views.options import ViewOptions
-
-
-
-
 
 # A point counts as seen by an array camera when it is no deeper than the farthest
 # reconstructed surface around its projection, with this relative slack (4 mm at 2 m).
@@ -101,7 +107,6 @@ class ViewSynthesizer:
     def __init__(self, dataset, rig: Rig, texcoords, options: ViewOptions = ViewOptions(), ctx=None):
         texcoords.check_rig(rig)
         texcoords.check_dataset(dataset)
-        from mvtex.render.context import GLContext
 
         self.dataset = dataset
         self._owns_gl = ctx is None
@@ -112,7 +117,6 @@ class ViewSynthesizer:
         self.array = [c for c in texcoords.cameras if c in rig.names]
         self._topology = None
         self._slide_options = None
-        from mvtex.recon.triangulate import ReconOptions
 
         # With two cameras a vertex needs both observations: hypotheses in triangles with
         # extrapolated corners are kept (the triangulation's reprojection and surface checks
@@ -135,8 +139,6 @@ class ViewSynthesizer:
     # the sliding machinery, built once
     def _sliding(self):
         if self._topology is None:
-            from mvtex.sliding.options import SlideOptions
-            from mvtex.sliding.topology import build_topology
 
             tc = self.texcoords
             recorded = tc.meta.get("options") if isinstance(tc.meta.get("options"), dict) else {}
@@ -144,7 +146,6 @@ class ViewSynthesizer:
             known["subdiv"] = tc.subdiv
             self._slide_options = SlideOptions(**known)
             ds = self.dataset
-            from mvtex.data.dataset import reference_shape
 
             self._topology = build_topology(ds.faces, ds.uv, reference_shape(ds), tc.subdiv)
             if len(self._topology.uv) != len(tc.uv):
@@ -162,7 +163,6 @@ class ViewSynthesizer:
                           body=None if self.dataset.body is None else (self.dataset.body.pose(pose),
                                                                        self.dataset.body.faces))
         if self.options.method == "reconstruct":
-            from mvtex.recon.triangulate import reconstruct
 
             if len(self.array) < 2:
                 raise InputError(tc.path, "method reconstruct needs texcoords of at least 2 rig cameras "
@@ -187,7 +187,6 @@ class ViewSynthesizer:
                                               np.array_equal(camera.R, self.rig[_single(weights)].R) and
                                               np.array_equal(camera.t, self.rig[_single(weights)].t)):
             return d_blend, a_blend
-        from mvtex.sliding.pose import slide_pose
 
         topo, slide_options = self._sliding()
         rec = state.reconstruction
@@ -200,7 +199,6 @@ class ViewSynthesizer:
         if self.dataset.body is None:
             return None
         if getattr(self, "_body_topo", None) is None:
-            from mvtex.sliding.topology import body_topology
 
             self._body_topo = body_topology(self.dataset.body.faces, self._sliding()[0])
         return self._body_topo
@@ -209,7 +207,6 @@ class ViewSynthesizer:
         """Where the slide against the reconstruction hit it, found from the slid uv (the
         reconstruction carries T_G): (k,) vertex indices, (k,3) hit points P, (k,) hit face
         of the base mesh."""
-        from mvtex.recon.locate import locate_uv
 
         faces = np.asarray(self.dataset.faces, np.int64)
         hit_uv = self.texcoords.uv.astype(np.float64) + d_rec
@@ -232,8 +229,6 @@ class ViewSynthesizer:
         component across p's ray (the baseline angle), so the reconstruction's error is
         damped; where no weighted camera sees P, the blend.
         """
-        from mvtex.render.raster import rasterize
-        from mvtex.sliding.hits import intersect_pairs
 
         rec = state.reconstruction
         tc = self.texcoords
@@ -301,7 +296,6 @@ class ViewSynthesizer:
 
     def _charts(self):
         if getattr(self, "_chart_cache", None) is None:
-            from mvtex.data.mesh import charts_through_parent, uv_charts
 
             base = uv_charts(self.dataset.faces, self.dataset.num_vertices)
             sub = charts_through_parent(base, self.texcoords.faces, len(self.texcoords.uv))

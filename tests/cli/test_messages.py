@@ -4,7 +4,6 @@ bad pose list or repeat count is a typed error naming the argument."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from helpers import grid_mesh, one_line_error, run, write_obj

@@ -656,6 +656,7 @@ def test_map_unordered_returns_every_task_once(backend):
 
 
 def test_slide_refuses_to_finish_when_a_backend_loses_tasks(tmp_path, tiny_dataset, front_rig, monkeypatch, gl):
+    import mvtex.sliding.dataset
     import mvtex.util.parallel
 
     real = mvtex.util.parallel.map_unordered
@@ -663,7 +664,7 @@ def test_slide_refuses_to_finish_when_a_backend_loses_tasks(tmp_path, tiny_datas
     def lossy(fn, tasks, **kw):
         return real(fn, list(tasks)[1:], **kw)
 
-    monkeypatch.setattr(mvtex.util.parallel, "map_unordered", lossy)
+    monkeypatch.setattr(mvtex.sliding.dataset, "map_unordered", lossy)
     with pytest.raises(RuntimeError, match="were not computed"):
         _slide(tiny_dataset, front_rig, tmp_path / "tc")
     assert not (tmp_path / "tc").exists() and (tmp_path / "tc.partial").is_dir()

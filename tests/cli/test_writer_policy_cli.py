@@ -48,7 +48,7 @@ def test_an_output_in_or_around_an_input_is_refused(case, tmp_path, tiny_dataset
         pytest.importorskip("torch")
         from helpers import fake_model
 
-        model = fake_model(tmp_path / "work" / "model", tiny_dataset)
+        fake_model(tmp_path / "work" / "model", tiny_dataset)
     before = tree(tmp_path / "work")
     argv, needle = {
         "slide-onto-dataset": (["slide", data, "--rig", rig_file, "--out", data], "is also an input"),

@@ -94,7 +94,6 @@ def test_views_refuses_a_view_name_a_rig_file_cannot_hold(tmp_path, capsys, tiny
 def worn_sheet(tmp_path_factory, sheet):
     """The wavy sheet worn in front of a closed body: an icosphere 0.1 m behind it."""
     import trimesh
-
     from helpers import wave
 
     faces, uv, rest = sheet

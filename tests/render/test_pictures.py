@@ -29,7 +29,7 @@ def _plane(normal, centre=(0.0, 0.0, 0.0), size=0.6):
 @pytest.mark.gl
 @pytest.mark.parametrize("normal", [(0.0, 0.0, 1.0), (0.5, 0.3, 1.0), (-0.7, -0.2, 0.6), (0.9, 0.6, 0.2)])
 def test_shaded_render_is_the_lambert_term_of_the_face_normal(gl, normal):
-    from mvtex.render.shading import CLOTH_RGB, SHADED_AMBIENT, SHADED_DIFFUSE, KEY_LIGHT, render_shaded
+    from mvtex.render.shading import CLOTH_RGB, KEY_LIGHT, SHADED_AMBIENT, SHADED_DIFFUSE, render_shaded
 
     camera = look_at("c", (0.0, 0.0, 2.0), (0, 0, 0), width=96, height=80, focal=120.0)
     positions, faces = _plane(normal)

@@ -12,11 +12,11 @@ import shutil
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("safetensors")
-
 from mvtex.data.mesh import apply_parent, subdivide
 from mvtex.util.errors import InputError
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("safetensors")
 
 pytestmark = pytest.mark.gl
 
