@@ -252,6 +252,7 @@ NAMES = ["Camera", "look_at", "Rig", "load_rig", "save_rig", "load_dataset", "sa
          "render_textured", "rasterize_uv", "interpolate", "MaterialMap", "slide_pose", "reconstruct"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 def test_a_function_given_a_hostile_argument_raises_a_typed_error(name, sandbox):
     function, base, fuzzed = targets(sandbox)[name]

@@ -61,6 +61,7 @@ def test_material_where_splits_eval_s_error(sheet_set, tmp_path):
     assert (tmp_path / "where.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_body_hidden_counts_what_the_body_hides(tmp_path):
     """One pose of the worn T-shirt, stereo and the cameras into its openings: the body
     hides many vertices per Embree, `slide` assigns none of them."""

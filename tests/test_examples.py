@@ -39,6 +39,7 @@ def test_quickstart_uses_the_public_api_only():
     assert modules == {"sys", "pathlib", "mvtex"}
 
 
+@pytest.mark.slow
 def test_own_data_import(tmp_path, gl):
     module = load("own_data")
     gt_glob, inferred_glob = module.demo_sequence(tmp_path, num_poses=3)
@@ -46,6 +47,7 @@ def test_own_data_import(tmp_path, gl):
     assert (tc / "texcoords.json").exists()
 
 
+@pytest.mark.slow
 def test_ar_preview(tmp_path, gl):
     import imageio.v3 as iio
     import numpy as np
@@ -84,6 +86,7 @@ def test_fill_laplacian_compares_both_operators(tmp_path, gl, tiny_dataset, fron
         assert 0 <= r["held_out_rmse_uv"] < 0.01 and r["ratio_same_chart"] > 1
 
 
+@pytest.mark.slow
 def test_defaults_study_small(tmp_path, gl):
     module = load("defaults_study", BENCHMARKS)
     rows = module.study(tmp_path, 10, ["shirt", "skirt"], ["stereo"], only=["defaults", "break ratio 4"])

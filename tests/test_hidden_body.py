@@ -38,6 +38,7 @@ def _slid(dataset, rig, out, gl):
     return open_texcoords(out, dataset.num_vertices)
 
 
+@pytest.mark.slow
 def test_a_hidden_body_changes_no_output(pair, front_rig, tmp_path, gl):
     from mvtex.evaluation.evaluate import evaluate
     from mvtex.recon.pose import triangulate_pose

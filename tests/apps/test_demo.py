@@ -31,6 +31,7 @@ def no_work(monkeypatch) -> None:
     monkeypatch.setattr(mvtex.render.pose, "render_pose", fail)
 
 
+@pytest.mark.slow
 def test_an_edited_demo_json_does_not_make_a_run_another(tmp_path, capsys, monkeypatch):
     out = tmp_path / "demo"
     with claim_output(out, "demo", in_place=True):  # a 10-pose demo, stopped after its dataset

@@ -64,6 +64,7 @@ def test_missing_images_finds_absent_files(tmp_path):
     assert missing_images(text, tmp_path) == ["gone.png"]
 
 
+@pytest.mark.slow
 def test_report_opens_in_headless_chromium(tmp_path, sheet, sheet_set, gl):
     """A page with a picture, the meshes' view and the scene viewer: every image loads, both
     3-D views are ready, the console holds no error; a missing picture is counted."""

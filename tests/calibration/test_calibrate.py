@@ -81,6 +81,7 @@ def _relative(cam: Camera, ref: Camera) -> np.ndarray:
     return a @ np.linalg.inv(b)
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_calibrate_recovers_the_rig(calibrated):
     out, truth, result = calibrated
@@ -109,6 +110,7 @@ def test_calibrate_recovers_the_rig(calibrated):
         assert np.linalg.norm(moved[0] - moved[1]) < 1.0, (cam.name, cam.dist, true.dist, moved)
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_calibration_record_and_pictures(calibrated):
     out, _, result = calibrated
@@ -149,6 +151,7 @@ def test_camera_sharing_no_frame_is_named(board_images, tmp_path, capsys):
     assert not (tmp_path / "rig.yaml").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_cameras_linked_through_another_camera(board_images, tmp_path):
     """cam0 and cam2 share no frame, but both share frames with cam1: cam2's pose reaches
@@ -340,6 +343,7 @@ def test_rig_summary_and_plot(tmp_path):
     assert cv2.imread(str(tmp_path / "rig.png")).std() > 10
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_example_runs_every_step(tmp_path, gl):
     result = example.main(tmp_path / "demo", num_poses=4)

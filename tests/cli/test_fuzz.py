@@ -97,6 +97,7 @@ def sandbox(*sources: Path):
 @FUZZ
 @given(name=st.sampled_from(["mesh.npz", "gt.npy", "inferred.npy", "poses.npy", "dataset.json", "split.json"]),
        how=damage)
+@pytest.mark.slow
 def test_damaged_dataset_files(tiny_dataset, rig_file, gl, name, how):
     with sandbox(tiny_dataset, rig_file) as root:
         damage_file(root / "sheet" / name, how)
@@ -109,6 +110,7 @@ def test_damaged_dataset_files(tiny_dataset, rig_file, gl, name, how):
 @FUZZ
 @given(field=st.sampled_from(["name", "width", "height", "format", "version"]), value=st.one_of(hostile_text, number_text),
        cut=st.one_of(st.none(), st.floats(0, 1)))
+@pytest.mark.slow
 def test_damaged_rig_yaml(tiny_dataset, rig_file, gl, field, value, cut):
     with sandbox(tiny_dataset, rig_file) as root:
         lines = (root / "rig.yaml").read_text().splitlines()
@@ -132,6 +134,7 @@ json_value = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-10**2
 @FUZZ
 @given(key=st.sampled_from(["poses", "cameras", "subdiv", "format", "version"]), value=json_value,
        array=st.sampled_from([None, "nan", "inf", "huge", "float64", "int32", "shape", "truncate"]))
+@pytest.mark.slow
 def test_damaged_texcoord_sets(tiny_dataset, rig_file, slid_sheet0, gl, key, value, array):
     with sandbox(tiny_dataset, rig_file, slid_sheet0) as root:
         tc = root / "tc"
@@ -156,6 +159,7 @@ def test_damaged_texcoord_sets(tiny_dataset, rig_file, slid_sheet0, gl, key, val
 @given(which=st.sampled_from(["g0.obj", "g1.obj", "i1.obj"]), how=damage,
        line=st.one_of(st.none(), st.tuples(st.floats(0, 1), st.sampled_from(
            ["v nan 0 0", "v 1e400 0 0", "vt x y", "f 1 2 999999", "f -5 -6 -7", "v 1 2", "f 1/1", "o ../x"]))))
+@pytest.mark.slow
 def test_damaged_obj_imports(which, how, line):
     from helpers import grid_mesh, wave, write_obj
 
@@ -183,6 +187,7 @@ def test_damaged_obj_imports(which, how, line):
                              ("architecture", "width"), ("architecture", "pose_dim"), ("architecture", "depth"),
                              ("format",), ("architecture",)]),
        value=json_value, weights=st.one_of(st.none(), damage))
+@pytest.mark.slow
 def test_damaged_model_directories(tiny_dataset, path, value, weights):
     pytest.importorskip("torch")
     from helpers import fake_model
@@ -210,6 +215,7 @@ def test_damaged_model_directories(tiny_dataset, path, value, weights):
                                ("train", "--workers"), ("eval", "--workers"), ("eval", "--poses"),
                                ("views", "--workers"), ("synth", "--num-poses")]),
        value=st.one_of(number_text, hostile_text))
+@pytest.mark.slow
 def test_option_values(tiny_dataset, rig_file, slid_sheet0, option, value):
     """Every option value is either refused in one line or accepted; the run then stops at
     a foreign --out (so a valid value costs nothing)."""
@@ -269,6 +275,7 @@ weights_text = st.one_of(
                      st.tuples(st.just("--between"), st.sampled_from(["a,b", "a,a", "b,a", "a", "a,b,c", ""]),
                                number_text),
                      st.tuples(st.just("--grid"), st.sampled_from(["a,b,a,b", "a,b", "a,b,c,d", ""]), number_text)))
+@pytest.mark.slow
 def test_view_weights_and_steps(tiny_dataset, rig_file, slid_sheet0, how):
     with sandbox(tiny_dataset, rig_file, slid_sheet0) as root:
         out = root / "v"
@@ -280,6 +287,7 @@ def test_view_weights_and_steps(tiny_dataset, rig_file, slid_sheet0, how):
 @FUZZ
 @given(names=st.lists(st.one_of(hostile_text, st.sampled_from(["cam0", "CAM0", "cam 1", "kamera_ü", "c" * 70])),
                       min_size=1, max_size=3), image=st.sampled_from([b"", b"not an image", None]))
+@pytest.mark.slow
 def test_calibration_image_folders(names, image):
     import cv2
 
@@ -302,6 +310,7 @@ def test_calibration_image_folders(names, image):
 @FUZZ
 @given(which=st.sampled_from(["cameras.txt", "images.txt", "frames.txt", "rigs.txt"]), how=damage,
        line=st.integers(0, 8), field=st.integers(0, 12), value=st.one_of(number_text, hostile_text))
+@pytest.mark.slow
 def test_damaged_colmap_text_models(which, how, line, field, value):
     with sandbox() as root:
         assert main(["rig", "square4", "--to-colmap", str(root / "model"), "--text"]) == 0
@@ -335,6 +344,7 @@ def _fs_state_strategy():
     return state
 
 
+@pytest.mark.slow
 @FUZZ
 @given(fs=_fs_state_strategy(), command=st.sampled_from(["to-colmap", "board"]))
 def test_writers_in_hostile_file_system_states(binds, fs, command):

@@ -101,6 +101,7 @@ def test_a_link_to_another_outputs_manifest_makes_no_folder_mvtexs(tmp_path, cap
 
 @pytest.mark.parametrize("name", [".notes.mvtex-lock", ".ds.mvtex-lock", ".x.mvtex-output.json.tmp",
                                   ".mvtex-output.json.tmp"])
+@pytest.mark.slow
 def test_a_hidden_file_named_like_a_transient_inside_an_output_is_the_users(name, tmp_path, capsys):
     out = tmp_path / "ds"
     code, err = synth(capsys, out)
@@ -114,6 +115,7 @@ def test_a_hidden_file_named_like_a_transient_inside_an_output_is_the_users(name
     assert tree(out) == before
 
 
+@pytest.mark.slow
 def test_a_stamp_that_is_a_link_makes_no_temporary_mvtexs(tmp_path, capsys):
     code, err = synth(capsys, tmp_path / "ds")
     assert code == 0, err
@@ -203,6 +205,7 @@ def test_a_folder_made_by_a_killed_run_inside_its_output_is_its_own(tmp_path):
     assert os.listdir(out) == [MARKER]
 
 
+@pytest.mark.slow
 def test_overwrite_given_to_a_command_reaches_the_writers_it_calls(tmp_path, tiny_dataset, slid_sheet0, capsys):
     """`train --cameras a,b --out OUT --overwrite` on another command's output: the model of
     camera a replaces OUT/a (another command's folder), as --overwrite asked; it is never

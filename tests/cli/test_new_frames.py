@@ -49,6 +49,7 @@ def _import(capsys, root, out, *extra):
                root / "frames" / "poses.txt", "--quiet", *extra)
 
 
+@pytest.mark.slow
 def test_run_time_path_on_an_inference_set_equals_the_full_dataset(trained, tmp_path, front_rig, capsys):
     """import (no --gt) -> predict (no --rig) -> triangulate, views, preview, render (no
     --rig): predictions equal the full dataset's for the same frames, the PLY too, the set

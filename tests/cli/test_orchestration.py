@@ -104,6 +104,7 @@ def test_resume_starts_over_when_the_reference_shape_changed(gl, norest, rig_fil
     assert "starting over" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_eval_json_matches_the_library(gl, tiny_dataset, rig_file, slid_sheet, capsys):
     from mvtex.evaluation.evaluate import evaluate
@@ -125,6 +126,7 @@ def test_triangulate_json(gl, tiny_dataset, rig_file, slid_sheet, tmp_path, caps
     assert (out / "reconstruction.ply").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_train_json_then_predict(gl, tiny_dataset, slid_sheet, tmp_path, capsys):
     pytest.importorskip("torch")

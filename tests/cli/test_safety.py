@@ -73,6 +73,7 @@ def test_every_writer_refuses_a_folder_it_did_not_write(command, tmp_path, tiny_
     assert tree(out) == {"keep.txt": b"x"}
 
 
+@pytest.mark.slow
 def test_own_output_is_replaced_and_overwrite_never_deletes_a_users_file(tmp_path, capsys):
     out = foreign(tmp_path)
     code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 10, "--overwrite", "--json")
@@ -589,6 +590,7 @@ def test_dask_local_cluster_slide_equals_one_process(tmp_path, reference_set, sl
     assert tree(tmp_path / "tc") == ref
 
 
+@pytest.mark.slow
 def test_dask_worker_with_threads_slides_and_evaluates_like_one_process(tmp_path, reference_set, slow_dataset):
     """`dask worker` runs several tasks at once in threads of one process: each thread
     needs its own GL context and state (a shared one crashed or mixed results). Slide,
@@ -710,6 +712,7 @@ def test_import_pose_files(content, needle, tmp_path, capsys):
     assert not (tmp_path / "ds").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["import", "render", "triangulate", "predict"])
 def test_every_writer_marks_its_output_and_may_replace_it(command, tmp_path, tiny_dataset, rig_file, slid_sheet0, capsys):
     out = tmp_path / "out"

@@ -36,6 +36,7 @@ def test_finished_slide_returns_at_once_and_records_its_rig(tmp_path, tiny_datas
     assert json.loads((out / "texcoords.json").read_text())["subdiv"] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_rig_defaults_to_the_sets_rig(tmp_path, tiny_dataset, rig_file, gl, capsys):
     out = tmp_path / "ts"
@@ -57,6 +58,7 @@ def test_rig_defaults_to_the_sets_rig(tmp_path, tiny_dataset, rig_file, gl, caps
     assert code == 2 and "required: --rig" in err
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_triangulate_summary_leads_with_the_rmse(tmp_path, sheet_set, capsys):
     dataset, rig, tc = sheet_set
@@ -87,6 +89,7 @@ def test_bench_summary_is_text_and_json_only_with_json():
     assert "4.00x" in text and "{" not in text
 
 
+@pytest.mark.slow
 def test_progress_reaches_stderr_and_quiet_silences_it(tmp_path, capsys):
     code, out, err = run(capsys, "synth", "--out", tmp_path / "d", "--num-poses", 10, "--garment", "skirt")
     assert code == 0 and "synth skirt" in err and "20/20" in err

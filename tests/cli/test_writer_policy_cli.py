@@ -26,6 +26,7 @@ def tree(path: Path) -> dict[str, bytes]:
     return {p.relative_to(path).as_posix(): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_a_rerun_and_overwrite_keep_a_file_the_user_put_into_the_output(tmp_path, capsys):
     out = tmp_path / "ds"
     code, _, err = run(capsys, "synth", "--out", out, "--num-poses", 10, "--quiet")
@@ -67,6 +68,7 @@ def test_an_output_in_or_around_an_input_is_refused(case, tmp_path, tiny_dataset
         ["data", "tc"] + (["model"] if case == "predict-onto-model" else []))
 
 
+@pytest.mark.slow
 def test_hidden_lookalike_temporaries_beside_out_survive(tmp_path, capsys):
     lookalikes = [tmp_path / ".ds.backup.tmp", tmp_path / ".ds.2024.aside", tmp_path / ".ds.lock"]
     for folder in lookalikes[:2]:
@@ -99,6 +101,7 @@ def test_a_full_disk_without_a_file_name_is_one_line_naming_the_output(tmp_path,
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_file_size_limit_is_one_line_and_leaves_nothing(tmp_path):
     # A real limit (RLIMIT_FSIZE, as `ulimit -f`): writes past it fail with EFBIG, which
     # carries no file name; Python ignores SIGXFSZ, so the write fails instead of the process.
@@ -111,6 +114,7 @@ def test_a_file_size_limit_is_one_line_and_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_closed_pipe_is_a_quiet_exit(tmp_path):
     proc = subprocess.Popen([*MVTEX, "rig", "trapezoid12", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.close()  # `mvtex rig trapezoid12 --json | true`
@@ -133,6 +137,7 @@ def test_a_closed_pipe_in_process_returns_141(capsys, monkeypatch):
     assert main(["rig", "stereo", "--json"]) == 141
 
 
+@pytest.mark.slow
 def test_a_killed_render_leaves_no_half_folder(tmp_path, tiny_dataset, rig_file):
     out = tmp_path / "render"
     # Killed (SIGKILL) after the first picture is written: the folder must not appear.
@@ -195,6 +200,7 @@ def _limited(limit: int, *argv, cwd=None) -> subprocess.CompletedProcess:
                           timeout=300, cwd=cwd)
 
 
+@pytest.mark.slow
 def test_colmap_models_cut_short_by_a_full_disk_are_errors(tmp_path):
     out = tmp_path / "model"
     proc = _limited(300, "rig", "trapezoid12", "--to-colmap", out, "--quiet")
@@ -213,6 +219,7 @@ def test_a_rig_file_cut_short_is_an_output_error_not_the_rigs(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_model_weights_cut_short_are_an_output_error(tmp_path, tiny_dataset, slid_sheet0):
     pytest.importorskip("torch")
     out = tmp_path / "model"

@@ -118,6 +118,7 @@ def test_missing_rig_file(tmp_path):
         load_rig(tmp_path / "nope.yaml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["stereo", "square4"])
 def test_every_truncation_of_a_rig_file_loads_or_names_the_file(tmp_path, name):
     """A rig file cut anywhere (a copy interrupted) is read or refused in one line, never an OpenCV assertion."""

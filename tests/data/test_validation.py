@@ -184,6 +184,7 @@ def test_one_view_or_a_nan_pixel_gives_no_point(cameras):
         mvtex.triangulate_points([a, c], pixels, np.full((2, 2), np.nan))
 
 
+@pytest.mark.slow
 def test_the_command_line_triangulates_nothing_from_cameras_at_one_centre(tmp_path, capsys, tiny_dataset, gl):
     rig = Rig((look_at("a", (0, 0.05, 1.2), (0, 0, 0), width=160, height=120, focal=260.0),
                look_at("b", (0, 0.05, 1.2), (0.04, 0.02, 0), width=160, height=120, focal=260.0)))
@@ -325,6 +326,7 @@ def _within(seconds: float, call):
     return box.get("value")
 
 
+@pytest.mark.slow
 def test_a_silent_scheduler_is_refused_by_the_library(tmp_path, monkeypatch, silent_server, tiny_dataset, front_rig):
     monkeypatch.setattr("mvtex.util.parallel.SCHEDULER_TIMEOUT_S", 1.0)
     with pytest.raises(mvtex.OptionError, match="not a Dask scheduler"):
@@ -334,6 +336,7 @@ def test_a_silent_scheduler_is_refused_by_the_library(tmp_path, monkeypatch, sil
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_a_silent_scheduler_is_refused_by_the_command_line(tmp_path, capsys, monkeypatch, silent_server,
                                                            tiny_dataset, rig_file):
     monkeypatch.setattr("mvtex.util.parallel.SCHEDULER_TIMEOUT_S", 1.0)

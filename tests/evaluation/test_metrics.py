@@ -128,6 +128,7 @@ def test_same_chart_statistic_excludes_chart_boundaries(gl, front_rig, tmp_path)
 SHEET_SIZE = 0.6  # conftest.grid_mesh: uv = (xy + size/2) / size, rest in the z = 0 plane
 
 
+@pytest.mark.slow
 def test_material_error_is_scale_times_uv_error_on_flat_sheet(gl, tiny_dataset, front_rig, tmp_path):
     """Rest = flat sheet, uv = its positions / 0.6 m: every uv difference is a material
     difference of exactly 0.6 m per uv unit, so material error = 0.6 x uv error per pixel."""
@@ -304,6 +305,7 @@ def test_dataset_without_rest_reports_null_material_error(gl, sheet, front_rig, 
     assert result.ratio == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_evaluate_equals_separate_renders_on_the_shirt(gl, tmp_path):
     """`evaluate` reads gt, baseline and texcoords from one pair raster; its numbers equal
     those of three separate renders (`uv_error_image`, `material_error_image`: the base

@@ -169,6 +169,7 @@ def _clean_tracks_by_colmap(rig, gt, rec):
     return rows, triangulate_tracks(list(rig), pixels, used[rows].astype(float))
 
 
+@pytest.mark.slow
 def test_planted_observations_are_rejected(planted):
     clean, dirty, shifted, rig = planted["clean"], planted["dirty"], planted["shifted"], planted["rig"]
     # The shifted camera disagrees with the other three wherever two of them see a vertex.

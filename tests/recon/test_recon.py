@@ -289,6 +289,7 @@ def identity_run(gl, tmp_path_factory, tiny_dataset):
     return ds, rig, tc, report.to_json(), root / "out"
 
 
+@pytest.mark.slow
 def test_slide_with_inferred_equal_gt_reproduces_gt(identity_run):
     """Texture sliding with inferred = gt assigns T_N = T_G (exact ray casting onto itself);
     triangulating that texcoord set gives back gt, with and without subdivision."""
@@ -397,6 +398,7 @@ def test_bad_inputs(identity_run):
         triangulate_pose(ds, rig.select(["a"]), tc, 4, None, progress=False)
 
 
+@pytest.mark.slow
 def test_triangulate_smooth_through_the_command_line(identity_run, tmp_path, capsys):
     """`mvtex triangulate --smooth --json` on noisy texcoords prints one JSON object: the
     unsmoothed numbers equal a plain run's, and smoothing lowers the strain of the noisy

@@ -111,6 +111,7 @@ def oblique():
     return look_at("oblique", (0.7, 0.15, 1.3), (0, 0, 0), width=200, height=200, focal=260.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("subdiv", [0, 1])
 def test_body_hits_equal_brute_force_ray_cast(gl, oblique, subdiv):
     """Every assigned vertex: nothing (cloth or body) before it on its ray, its first hit
@@ -314,6 +315,7 @@ def test_nearest_body_hit_equals_brute_force(compiled, oblique):
     assert np.abs(t[finite] - t_ref[finite]).max() <= 1e-12 * t_ref[finite].max()
 
 
+@pytest.mark.slow
 def test_worn_shirt_seen_into_its_openings_against_embree(gl):
     """The built-in T-shirt with its body, seen by cameras looking into its collar and its
     hem: no vertex that `slide` assigns is hidden by the body per an Embree ray cast (float32

@@ -24,6 +24,7 @@ def oblique():
     return look_at("oblique", (0.7, 0.15, 1.3), (0, 0, 0), width=200, height=200, focal=260.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("subdiv", [0, 1])
 def test_displacements_equal_brute_force_ray_cast(gl, oblique, subdiv):
     faces, uv, gt, inferred = folded_sheet()
@@ -201,6 +202,7 @@ def _hits_both_ways(gl, gt, inferred, faces, uv, reference, camera, options):
             for compiled in (True, False)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("radius", [0, 1, 2])
 def test_compiled_candidate_search_equals_numpy_search(gl, oblique, radius):
     """The compiled kernels (`mvtex.sliding.kernels`) and the NumPy formulation give identical

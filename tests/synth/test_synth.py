@@ -78,6 +78,7 @@ def _boundary_loops(faces: np.ndarray) -> list[list[int]]:
     return loops
 
 
+@pytest.mark.slow
 def test_shapes_dtypes_and_split(data):
     faces, uv, rest = data["faces"], data["uv"], data["rest"]
     n = len(rest)
@@ -107,6 +108,7 @@ def test_shapes_dtypes_and_split(data):
     assert all(isinstance(v, float) for v in stats.values())
 
 
+@pytest.mark.slow
 def test_the_shirt_is_a_t_shirt_with_four_openings(data):
     rest, faces = data["rest"].astype(np.float64), data["faces"]
     lo, hi = rest.min(axis=0), rest.max(axis=0)
@@ -297,6 +299,7 @@ def _clearance_poses(pose_dim: int) -> np.ndarray:
     return np.array(poses + list(np.random.default_rng(5).uniform(-1, 1, (4, pose_dim))), dtype=np.float32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("garment", ["shirt", "skirt"])
 def test_gt_never_cuts_into_the_body(garment):
     """An exact point-to-triangle search (and a ray-cast inside test) against the body
@@ -319,6 +322,7 @@ def test_gt_never_cuts_into_the_body(garment):
     assert least > 0.003
 
 
+@pytest.mark.slow
 def test_clearance_statistics_match_an_exact_search():
     import trimesh
 
@@ -423,6 +427,7 @@ def test_without_body_the_garment_is_alone(tmp_path):
     assert load_dataset(tmp_path / "plain").body is None
 
 
+@pytest.mark.slow
 def test_write_synth_saves_what_synthesize_returns(tmp_path):
     import json
 
@@ -448,6 +453,7 @@ def test_write_synth_saves_what_synthesize_returns(tmp_path):
 # -- the second garment: a flared skirt with hem flutes, on hips and legs ------------------------
 
 
+@pytest.mark.slow
 def test_skirt_mesh_uv_and_frame(skirt):
     faces, uv, rest = skirt["faces"], skirt["uv"].astype(np.float64), skirt["rest"].astype(np.float64)
     n = len(rest)
@@ -480,6 +486,7 @@ def test_skirt_mesh_uv_and_frame(skirt):
     assert len(_boundary_loops(_welded(skirt["rest"], faces)[1])) == 2
 
 
+@pytest.mark.slow
 def test_skirt_seam_copies_share_positions(skirt):
     pairs = np.array(_seam_groups(skirt["rest"]))
     assert pairs.shape[1] == 2 and len(pairs) == 2 * len(np.unique(skirt["rest"][:, 1]))
@@ -560,6 +567,7 @@ def test_builtin_rigs_frame_both_dressed_mannequins(data, skirt):
                 assert pixels[:, 0].max() < cam.width - 10 and pixels[:, 1].max() < cam.height - 10
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_the_body_hides_the_inside_of_the_shirt(gl):
     """Through the collar, the waist and the sleeve ends the cameras of the shipped rigs
@@ -618,6 +626,7 @@ def test_skirt_public_functions_agree_with_synthesize(skirt):
         np.testing.assert_array_equal(skirt_module.pose_body(skirt["poses"][k]), skirt["body"][k])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("garment,body", [("shirt", True), ("skirt", True), ("shirt", False)])
 def test_streamed_write_equals_save_dataset_byte_for_byte(tmp_path, monkeypatch, garment, body):
     """write_synth streams blocks of poses to disk; with blocks of 4 poses its files must be

@@ -72,6 +72,7 @@ def test_likelihood_and_gradient_against_numpy_and_finite_differences(monkeypatc
             assert float(grad[r, j]) == pytest.approx(numeric, rel=1e-5, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_batched_fit_is_the_component_by_component_fit(problem):
     """All components at once give each component the optimum it reaches alone. The rows of
     a batch are independent computations; only the order of some sums differs with the
@@ -101,6 +102,7 @@ def test_batched_fit_is_the_component_by_component_fit(problem):
             assert nll(moved) == pytest.approx(f_together, rel=1e-9), (c, j)
 
 
+@pytest.mark.slow
 def test_fit_finds_the_optimum_an_independent_optimiser_finds_and_the_closed_form(problem):
     """Against SciPy's L-BFGS-B on the NumPy likelihood from the same start (central
     finite-difference gradients, the same bounds), on the target where two coordinates
@@ -231,6 +233,7 @@ def test_predictive_std_is_the_closed_form_posterior_variance(problem):
     assert np.all(got > 0) and np.all(np.sqrt(np.mean(residual ** 2, 0).reshape(n, 2).sum(-1)) < got)
 
 
+@pytest.mark.slow
 def test_predictive_std_is_calibrated_on_held_out_poses(problem):
     """On held-out poses the squared error of the predicted displacement averages about
     the predicted variance (a GP whose hyperparameters fit the data is calibrated): the
@@ -279,6 +282,7 @@ def test_inducing_posterior_against_the_closed_form_and_the_exact_gp():
         np.testing.assert_allclose(k_test @ every[c], k_test @ np.linalg.solve(a, y[c]), rtol=0, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_fit_above_the_exact_limit_uses_every_pose_and_reports_progress():
     """With fewer inducing poses than training poses the model is a kernel expansion on the
     evenly spaced inducing poses, closer to the noise-free truth on held-out poses than the

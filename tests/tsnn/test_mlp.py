@@ -61,6 +61,7 @@ def test_model_directory_in_the_stored_format_loads_predicts_and_spreads(tmp_pat
     np.testing.assert_allclose(std, expected, rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_fit_learns_a_smooth_field_and_its_spread_grows_away_from_the_data():
     """Coefficients that are smooth functions of the pose: the ensemble's held-out error is
     far below predicting the training mean, each member's chosen epoch is recorded, and the

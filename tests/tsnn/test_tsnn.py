@@ -344,6 +344,7 @@ def rig_data(tmp_path_factory, gl):
     return ds, rig, open_texcoords(root / "tc", ds.num_vertices), root
 
 
+@pytest.mark.slow
 def test_camera_conditioned_model_serves_a_camera_it_never_saw(rig_data, tmp_path):
     from mvtex.data.camera import look_at
     from mvtex.data.rig import Rig
@@ -379,6 +380,7 @@ def test_camera_conditioned_model_serves_a_camera_it_never_saw(rig_data, tmp_pat
     assert not np.array_equal(own.displacement("a", test[0]), own.displacement("c", test[0]))
 
 
+@pytest.mark.slow
 def test_unet_learns_and_predicts_deterministically(rig_data, tmp_path):
     """A per-camera U-Net beats the zero predictor on held-out poses of a closed-form field;
     training twice and predicting twice give bit-identical results on the CPU."""
@@ -411,6 +413,7 @@ def test_unet_learns_and_predicts_deterministically(rig_data, tmp_path):
     assert np.mean((first - truth) ** 2) < 0.7 * np.mean(truth ** 2)
 
 
+@pytest.mark.slow
 def test_model_of_one_mesh_refuses_another(rig_data, tmp_path):
     from mvtex.tsnn.predict import predict
     from mvtex.tsnn.train import TrainOptions, train
@@ -442,6 +445,7 @@ def test_model_of_one_mesh_refuses_another(rig_data, tmp_path):
         load_model(tmp_path / "broken")
 
 
+@pytest.mark.slow
 def test_cli_trains_one_network_for_all_cameras_and_predicts_a_rig(rig_data, tmp_path, capsys):
     from mvtex.cli import main
     from mvtex.data.camera import look_at
@@ -499,6 +503,7 @@ def test_gp_loo_residuals_equal_explicit_refits():
         assert fast[i] == pytest.approx(Y[i] - mean_i, rel=1e-9, abs=1e-12)
 
 
+@pytest.mark.slow
 def test_gp_learns_the_field_roundtrips_and_is_deterministic(field_data, tmp_path):
     """`gp` (the default with a camera name) against the closed-form field on held-out poses."""
     from safetensors.torch import load_file
@@ -534,6 +539,7 @@ def test_gp_cannot_serve_every_camera(rig_data, tmp_path):
         train(ds, tc, tmp_path / "m", rig=rig, options=TrainOptions(arch="gp"), progress=False)
 
 
+@pytest.mark.slow
 def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_path, capsys):
     """`train --camera a,c --workers 2`: OUT/a and OUT/c are the models `--camera a` and
     `--camera c` write, bit for bit (gp is deterministic), and predict takes them."""
@@ -569,6 +575,7 @@ def test_cli_trains_several_cameras_side_by_side_like_one_by_one(rig_data, tmp_p
     assert "zz" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "y" / "a").exists()
 
 
+@pytest.mark.slow
 def test_predict_in_blocks_equals_one_pass(rig_data, tmp_path, monkeypatch):
     """predict writes block by block of poses; with blocks of 3 poses the set holds what one
     pass of the model over all poses gives (gp, per vertex; unet, through the atlas and the
@@ -623,6 +630,7 @@ def test_gp_kernel_is_ard_plus_additive_squared_exponential():
             assert k[i, j] == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_several_camera_train_keeps_finished_models_on_a_rerun(rig_data, tmp_path, capsys):
     """A rerun of `train --camera a,c` after an interruption (c's model missing) trains only
     c and leaves a's files untouched; changed options or a damaged config.json train again;
@@ -671,6 +679,7 @@ def test_several_camera_train_keeps_finished_models_on_a_rerun(rig_data, tmp_pat
     assert json.loads(capsys.readouterr().out)["kept"] == ["c"]
 
 
+@pytest.mark.slow
 def test_mlp_learns_the_field_through_train_and_predict(field_data, tmp_path, monkeypatch):
     """`--arch mlp` through `train` and `predict`: held-out poses against the closed-form
     field, a loss plot, config.json's architecture, and every member's chosen epoch within
@@ -697,6 +706,7 @@ def test_mlp_learns_the_field_through_train_and_predict(field_data, tmp_path, mo
     assert np.array_equal(open_texcoords(out, dataset.num_vertices).displacement("cam", test[0]), pred[0])
 
 
+@pytest.mark.slow
 def test_unet_predicts_the_same_for_an_inference_set_of_another_rest(rig_data, tmp_path):
     """A unet measures its geometry images against the reference it was trained with
     (geometry.npz), so an inference set of the same inferred meshes and poses, whose rest is

@@ -41,6 +41,7 @@ def test_a_rig_of_mixed_sizes_renders(tmp_path, tiny_dataset, front_rig, gl, cap
     assert code == 0, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [(MAX_IMAGE_SIZE, 2), (2, MAX_IMAGE_SIZE), (1, 1)])
 def test_the_largest_and_smallest_image_sizes_render_and_slide(size, tmp_path, tiny_dataset, front_rig, gl, capsys):
     width, height = size

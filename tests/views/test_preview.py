@@ -80,6 +80,7 @@ def test_the_anaglyph_converges_at_the_cloth():
     assert gap == pytest.approx(shift["shift_px"], abs=0.3) and shift["shift_px"] > 20
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["blend", "reconstruct"])
 def test_preview_command(tmp_path, sheet_set, capsys, method):
     import imageio.v3 as iio

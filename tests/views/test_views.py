@@ -90,6 +90,7 @@ def test_weight_one_reproduces_the_camera(tmp_path, sheet_set, capsys, method, m
         assert np.array_equal(out.assigned("same_as_b", k), src.assigned("b", k))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["blend", "reconstruct"])
 def test_views_on_worker_processes_equal_one_process(tmp_path, sheet_set, capsys, method):
     dataset, rig_path, ts = sheet_set
@@ -115,6 +116,7 @@ def test_blend_of_identical_sets_is_identity():
     assert np.allclose(mixed, 0.25 * d.astype(np.float64) + 0.75 * other, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_reconstruct_beats_blend_at_the_stereo_midpoint(tmp_path, garment):
     """On the built-in garment, reconstruct is closer to TS computed directly at the view."""
     from mvtex.views.measure import measure_views
@@ -166,6 +168,7 @@ def test_texcoords_from_another_rig_exit_2(tmp_path, sheet_set, capsys):
     assert not (tmp_path / "v").exists()
 
 
+@pytest.mark.slow
 def test_views_never_replace_a_folder_they_did_not_write(tmp_path, sheet_set, capsys):
     dataset, rig_path, ts = sheet_set
     mine = tmp_path / "mine"
@@ -181,6 +184,7 @@ def test_views_never_replace_a_folder_they_did_not_write(tmp_path, sheet_set, ca
     assert (tmp_path / "v" / "texcoords.json").is_file()
 
 
+@pytest.mark.slow
 def test_interrupted_views_continue_where_they_stopped(tmp_path, sheet_set, capsys, monkeypatch):
     """A views run stopped after its first block leaves OUT.partial; the rerun computes only
     the missing blocks and writes the files an uninterrupted run writes, byte for byte.
