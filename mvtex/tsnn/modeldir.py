@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +16,20 @@ from mvtex.data.mesh import apply_parent, subdivide
 from mvtex.util.output import atomic_path, readable
 
 MODEL_FORMAT = "mvtex-tsnn"
+
+
+def integer_config(cls, d: dict[str, Any], arch: str):
+    """A config dataclass of integer fields from its dict (config.json's "architecture",
+    "arch" left out), validated: ValueError on unknown keys or values that are not integers."""
+    d = {k: v for k, v in d.items() if k != "arch"}
+    unknown = set(d) - {f.name for f in fields(cls)}
+    if unknown:
+        raise ValueError(f"unknown architecture keys {sorted(unknown)}")
+    if any(isinstance(v, bool) or not isinstance(v, int) for v in d.values()):
+        raise ValueError(f"{arch} architecture values must be integers")
+    config = cls(**d)
+    config.validate()
+    return config
 
 
 @dataclass(frozen=True)

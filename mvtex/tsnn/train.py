@@ -611,7 +611,8 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, dev
     evenly spaced training poses."""
     from tqdm import tqdm
 
-    from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced, fit_pose_gp
+    from mvtex.tsnn.gp import MAX_TRAIN, fit_pose_gp
+    from mvtex.tsnn.pca import evenly_spaced
 
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
@@ -643,8 +644,9 @@ def _train_mlp(dataset, texcoords, camera: str, split, options: TrainOptions, pr
     The training losses are those of at most `MAX_TRAIN` evenly spaced training poses."""
     from tqdm import tqdm
 
-    from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced
+    from mvtex.tsnn.gp import MAX_TRAIN
     from mvtex.tsnn.mlp import fit_pose_mlp
+    from mvtex.tsnn.pca import evenly_spaced
 
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
