@@ -39,6 +39,17 @@ def register(sub) -> None:
     p.add_argument("--use-uncertainty", action=argparse.BooleanOptionalAction, default=True,
                    help="weigh observations and trust points by the texcoord set's uncertainty.npy where it has "
                         "one (default on; off: by the cameras' disagreement)")
+    p.add_argument("--use-prior", action=argparse.BooleanOptionalAction, default=True,
+                   help="on a corrected set (mvtex correct), fuse each point with the corrected mesh and its sigma, "
+                        "and keep the corrected mesh where no camera triangulates (default on)")
+    p.add_argument("--prior-gate", type=float, default=3.0, metavar="G",
+                   help="with the prior, a point farther from it than G times their combined sigma is an outlier "
+                        "(default 3)")
+    p.add_argument("--no-prior-gate", dest="prior_gate", action="store_const", const=None,
+                   help="keep every point whatever its distance from the prior")
+    p.add_argument("--prior-fill", action=argparse.BooleanOptionalAction, default=False,
+                   help="with the prior, extend the fused displacement to the vertices no camera triangulates "
+                        "(default off: the prior stands there)")
     p.add_argument("--fill-shape", choices=("rest", "inferred"), default="rest",
                    help="the shape the displacement of untriangulated vertices is extended on (default rest)")
     p.add_argument("--engine", choices=("mvtex", "pycolmap"), default="mvtex",
@@ -58,7 +69,8 @@ def cmd_triangulate(args):
                            max_surface_distance_m=args.max_surface_distance, max_stretch=args.max_stretch,
                            consensus_px=args.consensus_px, consensus_scale=args.consensus_scale,
                            fill_shape=args.fill_shape, engine=args.engine, shrink=args.shrink,
-                           use_uncertainty=args.use_uncertainty)
+                           use_uncertainty=args.use_uncertainty, use_prior=args.use_prior,
+                           prior_gate=args.prior_gate, prior_fill=args.prior_fill)
     dataset = load_dataset(args.dataset)
     rig, rig_path = load_rig(rig_spec(args))
     tc = open_texcoords(args.texcoords, dataset.num_vertices, num_poses=dataset.num_poses)
@@ -79,8 +91,12 @@ def triangulate_summary(result, out) -> str:
         return f"{p.inferred * 1e3:.2f} mm -> {p.reconstructed * 1e3:.2f} mm{ratio}"
 
     reproj = result.mean_reprojection_error_px
+    original = ""
+    if result.original is not None:
+        original = (f"\ncorrected set: the mesh before the correction {result.original['rmse_m'] * 1e3:.2f} mm over all "
+                    f"vertices, reconstructed {result.ratio_original:.2f}x better")
     return (f"RMSE vs gt, inferred -> reconstructed: triangulated vertices ({result.num_triangulated} of "
-            f"{result.num_vertices}) {pair(result.rmse_triangulated_m)}; all vertices {pair(result.rmse_m)}\n"
+            f"{result.num_vertices}) {pair(result.rmse_triangulated_m)}; all vertices {pair(result.rmse_m)}{original}\n"
             f"pose {result.pose}, mean reprojection error "
             f"{'n/a' if reproj is None else f'{reproj:.3f} px'}; wrote {out} (reconstruction.ply, colmap/, "
             "comparison.png)")

@@ -1,4 +1,5 @@
-"""`mvtex train` and `mvtex predict`: texture sliding models per camera or for every camera."""
+"""`mvtex train`, `mvtex predict` and `mvtex correct`: texture sliding models per camera or for every
+camera, and the geometry corrector."""
 
 from __future__ import annotations
 
@@ -10,7 +11,10 @@ from mvtex.cli.common import Deprecated, UsageError, add_common, add_workers, ca
 def register(sub) -> None:
     p = sub.add_parser("train", help="train a texture sliding model (per camera, or one for every camera)")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    p.add_argument("--texcoords", type=Path, required=True, help="texcoord set with the training targets")
+    p.add_argument("--texcoords", type=Path, help="texcoord set with the training targets (not with --geometry)")
+    p.add_argument("--geometry", action="store_true",
+                   help="train the geometry corrector instead: the pose -> gt - inferred per vertex (Gaussian "
+                   "processes on its principal components, --components), for `mvtex correct`")
     p.add_argument("--cameras", help="A: the model of camera A (gp by default); A,B,...: one model per camera, "
                    "OUT/<camera>, trained side by side with --workers or --scheduler; default: one network for "
                    "every camera of --texcoords, conditioned on the camera (unet)")
@@ -23,7 +27,8 @@ def register(sub) -> None:
                    "with --cameras); mlp: an ensemble of MLPs from the pose to the principal components of d, per camera; "
                    "unet: geometry images of the inferred mesh + pose, any camera (default without "
                    "--cameras); paper: the paper's pose-only decoder, per camera")
-    p.add_argument("--components", type=int, help="principal components of d that gp models (default 32)")
+    p.add_argument("--components", type=int, help="principal components of d that gp models, or of the residual "
+                   "that the geometry corrector models (default 32)")
     p.add_argument("--epochs", type=int, help="most training epochs of unet and paper (default 60)")
     p.add_argument("--resolution", type=int, help="atlas image size of unet and paper, a power of two "
                    "(default: 64 on CPU, 256 or 512 on GPU)")
@@ -44,11 +49,24 @@ def register(sub) -> None:
     add_common(p)
     p.set_defaults(run=cmd_predict)
 
+    p = sub.add_parser("correct", help="geometry corrector -> a corrected dataset (its inferred mesh corrected)")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--model", type=Path, required=True, help="geometry model directory (mvtex train --geometry)")
+    p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    p.add_argument("--poses", default="all", help="pose SPEC: all, train, val, test, a:b or 3,5,7 (default all)")
+    add_common(p)
+    p.set_defaults(run=cmd_correct)
+
 
 def cmd_train(args):
     from dataclasses import replace
 
     from mvtex.data.dataset import load_dataset
+
+    if args.geometry:
+        return cmd_train_geometry(args)
+    if args.texcoords is None:
+        raise UsageError("mvtex train: error: the following arguments are required: --texcoords (or --geometry)")
     from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.train import TrainOptions, train
 
@@ -96,3 +114,41 @@ def cmd_predict(args):
     with output(args, "predict"):
         out = predict(dataset, args.model, args.out, poses=poses, rig=rig, progress=not args.quiet)
     emit(args, {"out": str(out), "poses": len(poses), "models": [str(m) for m in args.model]}, f"wrote {out}")
+
+
+def cmd_train_geometry(args):
+    from dataclasses import replace
+
+    from mvtex.data.dataset import load_dataset
+    from mvtex.tsnn.corrector import GeometryOptions, train_geometry
+
+    unused = [flag for flag, value in (("--texcoords", args.texcoords), ("--cameras", args.cameras),
+                                       ("--arch", args.arch), ("--epochs", args.epochs),
+                                       ("--resolution", args.resolution), ("--rig", args.rig),
+                                       ("--workers", args.workers), ("--scheduler", args.scheduler)) if value is not None]
+    if unused:
+        raise UsageError(f"mvtex train: error: {unused[0]} does not apply to --geometry")
+    changes = {k: getattr(args, k) for k in ("components", "device") if getattr(args, k) is not None}
+    options = replace(GeometryOptions(), **changes)
+    dataset = load_dataset(args.dataset)
+    with output(args, "train"):
+        result = train_geometry(dataset, args.out, options=options, progress=not args.quiet)
+    v = result.validation
+    emit(args, result, f"wrote {args.out} (geometry corrector, {result.components} components, "
+         f"{result.num_poses['train']} training poses); validation poses: RMSE {v['rmse_m']['inferred'] * 1e3:.2f} -> "
+         f"{v['rmse_m']['corrected'] * 1e3:.2f} mm, ratio median {v['ratio']['median']:.2f} / worst "
+         f"{v['ratio']['worst']:.2f}, sigma calibrated x{result.sigma_scale:.2f}")
+
+
+def cmd_correct(args):
+    from mvtex.data.dataset import load_dataset
+    from mvtex.tsnn.correct import correct
+
+    dataset = load_dataset(args.dataset)
+    poses = dataset.select(args.poses)
+    with output(args, "correct"):
+        result = correct(dataset, args.model, args.out, poses=poses, progress=not args.quiet)
+    rmse = "" if result.rmse_m is None else (f"; RMSE to gt {result.rmse_m['original'] * 1e3:.2f} -> "
+                                             f"{result.rmse_m['corrected'] * 1e3:.2f} mm (mean over poses)")
+    emit(args, result, f"wrote {result.out} ({result.poses} poses corrected, {result.out_of_sample_poses} of them "
+         f"training poses of the model, out of sample; mean sigma {result.mean_sigma_m * 1e3:.2f} mm){rmse}")

@@ -10,9 +10,15 @@ pose selection specs, and import from OBJ/PLY sequences.
     body.npz       optional, with body.npy: faces int32 (mb,3) of the wearer's body (or any
                    opaque thing that is not cloth), counter-clockwise seen from outside
     body.npy       optional, with body.npz: float32 (K,nb,3), row k = the body in pose k
+    original_inferred.npy      a corrected set (`mvtex correct`): float32 (K,n,3), the
+                               predictor's mesh before the correction (inferred.npy is the
+                               corrected one)
+    geometry_uncertainty.npy   a corrected set: float32 (K,n), the corrector's predictive
+                               standard deviation per vertex, in metres
 
 dataset.json may record the body's size as "body": {"num_vertices": nb, "num_faces": mb};
-readers do not require it.
+readers do not require it. A corrected set's dataset.json records the correction under
+"correction" (its model, its source dataset and the source's pose of each row).
 """
 
 from __future__ import annotations
@@ -35,6 +41,12 @@ VERSION = 1
 
 
 BODY_FILES = ("body.npz", "body.npy")
+
+
+ORIGINAL_FILE = "original_inferred.npy"  # a corrected set: the mesh before the correction
+
+
+UNCERTAINTY_FILE = "geometry_uncertainty.npy"  # a corrected set: the corrector's σ per vertex (m)
 
 
 @dataclass(frozen=True)
@@ -69,6 +81,11 @@ class Dataset:
         gt, inferred: (K,n,3) float32 (memory-mapped). poses: (K,P) float32.
         split: dict with "train", "val", "test" lists of pose indices.
         body: the wearer's body (`Body`), or None when the dataset has no body files.
+        original_inferred: (K,n,3) float32 (memory-mapped), a corrected set's mesh before
+            the correction (`inferred` is the corrected mesh); None for any other dataset.
+        geometry_uncertainty: (K,n) float32 (memory-mapped), a corrected set's predictive
+            standard deviation of each corrected vertex (m); None for any other dataset.
+        correction: dataset.json's "correction" record of a corrected set, else None.
     """
 
     path: Path
@@ -81,6 +98,15 @@ class Dataset:
     poses: np.ndarray
     split: dict[str, list[int]]
     body: Body | None = None
+    original_inferred: np.ndarray | None = None
+    geometry_uncertainty: np.ndarray | None = None
+    correction: dict | None = None
+
+    @property
+    def corrected(self) -> bool:
+        """True for a corrected set (`mvtex correct`): it keeps the mesh before the
+        correction (`original_inferred`) and the corrector's σ (`geometry_uncertainty`)."""
+        return self.original_inferred is not None
 
     @property
     def num_poses(self) -> int:
@@ -281,9 +307,42 @@ def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
                 raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
     body = _load_body(path, gt.shape[0], meta, validate)
     split = _load_split(path, gt.shape[0])
+    original, sigma, correction = _load_correction(path, inferred.shape, meta, validate)
     return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
                    uv=uv.astype(np.float32), rest=None if rest is None else rest.astype(np.float32),
-                   gt=gt, inferred=inferred, poses=poses, split=split, body=body)
+                   gt=gt, inferred=inferred, poses=poses, split=split, body=body, original_inferred=original,
+                   geometry_uncertainty=sigma, correction=correction)
+
+
+def _load_correction(path: Path, shape: tuple[int, ...], meta: dict, validate: bool
+                     ) -> tuple[np.ndarray | None, np.ndarray | None, dict | None]:
+    """A corrected set's original_inferred.npy and geometry_uncertainty.npy (both or
+    neither) and its "correction" record; checked like gt (never loaded whole)."""
+    present = [(path / name).is_file() for name in (ORIGINAL_FILE, UNCERTAINTY_FILE)]
+    if not any(present):
+        return None, None, None
+    if not all(present):
+        have, missing = (ORIGINAL_FILE, UNCERTAINTY_FILE) if present[0] else (UNCERTAINTY_FILE, ORIGINAL_FILE)
+        raise InputError(path / missing, f"file not found ({have} is there: a corrected set needs both files)")
+    original = load_npy(path / ORIGINAL_FILE)
+    sigma = load_npy(path / UNCERTAINTY_FILE)
+    if original.dtype != np.float32 or original.shape != tuple(shape):
+        raise InputError(path / ORIGINAL_FILE, f"expected float32 of shape {tuple(shape)} (as inferred.npy), "
+                         f"got {original.dtype} {original.shape}")
+    if sigma.dtype != np.float32 or sigma.shape != tuple(shape[:2]):
+        raise InputError(path / UNCERTAINTY_FILE, f"expected float32 of shape {tuple(shape[:2])}, "
+                         f"got {sigma.dtype} {sigma.shape}")
+    correction = meta.get("correction")
+    if correction is not None and not isinstance(correction, dict):
+        raise InputError(path / "dataset.json", f"correction must be an object, got {correction!r:.60}")
+    if validate:
+        _check_finite(original, path / ORIGINAL_FILE)
+        for start in range(0, sigma.shape[0], 256):
+            block = read_rows(sigma, start, start + 256)
+            if not np.all(np.isfinite(block) & (block >= 0)):
+                raise InputError(path / UNCERTAINTY_FILE, "negative, NaN or infinite standard deviations "
+                                 f"(pose {start + int(np.argmax(~(np.isfinite(block) & (block >= 0)).all(1)))})")
+    return original, sigma, correction
 
 
 def validate_body_faces(faces: np.ndarray, num_vertices: int, source: str | os.PathLike | None) -> None:

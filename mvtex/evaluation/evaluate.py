@@ -24,6 +24,10 @@ vertices, filled smoothly). `material_rmse_assigned_m` is the material error ove
 pixels of the set's triangles whose three corners are all assigned (`assigned.npy`), and
 `assigned_share` the share of the compared pixels that is; the baseline is measured over
 the same pixels. For a set assigned everywhere (a model's prediction) both errors are one.
+
+On a corrected set (`mvtex correct`: its inferred mesh is the geometry corrector's) the
+baseline is the corrected mesh with T_G, and `original_inferred` also reports the mesh
+before the correction with T_G (the set keeps it), so a ratio can be read against either.
 """
 
 from __future__ import annotations
@@ -99,6 +103,9 @@ class Evaluation:
         assigned_share: of the compared pixels, the share on fully assigned triangles, per
             image.
         per_camera: camera name -> the same for its images (no `per_camera` of its own).
+        original_inferred: on a corrected set, the errors of the mesh before the correction
+            with T_G over the same images: {"sqrt_mse", "material_rmse_m" (None without a
+            rest shape)} as `Stats`; None on any other dataset.
     """
 
     num_images: int
@@ -109,6 +116,22 @@ class Evaluation:
     material_rmse_assigned_m: Comparison | None = None
     assigned_share: Stats | None = None
     per_camera: dict[str, "Evaluation"] = field(default_factory=dict)
+    original_inferred: dict[str, Stats | None] | None = None
+
+    @property
+    def ratio_original(self) -> float | None:
+        """On a corrected set: the original mesh's uv error over the texcoords' (else None)."""
+        if self.original_inferred is None:
+            return None
+        return Comparison(self.original_inferred["sqrt_mse"], self.sqrt_mse.texcoords).ratio
+
+    @property
+    def ratio_material_original(self) -> float | None:
+        """On a corrected set with a rest shape: the original mesh's material error over the
+        texcoords' (else None)."""
+        if self.original_inferred is None or self.original_inferred["material_rmse_m"] is None:
+            return None
+        return Comparison(self.original_inferred["material_rmse_m"], self.material_rmse_m.texcoords).ratio
 
     @property
     def ratio(self) -> float:
@@ -138,25 +161,36 @@ class Evaluation:
                "ratio_material_assigned": self.ratio_material_assigned,
                "assigned_share": None if self.assigned_share is None else asdict(self.assigned_share),
                "body_share": None if self.body_share is None else asdict(self.body_share)}
+        if self.original_inferred is not None:
+            m = self.original_inferred["material_rmse_m"]
+            out["original_inferred"] = {"sqrt_mse": asdict(self.original_inferred["sqrt_mse"]),
+                                        "material_rmse_m": None if m is None else asdict(m),
+                                        "ratio": self.ratio_original, "ratio_material": self.ratio_material_original}
         if self.per_camera:
             out["per_camera"] = {name: e.to_json() for name, e in self.per_camera.items()}
         return out
 
 
 def _summary(images: list[tuple], has_rest: bool, has_body: bool,
-             per_camera: dict[str, Evaluation] | None = None) -> Evaluation:
-    """Per-image values (`ImageErrors.values`; NaN where an image does not count) -> an
-    `Evaluation` over the images where both the baseline and the texcoords have an error."""
+             per_camera: dict[str, Evaluation] | None = None, has_original: bool = False) -> Evaluation:
+    """Per-image values (`ImageErrors.values`, then on a corrected set the original mesh's
+    uv and material errors; NaN where an image does not count) -> an `Evaluation` over the
+    images where both the baseline and the texcoords have an error."""
     ok = [v for v in images if np.isfinite(v[0]) and np.isfinite(v[1])]
 
     def compare(i):
         return Comparison(Stats.of([v[i] for v in ok]), Stats.of([v[i + 1] for v in ok]))
 
+    original = None
+    if has_original:
+        original = {"sqrt_mse": Stats.of([v[10] for v in ok]),
+                    "material_rmse_m": Stats.of([v[11] for v in ok]) if has_rest else None}
     return Evaluation(num_images=len(ok), sqrt_mse=compare(0), sqrt_mse_same_chart=compare(2),
                       material_rmse_m=compare(4) if has_rest else None,
                       body_share=Stats.of([v[6] for v in ok]) if has_body else None,
                       material_rmse_assigned_m=compare(7) if has_rest else None,
-                      assigned_share=Stats.of([v[9] for v in ok]), per_camera=per_camera or {})
+                      assigned_share=Stats.of([v[9] for v in ok]), per_camera=per_camera or {},
+                      original_inferred=original)
 
 
 @dataclass(frozen=True)
@@ -167,6 +201,7 @@ class _EvalSpec:
     texcoords: str
     rig: Rig
     heatmaps: str | None
+    original: bool = False  # a corrected set: also the mesh before the correction with T_G
 
     @property
     def key(self) -> tuple[str, str]:
@@ -405,7 +440,11 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
     for index, k, name in jobs:
         cam = spec.rig[name]
         image = state.evaluator(k, cam, tc.texcoords(cam.name, k), assigned=tc.assigned(cam.name, k))
-        out.append((index, *image.values()))
+        original = ()
+        if spec.original:  # the same pixels' errors with the original mesh as the baseline
+            before = state.evaluator(k, cam, tc.uv, inferred=read_row(state.evaluator.dataset.original_inferred, k))
+            original = (before.sqrt_mse[0], before.material_rmse_m[0])
+        out.append((index, *image.values(), *original))
         if spec.heatmaps is not None:
             save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png", _heatmap_picture(image, cam, tc.source))
     return out
@@ -488,7 +527,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         if out_dir is not None:
             out_dir.mkdir()
         spec = _EvalSpec(dataset=str(Path(ds.path).resolve()), texcoords=str(Path(tc.path).resolve()), rig=rig,
-                         heatmaps=None if out_dir is None else str(out_dir.resolve()))
+                         heatmaps=None if out_dir is None else str(out_dir.resolve()), original=ds.corrected)
         local = workers <= 1 and not scheduler
         if local:  # this process: reuse what is open
             own = GLContext() if ctx is None else None
@@ -510,5 +549,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     per_cam: dict[str, list[tuple]] = {c.name: [] for c in rig}
     for (_, _, name), image in zip(jobs, values):
         per_cam[name].append(image)
-    per_camera = {name: _summary(images, has_rest, has_body) for name, images in per_cam.items()}
-    return _summary([v for images in per_cam.values() for v in images], has_rest, has_body, per_camera=per_camera)
+    per_camera = {name: _summary(images, has_rest, has_body, has_original=ds.corrected)
+                  for name, images in per_cam.items()}
+    return _summary([v for images in per_cam.values() for v in images], has_rest, has_body, per_camera=per_camera,
+                    has_original=ds.corrected)

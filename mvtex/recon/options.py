@@ -17,6 +17,11 @@ PREDICTED_CONSENSUS_SCALE = 4.0
 # shrink of predicted texcoord sets (`ReconOptions.for_source`): see docs/reconstruction.md.
 PREDICTED_SHRINK = 0.2
 
+# shrink of predicted texcoord sets on a corrected set (`ReconOptions.for_source` with a
+# prior): κ of the fusion with the corrector's σ (`mvtex.recon.trust.fusion_factors`),
+# chosen on validation poses of both built-in garments (docs/reconstruction.md).
+FUSED_SHRINK = 0.2
+
 # Shapes the harmonic fill of `ReconOptions.fill_shape` can be solved on.
 FILL_SHAPES = ("rest", "inferred")
 
@@ -75,12 +80,23 @@ class ReconOptions:
         shrink: κ of the trust in each triangulated point: its displacement from the
             inferred position is multiplied by τ² / (τ² + κ σ²), σ the point's standard
             deviation and τ² the pose's mean squared displacement
-            (`mvtex.recon.triangulate.trust_factors`); a point that is not trusted keeps
+            (`mvtex.recon.trust.trust_factors`); a point that is not trusted keeps
             the inferred position and passes no displacement to its neighbours (the
             extension to untriangulated vertices starts from the kept displacements).
             0: every point is taken as it is.
             None (the default): by the texcoord set's source (`for_source`),
-            `PREDICTED_SHRINK` for predicted texcoords (source "tsnn"), 0 for the others.
+            `PREDICTED_SHRINK` for predicted texcoords (source "tsnn"), `FUSED_SHRINK` for
+            predicted texcoords on a corrected set, 0 for the others.
+        use_prior: on a corrected set (`mvtex correct`; the dataset's
+            geometry_uncertainty.npy), take the corrected mesh as a prior with the
+            corrector's σ: each triangulated point is fused with it, keeping
+            σ_p² / (σ_p² + κσ²) of its displacement (κ = `shrink`; points of exact
+            texcoords, κ = 0, are kept whole), and the vertices no camera triangulates keep
+            the prior (`prior_fill`). False: the corrected mesh is treated as any inferred mesh.
+        prior_gate: g: with a prior, a point whose displacement δ from it has
+            ‖δ‖² > g² (σ_p² + κσ²) is an outlier and the prior stands there (None: no gate).
+        prior_fill: with a prior, extend the fused displacement harmonically to the
+            vertices no camera triangulates, as without one (False: the prior stands there).
     """
 
     max_reprojection_px: float = 2.0
@@ -101,6 +117,9 @@ class ReconOptions:
     engine: str = "mvtex"
     use_uncertainty: bool = True
     shrink: float | None = None
+    use_prior: bool = True
+    prior_gate: float | None = 3.0
+    prior_fill: bool = False
 
     def __post_init__(self) -> None:
         check_field_types(self)
@@ -117,6 +136,8 @@ class ReconOptions:
             raise OptionError(f"consensus_scale must be ≥ 0 and finite, or None, got {self.consensus_scale!r}")
         if self.shrink is not None and not 0 <= self.shrink < float("inf"):
             raise OptionError(f"shrink must be ≥ 0 and finite, or None, got {self.shrink!r}")
+        if self.prior_gate is not None and not 0 < self.prior_gate < float("inf"):
+            raise OptionError(f"prior_gate must be > 0 and finite, or None, got {self.prior_gate!r}")
         if self.fill_shape not in FILL_SHAPES:
             raise OptionError(f"fill_shape must be one of {', '.join(FILL_SHAPES)}, got {self.fill_shape!r}")
         for name, value, low, high in (("smooth_iterations", self.smooth_iterations, 0, 1000),
@@ -128,14 +149,16 @@ class ReconOptions:
         if self.engine not in ENGINES:
             raise OptionError(f"engine must be one of {', '.join(ENGINES)}, got {self.engine!r}")
 
-    def for_source(self, source: str) -> "ReconOptions":
+    def for_source(self, source: str, prior: bool = False) -> "ReconOptions":
         """These options with consensus_scale and shrink decided for a texcoord set of this
         source (`TexcoordSet.source`) where they are None: 4 and `PREDICTED_SHRINK` for
-        "tsnn", else 0."""
+        "tsnn" (`FUSED_SHRINK` with a `prior`, a corrected set fused with, `use_prior`),
+        else 0."""
         predicted = source == "tsnn"
         out = self
         if self.consensus_scale is None:
             out = replace(out, consensus_scale=PREDICTED_CONSENSUS_SCALE if predicted else 0.0)
         if self.shrink is None:
-            out = replace(out, shrink=PREDICTED_SHRINK if predicted else 0.0)
+            kappa = (FUSED_SHRINK if prior and self.use_prior else PREDICTED_SHRINK) if predicted else 0.0
+            out = replace(out, shrink=kappa)
         return out

@@ -33,7 +33,9 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         pose: dataset pose index (must be one of the texcoord set's poses).
         out: output directory (written atomically by `mvtex.recon.export.export_reconstruction`),
             or None for the numbers only.
-        options: see ReconOptions.
+        options: see ReconOptions. On a corrected set (`mvtex.tsnn.correct.correct`) the
+            corrected mesh is the prior, fused with its σ (`ReconOptions.use_prior`), and
+            the report also holds the errors of the mesh before the correction.
         progress: progress bars on stderr.
         overwrite: replace another command's output at `out` (never files mvtex did not
             write, never an input: the writer policy of `mvtex.util.output`).
@@ -74,8 +76,10 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
                          f"({', '.join(texcoords.cameras)}) and the rig ({', '.join(rig.names)})")
     sub_rig = rig.select(names)
     check_outside_body(sub_rig, dataset, [pose])
-    options = options.for_source(texcoords.source)
+    prior = dataset.geometry_uncertainty is not None and options.use_prior
+    options = options.for_source(texcoords.source, prior=prior)
     X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
+    prior_sigma = np.asarray(dataset.geometry_uncertainty[pose], np.float64) if prior else None
     T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}
     assigned = {c: texcoords.assigned(c, pose) for c in names}
     uncertainty = {c: texcoords.uncertainty(c, pose) for c in names}
@@ -84,9 +88,11 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
     rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
                       gt_faces=dataset.faces, assigned=assigned, rest=rest, body=body, uncertainty=uncertainty,
-                      progress=progress, ctx=ctx)
+                      prior_sigma=prior_sigma, progress=progress, ctx=ctx)
     gt = np.asarray(dataset.gt[pose], np.float64)
-    report = replace(reconstruction_report(rec, gt, dataset.faces, rest, pose, options), cameras=tuple(names),
+    original = None if dataset.original_inferred is None else np.asarray(dataset.original_inferred[pose], np.float64)
+    report = replace(reconstruction_report(rec, gt, dataset.faces, rest, pose, options, original),
+                     cameras=tuple(names),
                      texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)
     if out is not None:
         # The command's one edge up the layers: its output directory is the export module's.
