@@ -91,8 +91,9 @@ def _ratios(values: list[float]) -> dict:
 
 
 def reconstruction(dataset, corrected, base: Path, rig_name: str, poses: list[int], options: ReconOptions,
-                   ctx) -> dict:
-    """All-vertex RMSE ratios (original inferred / method) per pose, four methods."""
+                   ctx, fused_only: bool = False) -> dict:
+    """All-vertex RMSE ratios (original inferred / method) per pose, four methods (the fused
+    one alone with `fused_only`: a study of its options)."""
     rig = load_rig(builtin_rig_path(rig_name))
     split = "val" if set(poses) <= set(dataset.split["val"]) else "test"
     out = {"corrector": [], "gp": [], "corrector + gp, fused": [], "TS from gt on the corrected mesh": []}
@@ -104,16 +105,17 @@ def reconstruction(dataset, corrected, base: Path, rig_name: str, poses: list[in
         gt = dataset.gt[k]
         original = _rmse(dataset.inferred[k], gt)
         out["corrector"].append(original / _rmse(corrected.inferred[k], gt))
-        r = triangulate_pose(dataset, rig, gp, k, None, options, progress=False, ctx=ctx)
-        out["gp"].append(r.rmse_m.inferred / r.rmse_m.reconstructed)
+        if not fused_only:
+            r = triangulate_pose(dataset, rig, gp, k, None, options, progress=False, ctx=ctx)
+            out["gp"].append(r.rmse_m.inferred / r.rmse_m.reconstructed)
+            r = triangulate_pose(corrected, rig, cts, k, None, options, progress=False, ctx=ctx)
+            out["TS from gt on the corrected mesh"].append(r.ratio_original)
         r = triangulate_pose(corrected, rig, cgp, k, None, options, progress=False, ctx=ctx)
         out["corrector + gp, fused"].append(r.ratio_original)
         extra["mean_trust"].append(r.stats.get("mean_trust", 1.0))
         extra["prior_outliers"].append(r.stats.get("prior_outliers", 0))
         extra["triangulated_share"].append(r.num_triangulated / r.num_vertices)
-        r = triangulate_pose(corrected, rig, cts, k, None, options, progress=False, ctx=ctx)
-        out["TS from gt on the corrected mesh"].append(r.ratio_original)
-    summary = {name: _ratios(v) for name, v in out.items()}
+    summary = {name: _ratios(v) for name, v in out.items() if v}
     summary["fused_stats"] = {k: float(np.mean(v)) for k, v in extra.items()}
     return summary
 
@@ -134,7 +136,9 @@ def rendering(dataset, corrected, base: Path, poses: list[int], ctx) -> dict:
     return {k: 1e3 * v for k, v in mm.items()} | {"num_images": plain.num_images}
 
 
-def cell(value: dict | float, inferred_mm: float | None = None) -> str:
+def cell(value: dict | float | None, inferred_mm: float | None = None) -> str:
+    if value is None:
+        return "-"
     if isinstance(value, dict):
         return f"{value['median']:.2f} / {value['worst']:.2f}"
     return f"{value:.2f} mm ({inferred_mm / value:.2f}×)"
@@ -151,7 +155,7 @@ def markdown(rows: list[dict]) -> str:
                          + " | ".join(cell(s[c], s["inferred"]) for c in COLUMNS[1:]) + " |")
         for rig_name, r in row["rigs"].items():
             lines.append(f"| {label} | `{rig_name}` all-vertex RMSE ratio, median / worst ({len(row['poses'])} poses) "
-                         "| 1 | " + " | ".join(cell(r[c]) for c in COLUMNS[1:]) + " |")
+                         "| 1 | " + " | ".join(cell(r.get(c)) for c in COLUMNS[1:]) + " |")
     return "\n".join(lines)
 
 
@@ -165,6 +169,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--rigs", default="square4,trapezoid12", help="rigs of the reconstruction rows")
     p.add_argument("--stereo", action=argparse.BooleanOptionalAction, default=True, help="the material error row")
     p.add_argument("--prepare-only", action="store_true", help="make the models and sets, score nothing")
+    p.add_argument("--fused-only", action="store_true", help="score the fused column alone (a study of --recon)")
     p.add_argument("--recon", action="append", default=[], metavar="KEY=VALUE", help="a ReconOptions field")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--json", type=Path, help="write every number here")
@@ -187,7 +192,8 @@ def main(argv: list[str] | None = None) -> dict:
             if args.stereo:
                 row["stereo"] = rendering(dataset, corrected, base, poses, ctx)
             for rig_name in rigs:
-                row["rigs"][rig_name] = reconstruction(dataset, corrected, base, rig_name, poses, options, ctx)
+                row["rigs"][rig_name] = reconstruction(dataset, corrected, base, rig_name, poses, options, ctx,
+                                                       args.fused_only)
             rows.append(row)
             print(markdown(rows[-1:]), file=sys.stderr, flush=True)
     table = markdown(rows)

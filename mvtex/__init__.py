@@ -65,6 +65,10 @@ _API = {
     "TrainOptions": "mvtex.tsnn.train", "TrainResult": "mvtex.tsnn.modeldir", "TrainedCameras": "mvtex.tsnn.modeldir",
     "train": "mvtex.tsnn.train", "train_cameras": "mvtex.tsnn.cameras",
     "predict": "mvtex.tsnn.predict", "load_model": "mvtex.tsnn.predict",
+    # the geometry corrector
+    "GeometryOptions": "mvtex.tsnn.corrector", "GeometryResult": "mvtex.tsnn.corrector",
+    "train_geometry": "mvtex.tsnn.corrector", "load_corrector": "mvtex.tsnn.corrector",
+    "correct": "mvtex.tsnn.correct", "CorrectResult": "mvtex.tsnn.correct",
     # applications
     "run_bench": "mvtex.apps.bench", "DemoOptions": "mvtex.apps.demo", "run_demo": "mvtex.apps.demo",
 }

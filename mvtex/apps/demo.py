@@ -1,7 +1,9 @@
 """`mvtex demo`: the whole pipeline on the built-in garment, with pictures to look at.
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
-          -> train the TSNN of camera left (gp: Gaussian processes of the pose) -> predict -> eval
+          -> the learned path, no gt at run time: the geometry corrector -> the corrected set ->
+             texture sliding on it (a gp model per stereo camera) -> predict -> eval ->
+             triangulate, fused with the corrected mesh
           -> novel views (two-camera plot, four-camera map) -> stereo preview -> report.html
 
 Each step writes into OUT and is skipped when its output is already there, so an
@@ -16,6 +18,20 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from mvtex.data.dataset import load_dataset
+from mvtex.data.texcoords import open_texcoords
+from mvtex.evaluation.evaluate import evaluate
+from mvtex.recon.options import ReconOptions
+from mvtex.recon.pose import triangulate_pose
+from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.tsnn.cameras import train_cameras
+from mvtex.tsnn.correct import correct
+from mvtex.tsnn.corrector import train_geometry
+from mvtex.tsnn.predict import predict
+from mvtex.tsnn.train import TrainOptions
 from mvtex.util.output import writer
 
 MIN_POSES = 10  # the test split must hold a pose to show, the training split enough for a model
@@ -28,7 +44,8 @@ class DemoOptions:
     Attributes:
         num_poses: poses of the built-in dataset (at least `MIN_POSES`).
         seed: seed of the dataset.
-        tsnn: also train and evaluate the per-camera model.
+        tsnn: also run the learned path (the geometry corrector, per-camera models on the
+            corrected set, their reconstruction).
     """
 
     num_poses: int = 120
@@ -128,24 +145,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     timings["triangulate"] = time.perf_counter() - t
 
     if options.tsnn:
-        from mvtex.tsnn.predict import predict
-        from mvtex.tsnn.train import TrainOptions, train
-
-        t = _step("training the texture sliding network of camera 'left'", progress)
-        model = out / "tsnn_left"
-        train_opts = TrainOptions(seed=options.seed)  # the per-camera default: gp
-        if not (model / "config.json").exists():
-            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
-                  options=train_opts, progress=progress)
-        timings["train"] = time.perf_counter() - t
-        t = _step("predicting texcoords for the test poses and evaluating", progress)
-        pred = out / "tsnn_pred"
-        predict(dataset, [model], pred, poses=dataset.split["test"], rig=stereo.select(["left"]), progress=progress)
-        tc_pred = open_texcoords(pred, dataset.num_vertices)
-        summary["tsnn"] = _short(evaluate(dataset, stereo.select(["left"]), tc_pred, progress=progress,
-                                          heatmaps=out / "heatmaps" / "tsnn"))
-        summary["tsnn"]["train_poses"] = len(dataset.split["train"])
-        timings["tsnn_predict_eval"] = time.perf_counter() - t
+        summary["tsnn"], summary["learned"] = _learned(dataset, stereo, out, options, timings, progress)
 
     from mvtex.apps.report import demo_novel_views, demo_preview
 
@@ -167,6 +167,50 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     summary["summary_text"] = _text(summary)
     write_json(out / "summary.json", summary)
     return summary
+
+
+def _learned(dataset, stereo, out: Path, options: DemoOptions, timings: dict, progress: bool) -> tuple[dict, dict]:
+    """The learned stage: inferred -> corrected -> + texture sliding -> triangulated, on the
+    test poses. Returns the per-camera models' evaluation (`_short`) and each step's numbers."""
+    test = [int(k) for k in dataset.split["test"]]
+    t = _step("the geometry corrector (pose -> gt - inferred) and the corrected set", progress)
+    if not (out / "geometry" / "config.json").exists():
+        train_geometry(dataset, out / "geometry", progress=progress)
+    if not (out / "corrected" / "dataset.json").exists():
+        correct(dataset, out / "geometry", out / "corrected", progress=progress)
+    corrected = load_dataset(out / "corrected")
+    timings["corrector"] = time.perf_counter() - t
+    t = _step("texture sliding on the corrected set (stereo) and a gp model per camera", progress)
+    if not (out / "corrected_ts_stereo" / "texcoords.json").exists():
+        slide_dataset(corrected, stereo, out / "corrected_ts_stereo", poses=corrected.select("all"),
+                      options=SlideOptions(subdiv=1), progress=progress)
+    tc = open_texcoords(out / "corrected_ts_stereo", corrected.num_vertices)
+    train_cameras(corrected, tc, list(stereo.names), out / "tsnn", TrainOptions(seed=options.seed), progress=progress)
+    timings["train"] = time.perf_counter() - t
+    t = _step("predicting texcoords for the test poses, evaluating, triangulating", progress)
+    pred = out / "tsnn_pred"
+    if not (pred / "texcoords.json").exists():
+        predict(corrected, [out / "tsnn" / c for c in stereo.names], pred, poses=test, progress=progress)
+    tc_pred = open_texcoords(pred, corrected.num_vertices)
+    result = evaluate(corrected, stereo, tc_pred, progress=progress, heatmaps=out / "heatmaps" / "tsnn")
+    reports = [triangulate_pose(corrected, stereo, tc_pred, k, None, ReconOptions(), progress=False) for k in test]
+
+    def rmse(a, b) -> float:
+        return float(np.sqrt(np.mean(np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=1))))
+
+    m = result.material_rmse_m
+    learned = {"test_poses": len(test), "train_poses": len(dataset.split["train"]), "images": result.num_images,
+               "material_mm": {"inferred": round(result.original_inferred["material_rmse_m"].mean * 1e3, 3),
+                               "corrected": round(m.inferred.mean * 1e3, 3),
+                               "texture_sliding": round(m.texcoords.mean * 1e3, 3)},
+               "rmse_mm": {"inferred": round(1e3 * np.mean([rmse(corrected.original_inferred[k], corrected.gt[k])
+                                                            for k in test]), 3),
+                           "corrected": round(1e3 * np.mean([r.rmse_m.inferred for r in reports]), 3),
+                           "triangulated": round(1e3 * np.mean([r.rmse_m.reconstructed for r in reports]), 3)}}
+    timings["tsnn_predict_eval"] = time.perf_counter() - t
+    short = _short(result)
+    short["train_poses"] = len(dataset.split["train"])
+    return short, learned
 
 
 def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
@@ -239,11 +283,22 @@ def _text(summary: dict) -> str:
                  f"on the {rec['num_triangulated']} triangulated vertices, "
                  f"{rec['rmse_m']['inferred']*1e3:.2f} -> {rec['rmse_m']['reconstructed']*1e3:.2f} mm "
                  f"on all {rec['num_vertices']}")
-    if "tsnn" in summary:
-        r = summary["tsnn"]
-        lines.append(f"model of camera left, no ground truth at run time ({r['num_images']} test poses, "
-                     f"trained on {r['train_poses']} poses):{_pair(r)}")
-        lines.append("  a model's accuracy grows with its training poses (docs/tsnn.md)")
+    if "learned" in summary:
+        r = summary["learned"]
+        mat, rms = r["material_mm"], r["rmse_mm"]
+
+        def step(name: str, key: str, material: bool = True) -> str:
+            text = f"material error {mat[key]:.2f} mm (x{mat['inferred'] / mat[key]:.2f})" if material else ""
+            if key in rms:
+                text += ("; " if text else "") + f"RMSE to gt {rms[key]:.2f} mm (x{rms['inferred'] / rms[key]:.2f})"
+            return f"\n  {name}: {text}"
+
+        lines.append(f"learned path, no ground truth at run time ({r['test_poses']} test poses, {r['images']} stereo "
+                     f"images; trained on {r['train_poses']} poses; ratios to the inferred mesh):"
+                     + step("inferred", "inferred") + step("-> corrected (the geometry corrector)", "corrected")
+                     + step("-> + texture sliding (a gp model per camera on the corrected set)", "texture_sliding")
+                     + step("-> triangulated (stereo, fused with the corrected mesh)", "triangulated", False))
+        lines.append("  the models' accuracy grows with their training poses (docs/tsnn.md)")
     if "views" in summary:
         v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
         lines.append("novel view at the stereo midpoint, uv error, same chart (e-3): " +

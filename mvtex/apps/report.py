@@ -242,8 +242,9 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
 
     if "tsnn" in summary:
         r = summary["tsnn"]
-        sections.append(("Texture sliding network (camera left, test poses)",
-                         f"<p>trained on {r.get('train_poses')} poses.</p>" + ts_tables([("TSNN", r)]) +
+        sections.append(("Per-camera models on the corrected set (stereo, test poses)",
+                         f"<p>a gp model per camera, trained on {r.get('train_poses')} poses of the set the geometry "
+                         "corrector made; the baseline (inferred) is the corrected mesh.</p>" + ts_tables([("TSNN", r)]) +
                          "".join(figure(p, f"TSNN error heatmaps {Path(p).stem}: inferred | TSNN", width="60%")
                                  for p in _pictures(out, "heatmaps/tsnn", 1))))
 

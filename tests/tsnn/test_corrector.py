@@ -195,3 +195,45 @@ def test_correct_refuses_another_mesh_and_a_per_camera_model(posed_sheet, traine
     (fake / "config.json").write_text(json.dumps({"format": "mvtex-tsnn", "version": 3}))
     with pytest.raises(InputError, match="not a geometry model"):
         load_corrector(fake)
+
+
+@pytest.mark.gl
+def test_the_command_line_path_reports_against_the_corrected_and_the_original_mesh(tiny_dataset, rig_file, gl,
+                                                                                   tmp_path, capsys):
+    """train --geometry, correct, slide on the corrected set, eval and triangulate: both
+    report the mesh before the correction too, with the errors computed here from the
+    files (the original mesh's RMSE to gt; its material error is eval's baseline on the
+    source dataset, the same images)."""
+    from helpers import run, run_json
+
+    from mvtex.data.dataset import load_dataset
+
+    geometry = run_json(capsys, "train", tiny_dataset, "--geometry", "--out", tmp_path / "geom", "--components", 3,
+                        "--device", "cpu", "--quiet")
+    assert geometry["num_poses"]["train"] == 4 and geometry["out_of_sample"] == "leave-one-out"
+    code, _, err = run(capsys, "train", tiny_dataset, "--geometry", "--texcoords", tmp_path, "--out", tmp_path / "x")
+    assert code == 2 and "does not apply to --geometry" in err
+    fixed = run_json(capsys, "correct", tiny_dataset, "--model", tmp_path / "geom", "--out", tmp_path / "c",
+                     "--quiet")
+    assert fixed["poses"] == 6 and fixed["out_of_sample_poses"] == 4
+    code, _, err = run(capsys, "slide", tmp_path / "c", "--rig", rig_file, "--out", tmp_path / "ts", "--poses", "0,5",
+                       "--subdiv", 0, "--workers", 1, "--quiet")
+    assert code == 0, err
+    evaluation = run_json(capsys, "eval", tmp_path / "c", "--rig", rig_file, "--texcoords", tmp_path / "ts", "--quiet")
+    code, _, err = run(capsys, "slide", tiny_dataset, "--rig", rig_file, "--out", tmp_path / "ts0", "--poses", "0,5",
+                       "--subdiv", 0, "--workers", 1, "--quiet")
+    assert code == 0, err
+    before = run_json(capsys, "eval", tiny_dataset, "--rig", rig_file, "--texcoords", tmp_path / "ts0", "--quiet")
+    original = evaluation["original_inferred"]
+    assert original["material_rmse_m"]["mean"] == pytest.approx(before["material_rmse_m"]["inferred"]["mean"],
+                                                                rel=1e-6)
+    assert original["ratio_material"] == pytest.approx(
+        original["material_rmse_m"]["mean"] / evaluation["material_rmse_m"]["texcoords"]["mean"])
+    report = run_json(capsys, "triangulate", tmp_path / "c", "--rig", rig_file, "--texcoords", tmp_path / "ts",
+                      "--pose", 5, "--out", tmp_path / "rec", "--quiet")
+    source, corrected = load_dataset(tiny_dataset), load_dataset(tmp_path / "c")
+    gt = np.asarray(source.gt[5], np.float64)
+    assert report["original_inferred"]["rmse_m"] == pytest.approx(
+        np.sqrt(np.mean(np.sum((np.asarray(source.inferred[5], np.float64) - gt) ** 2, axis=1))), rel=1e-9)
+    assert report["rmse_m"]["inferred"] == pytest.approx(
+        np.sqrt(np.mean(np.sum((np.asarray(corrected.inferred[5], np.float64) - gt) ** 2, axis=1))), rel=1e-9)
