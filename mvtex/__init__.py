@@ -68,7 +68,7 @@ _API = {
     # the geometry corrector
     "GeometryOptions": "mvtex.tsnn.corrector", "GeometryResult": "mvtex.tsnn.corrector",
     "train_geometry": "mvtex.tsnn.corrector", "load_corrector": "mvtex.tsnn.corrector",
-    "correct": "mvtex.tsnn.correct", "CorrectResult": "mvtex.tsnn.correct",
+    "correct": "mvtex.tsnn.correct", "CorrectOptions": "mvtex.tsnn.correct", "CorrectResult": "mvtex.tsnn.correct",
     # applications
     "run_bench": "mvtex.apps.bench", "DemoOptions": "mvtex.apps.demo", "run_demo": "mvtex.apps.demo",
 }

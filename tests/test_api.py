@@ -22,7 +22,8 @@ PUBLIC = {
     "ViewOptions", "interpolate_camera", "novel_views", "PreviewOptions", "stereo_preview",
     "BoardSpec", "parse_board_spec", "write_board_png", "CalibrateOptions", "calibrate", "calibrate_folder",
     "TrainOptions", "TrainResult", "TrainedCameras", "train", "train_cameras", "predict", "load_model",
-    "GeometryOptions", "GeometryResult", "train_geometry", "load_corrector", "correct", "CorrectResult",
+    "GeometryOptions", "GeometryResult", "train_geometry", "load_corrector", "correct", "CorrectOptions",
+    "CorrectResult",
     "run_bench", "DemoOptions", "run_demo",
 }
 

@@ -54,6 +54,9 @@ def register(sub) -> None:
     p.add_argument("--model", type=Path, required=True, help="geometry model directory (mvtex train --geometry)")
     p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
     p.add_argument("--poses", default="all", help="pose SPEC: all, train, val, test, a:b or 3,5,7 (default all)")
+    p.add_argument("--shrink", type=float, default=None, metavar="K",
+                   help="keep |r|2/(|r|2 + K sigma2) of each vertex's correction r, sigma its uncertainty; 0 keeps "
+                   "all of it (default 0.25)")
     add_common(p)
     p.set_defaults(run=cmd_correct)
 
@@ -142,12 +145,13 @@ def cmd_train_geometry(args):
 
 def cmd_correct(args):
     from mvtex.data.dataset import load_dataset
-    from mvtex.tsnn.correct import correct
+    from mvtex.tsnn.correct import CorrectOptions, correct
 
+    options = CorrectOptions() if args.shrink is None else CorrectOptions(shrink=args.shrink)
     dataset = load_dataset(args.dataset)
     poses = dataset.select(args.poses)
     with output(args, "correct"):
-        result = correct(dataset, args.model, args.out, poses=poses, progress=not args.quiet)
+        result = correct(dataset, args.model, args.out, poses=poses, options=options, progress=not args.quiet)
     rmse = "" if result.rmse_m is None else (f"; RMSE to gt {result.rmse_m['original'] * 1e3:.2f} -> "
                                              f"{result.rmse_m['corrected'] * 1e3:.2f} mm (mean over poses)")
     emit(args, result, f"wrote {result.out} ({result.poses} poses corrected, {result.out_of_sample_poses} of them "

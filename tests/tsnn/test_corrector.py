@@ -93,9 +93,10 @@ def test_a_residual_that_is_a_function_of_the_pose_is_recovered(posed_sheet, tra
 def test_leave_one_out_is_the_refit_without_that_pose(posed_sheet, trained, tmp_path):
     """Each training pose's correction is the GP of its components conditioned on the other
     39 training poses, same hyperparameters (written out in NumPy: k(θ_i, Θ_-i) (K_-i +
-    σ²I)⁻¹ y_-i, and its variance), mapped through the basis: what `correct` writes."""
+    σ²I)⁻¹ y_-i, and its variance), mapped through the basis: what `correct` writes
+    without shrinking."""
     from mvtex.data.dataset import load_dataset
-    from mvtex.tsnn.correct import correct
+    from mvtex.tsnn.correct import CorrectOptions, correct
     from mvtex.tsnn.corrector import load_corrector
 
     model = load_corrector(trained[0]).model
@@ -104,7 +105,7 @@ def test_leave_one_out_is_the_refit_without_that_pose(posed_sheet, trained, tmp_
     residual = (np.asarray(source.gt[:40], np.float64) - source.inferred[:40]).reshape(40, -1)
     y = (residual - gp["mean"]) @ gp["basis"].T  # the training coefficients (orthonormal basis)
     z = (np.asarray(source.poses[:40], np.float64) - gp["pose_mean"]) / gp["pose_std"]
-    correct(source, trained[0], tmp_path / "c", poses=[0, 7, 23], progress=False)
+    correct(source, trained[0], tmp_path / "c", poses=[0, 7, 23], options=CorrectOptions(shrink=0), progress=False)
     written = load_dataset(tmp_path / "c").inferred
     for row, i in enumerate((0, 7, 23)):
         rest = np.delete(np.arange(40), i)
@@ -158,6 +159,25 @@ def test_sparse_folds_are_the_refit_without_the_fold():
             np.testing.assert_allclose(mean[held, c], phi[held] @ w, rtol=1e-6, atol=1e-9 * np.abs(y[:, c]).max())
             expected = noise + noise * np.einsum("fm,fm->f", phi[held], np.linalg.solve(s, phi[held].T).T)
             np.testing.assert_allclose(var[held, c], expected, rtol=1e-6)
+
+
+def test_the_correction_shrinks_where_the_corrector_is_unsure():
+    """f = ‖r‖² / (‖r‖² + κσ²) per vertex and σ' = sqrt(σ² + (1 - f)²‖r‖²), written out;
+    κ = 0 keeps everything."""
+    from mvtex.tsnn.correct import shrink_correction
+
+    rng = np.random.default_rng(4)
+    r, sigma = rng.normal(scale=0.003, size=(2, 50, 3)), rng.uniform(0.001, 0.006, (2, 50))
+    r[0, 0] = 0.0
+    kept, sig = shrink_correction(r, sigma, 0.25)
+    for b in range(2):
+        for i in range(50):
+            n2 = float(r[b, i] @ r[b, i])
+            f = n2 / (n2 + 0.25 * sigma[b, i] ** 2) if n2 > 0 else 1.0
+            np.testing.assert_allclose(kept[b, i], f * r[b, i], rtol=1e-12, atol=1e-18)
+            assert sig[b, i] == pytest.approx(np.sqrt(sigma[b, i] ** 2 + (1 - f) ** 2 * n2), rel=1e-12)
+    same, same_sigma = shrink_correction(r, sigma, 0.0)
+    assert same is r and same_sigma is sigma
 
 
 def test_sigma_is_calibrated_on_the_validation_poses(posed_sheet, trained):
