@@ -25,6 +25,7 @@ from mvtex.data.texcoords import open_texcoords
 from mvtex.evaluation.evaluate import evaluate
 from mvtex.recon.options import ReconOptions
 from mvtex.recon.pose import triangulate_pose
+from mvtex.render.context import GLContext
 from mvtex.sliding.dataset import slide_dataset
 from mvtex.sliding.options import SlideOptions
 from mvtex.tsnn.cameras import train_cameras
@@ -181,8 +182,9 @@ def _learned(dataset, stereo, out: Path, options: DemoOptions, timings: dict, pr
     corrected = load_dataset(out / "corrected")
     timings["corrector"] = time.perf_counter() - t
     t = _step("texture sliding on the corrected set (stereo) and a gp model per camera", progress)
-    if not (out / "corrected_ts_stereo" / "texcoords.json").exists():
-        slide_dataset(corrected, stereo, out / "corrected_ts_stereo", poses=corrected.select("all"),
+    if not (out / "corrected_ts_stereo" / "texcoords.json").exists():  # the models' targets (train needs val too)
+        slide_dataset(corrected, stereo, out / "corrected_ts_stereo",
+                      poses=sorted(corrected.split["train"] + corrected.split["val"]),
                       options=SlideOptions(subdiv=1), progress=progress)
     tc = open_texcoords(out / "corrected_ts_stereo", corrected.num_vertices)
     train_cameras(corrected, tc, list(stereo.names), out / "tsnn", TrainOptions(seed=options.seed), progress=progress)
@@ -192,8 +194,13 @@ def _learned(dataset, stereo, out: Path, options: DemoOptions, timings: dict, pr
     if not (pred / "texcoords.json").exists():
         predict(corrected, [out / "tsnn" / c for c in stereo.names], pred, poses=test, progress=progress)
     tc_pred = open_texcoords(pred, corrected.num_vertices)
-    result = evaluate(corrected, stereo, tc_pred, progress=progress, heatmaps=out / "heatmaps" / "tsnn")
-    reports = [triangulate_pose(corrected, stereo, tc_pred, k, None, ReconOptions(), progress=False) for k in test]
+    with GLContext() as ctx:
+        result = evaluate(corrected, stereo, tc_pred, progress=progress, ctx=ctx)
+        if not (out / "heatmaps" / "tsnn").exists():
+            evaluate(corrected, stereo, tc_pred, poses=test[:1], heatmaps=out / "heatmaps" / "tsnn", progress=False,
+                     ctx=ctx)
+        reports = [triangulate_pose(corrected, stereo, tc_pred, k, None, ReconOptions(), progress=False, ctx=ctx)
+                   for k in test]
 
     def rmse(a, b) -> float:
         return float(np.sqrt(np.mean(np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=1))))
@@ -203,10 +210,10 @@ def _learned(dataset, stereo, out: Path, options: DemoOptions, timings: dict, pr
                "material_mm": {"inferred": round(result.original_inferred["material_rmse_m"].mean * 1e3, 3),
                                "corrected": round(m.inferred.mean * 1e3, 3),
                                "texture_sliding": round(m.texcoords.mean * 1e3, 3)},
-               "rmse_mm": {"inferred": round(1e3 * np.mean([rmse(corrected.original_inferred[k], corrected.gt[k])
-                                                            for k in test]), 3),
-                           "corrected": round(1e3 * np.mean([r.rmse_m.inferred for r in reports]), 3),
-                           "triangulated": round(1e3 * np.mean([r.rmse_m.reconstructed for r in reports]), 3)}}
+               "rmse_mm": {"inferred": round(1e3 * float(np.mean([rmse(corrected.original_inferred[k], corrected.gt[k])
+                                                                  for k in test])), 3),
+                           "corrected": round(1e3 * float(np.mean([r.rmse_m.inferred for r in reports])), 3),
+                           "triangulated": round(1e3 * float(np.mean([r.rmse_m.reconstructed for r in reports])), 3)}}
     timings["tsnn_predict_eval"] = time.perf_counter() - t
     short = _short(result)
     short["train_poses"] = len(dataset.split["train"])
