@@ -40,16 +40,16 @@ def register(sub) -> None:
                    help="weigh observations and trust points by the texcoord set's uncertainty.npy where it has "
                         "one (default on; off: by the cameras' disagreement)")
     p.add_argument("--use-prior", action=argparse.BooleanOptionalAction, default=True,
-                   help="on a corrected set (mvtex correct), fuse each point with the corrected mesh and its sigma, "
-                        "and keep the corrected mesh where no camera triangulates (default on)")
+                   help="on a corrected set (mvtex correct), fuse each point with the corrected mesh and its sigma "
+                        "(default on)")
     p.add_argument("--prior-gate", type=float, default=3.0, metavar="G",
                    help="with the prior, a point farther from it than G times their combined sigma is an outlier "
                         "(default 3)")
     p.add_argument("--no-prior-gate", dest="prior_gate", action="store_const", const=None,
                    help="keep every point whatever its distance from the prior")
-    p.add_argument("--prior-fill", action=argparse.BooleanOptionalAction, default=False,
+    p.add_argument("--prior-fill", action=argparse.BooleanOptionalAction, default=True,
                    help="with the prior, extend the fused displacement to the vertices no camera triangulates "
-                        "(default off: the prior stands there)")
+                        "(default on; off: the prior stands there)")
     p.add_argument("--fill-shape", choices=("rest", "inferred"), default="rest",
                    help="the shape the displacement of untriangulated vertices is extended on (default rest)")
     p.add_argument("--engine", choices=("mvtex", "pycolmap"), default="mvtex",

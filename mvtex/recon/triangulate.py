@@ -373,8 +373,9 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
             (options.use_uncertainty).
         prior_sigma: optional (n,) standard deviation (m) of `inferred_positions` as a
             prior (a corrected set's `geometry_uncertainty`): each point is fused with it
-            (`mvtex.recon.trust.fusion_factors`) and, unless options.prior_fill, the
-            vertices no camera triangulates keep the prior.
+            (`mvtex.recon.trust.fusion_factors`); with options.prior_fill (the default)
+            the fused displacement is extended to the vertices no camera triangulates,
+            without it they keep the prior.
         progress: show a progress bar over cameras.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
