@@ -3,6 +3,7 @@
     python benchmarks/table_corrector.py WORK [--garments shirt,skirt] [--num-poses 300]
         [--split test] [--test-poses N] [--rigs square4,trapezoid12] [--no-stereo]
         [--recon KEY=VALUE ...] [--workers 2] [--json FILE]
+    python benchmarks/table_corrector.py --merge A.json B.json ...    (one table of their rows)
 
 For each built-in garment, a dataset of NUM_POSES poses (`mvtex synth --garment G
 --num-poses N`, 80 % of them training poses) at WORK/data/<garment><N>, and everything
@@ -42,6 +43,7 @@ from mvtex.recon.options import ReconOptions
 from mvtex.recon.pose import triangulate_pose
 from mvtex.render.context import GLContext
 from mvtex.sliding.dataset import slide_dataset
+from mvtex.sliding.options import SlideOptions
 from mvtex.synth.generate import SynthOptions, write_synth
 from mvtex.tsnn.cameras import train_cameras
 from mvtex.tsnn.correct import correct
@@ -74,10 +76,13 @@ def prepare(work: Path, garment: str, num_poses: int, rigs: list[str], workers: 
             rig = load_rig(builtin_rig_path(rig_name))
             ts = base / f"{prefix}ts_{rig_name}"
             if not (ts / "texcoords.json").exists():
-                slide_dataset(ds, rig, ts, poses=ds.select("all"), workers=workers, progress=False)
+                slide_dataset(ds, rig, ts, poses=ds.select("all"), options=SlideOptions(), workers=workers,
+                              progress=False)
             tc = open_texcoords(ts, ds.num_vertices)
             models = base / f"{prefix}gp_{rig_name}"
-            train_cameras(ds, tc, list(rig.names), models, TrainOptions(arch="gp"), workers=workers, progress=False)
+            # One process: models trained on worker processes are not recorded in the folder's
+            # manifest, and a rerun would refuse the folder.
+            train_cameras(ds, tc, list(rig.names), models, TrainOptions(arch="gp"), progress=False)
             for split in ("val", "test"):
                 out = base / f"{prefix}gp{split}_{rig_name}"
                 if not (out / "texcoords.json").exists():
@@ -159,7 +164,18 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def merge(files: list[Path]) -> str:
+    """The table of the rows of several --json outputs, in the order given."""
+    return markdown([row for f in files for row in json.loads(Path(f).read_text())["rows"]])
+
+
 def main(argv: list[str] | None = None) -> dict:
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv and argv[0] == "--merge":  # python benchmarks/table_corrector.py --merge A.json B.json ...
+        table = merge([Path(f) for f in argv[1:]])
+        print(table)
+        return {"table": table}
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("work", type=Path)
     p.add_argument("--garments", default="shirt,skirt")
