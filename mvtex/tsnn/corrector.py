@@ -22,8 +22,9 @@ they never meet at run time. So for every training pose the model keeps its
 out-of-sample prediction: the closed-form leave-one-out of each component's GP (Rasmussen
 & Williams eq. 5.12: mean y_i - [A⁻¹y]_i / [A⁻¹]_ii, variance 1 / [A⁻¹]_ii with A the
 noisy kernel matrix, the same hyperparameters), or above the exact limit `FOLDS`-fold
-predictions of the sparse GP (`_sparse_out_of_sample`). The principal components and the
-hyperparameters are those of all training poses. `GeometryCorrector.predict` gives a pose
+predictions of the sparse GP (`mvtex.tsnn.gp.fit_components`, from the factorisations
+the fit makes anyway). The principal components and the hyperparameters are those of all
+training poses. `GeometryCorrector.predict` gives a pose
 whose pose vector is a training pose's (bit for bit) that prediction, any other pose the
 posterior's; so an inference set of the same frames is corrected exactly as its dataset.
 
@@ -49,7 +50,6 @@ import torch
 from torch import nn
 
 from mvtex.tsnn.gp import GPConfig, PoseGP, fit_components
-from mvtex.tsnn.gp_kernel import kernel, kernel_matrix
 from mvtex.tsnn.modeldir import integer_config, mesh_fingerprint
 from mvtex.tsnn.pca import pose_pca_counted, residual_var
 from mvtex.util.checks import check_field_types
@@ -217,89 +217,6 @@ class _Residuals:
                          - read_row(ds.inferred, self.poses[int(r)]).astype(np.float64) for r in np.atleast_1d(rows)])
 
 
-def _prior_variance(gp: PoseGP, c: int) -> torch.Tensor:
-    """k_c(θ,θ) + σ_c², a component's variance at a pose far from every training pose."""
-    p = gp.config.pose_dim
-    return torch.exp(2 * gp.log_signal[c]) + p * torch.exp(2 * gp.log_additive[c]) + torch.exp(2 * gp.log_noise[c])
-
-
-def exact_out_of_sample(gp: PoseGP, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closed-form leave-one-out coefficients of an exact `PoseGP` on its training poses.
-
-    Args:
-        gp: a model whose `inputs` are all K training poses.
-        coef: (K,C) the training poses' principal-component coefficients.
-
-    Returns:
-        mean (K,C) y_i - [A⁻¹y]_i / [A⁻¹]_ii and variance (K,C) 1 / [A⁻¹]_ii per component,
-        A = K_c + σ_c² I; a component predicted as 0 (α_c = 0) gives 0 and its prior variance.
-    """
-    y = torch.from_numpy(np.asarray(coef, np.float64))
-    mean, var = torch.zeros_like(y), torch.zeros_like(y)
-    for c in range(gp.config.components):
-        if not bool((gp.alpha[:, c] != 0).any()):
-            var[:, c] = _prior_variance(gp, c)
-            continue
-        a = kernel(gp.inputs, gp.inputs, gp.log_lengthscale[c], gp.log_signal[c], gp.log_additive[c])
-        a.diagonal().add_(torch.exp(2 * gp.log_noise[c]))
-        inverse = torch.cholesky_inverse(torch.linalg.cholesky(a))
-        diagonal = inverse.diagonal()
-        mean[:, c] = y[:, c] - (inverse @ y[:, c]) / diagonal
-        var[:, c] = 1.0 / diagonal
-    return mean.numpy(), var.numpy()
-
-
-def _sparse_out_of_sample(gp: PoseGP, z: torch.Tensor, coef: np.ndarray, folds: int = FOLDS
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """`folds`-fold coefficients of a subset-of-regressors `PoseGP` on its K training poses.
-
-    The sparse GP is Bayesian linear regression on the features φ(θ) = L⁻¹ k_m(θ)
-    (K_mm = LLᵀ) with weights of prior N(0, I): with S = ΦᵀΦ + σ²I and the hat matrix
-    H = Φ S⁻¹ Φᵀ, the prediction of fold f by the model of the other folds is
-    y_f - (I - H_ff)⁻¹ (y_f - (Hy)_f), its noisy variance σ² diag((I - H_ff)⁻¹) (Woodbury:
-    the exact refit without f, same hyperparameters). Fold f holds every `folds`-th pose.
-
-    Args:
-        gp: the model (its `inputs` are the inducing poses).
-        z: (K,P) the standardised training poses; coef: (K,C) their coefficients.
-    """
-    y_all = torch.from_numpy(np.asarray(coef, np.float64))
-    mean, var = torch.zeros_like(y_all), torch.zeros_like(y_all)
-    zm, m, k = gp.inputs, len(gp.inputs), len(z)
-    eye = torch.eye(m, dtype=torch.float64)
-    for c in range(gp.config.components):
-        if not bool((gp.alpha[:, c] != 0).any()):
-            var[:, c] = _prior_variance(gp, c)
-            continue
-        ll, ls, la = gp.log_lengthscale[c][None], gp.log_signal[c].reshape(1), gp.log_additive[c].reshape(1)
-        kmm = kernel_matrix(zm, zm, ll, ls, la)[0]
-        jitter = 1e-8 * float(kmm.diagonal().mean())
-        for _ in range(6):
-            chol, info = torch.linalg.cholesky_ex(kmm + jitter * eye)
-            if int(info) == 0:
-                break
-            jitter *= 100
-        else:
-            raise ValueError("no out-of-sample prediction: the covariance of the inducing poses is singular")
-        features = torch.linalg.solve_triangular(chol, kernel_matrix(zm, z, ll, ls, la)[0], upper=False)  # (M,K)
-        noise = torch.exp(2 * gp.log_noise[c])
-        s = features @ features.T + noise * eye
-        v = torch.linalg.solve_triangular(torch.linalg.cholesky(s), features, upper=False)  # S^-1/2 Φᵀ (M,K)
-        y = y_all[:, c]
-        fitted = v.T @ (v @ y)
-        for f in range(folds):
-            rows = torch.arange(f, k, folds)
-            if not len(rows):
-                continue
-            vf = v[:, rows]
-            b = torch.eye(len(rows), dtype=torch.float64) - vf.T @ vf
-            inverse = torch.linalg.inv(b)
-            mean[rows, c] = y[rows] - inverse @ (y[rows] - fitted[rows])
-            var[rows, c] = noise * inverse.diagonal()
-        del features, v, s
-    return mean.numpy(), var.numpy()
-
-
 def calibrate_sigma(errors2: np.ndarray, variances: np.ndarray) -> float:
     """The factor s of σ that makes the mean squared error equal the mean predicted variance
     s² σ² over the given vertices (1 when either is 0 or not finite)."""
@@ -373,9 +290,9 @@ def fit_corrector(dataset, train_poses: list[int], options: GeometryOptions = Ge
     x = np.asarray(dataset.poses[train_poses], np.float64).reshape(len(train_poses), -1)
     residuals = _Residuals(dataset, train_poses)
     pca, reads = pose_pca_counted(x, residuals, options.components, progress)
-    _, mean_x, std_x, mean_d, basis, coef = pca
-    gp = fit_components(pca, residual_var(residuals, mean_d, basis, coef), 3, options.iterations, progress,
-                        options.device, reads=reads)
+    _, _, _, mean_d, basis, coef = pca
+    gp, (mean, var) = fit_components(pca, residual_var(residuals, mean_d, basis, coef), 3, options.iterations,
+                                     progress, options.device, reads=reads, out_of_sample=FOLDS)
     config = CorrectorConfig(pose_dim=gp.config.pose_dim, num_vertices=gp.config.num_vertices,
                              num_train=gp.config.num_train, components=gp.config.components,
                              training_poses=len(train_poses))
@@ -383,11 +300,6 @@ def fit_corrector(dataset, train_poses: list[int], options: GeometryOptions = Ge
     model.gp.load_state_dict(gp.state_dict())
     exact = len(train_poses) == gp.config.num_train
     with torch.no_grad():
-        if exact:
-            mean, var = exact_out_of_sample(model.gp, coef)
-        else:
-            z = torch.from_numpy((x - mean_x) / std_x)
-            mean, var = _sparse_out_of_sample(model.gp, z, coef)
         model.train_poses.copy_(torch.from_numpy(x.astype(np.float32)))
         model.oos_mean.copy_(torch.from_numpy(mean))
         model.oos_var.copy_(torch.from_numpy(np.maximum(var, 0.0)))

@@ -345,9 +345,11 @@ def _fit_hyperparameters(z: torch.Tensor, y: torch.Tensor, iterations: int, pool
 
 
 def _posterior(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, pool=None,
-               done: Callable[[int], None] | None = None) -> torch.Tensor:
+               done: Callable[[int], None] | None = None, out_of_sample: bool = False):
     """α = A⁻¹y (C,K) of C GPs on every pose; 0 for a component whose leave-one-out error
-    is no better than predicting 0. `done(rows)` is called as each part of the rows is done."""
+    is no better than predicting 0. `done(rows)` is called as each part of the rows is done.
+    With `out_of_sample`, also each pose's leave-one-out prediction and its noisy variance
+    (C,K) (R&W eq. 5.12: y_i - [A⁻¹y]_i / [A⁻¹]_ii, 1 / [A⁻¹]_ii): (α, mean, variance)."""
     lo, hi = bounds(z.shape[1], z.device)
     q = torch.maximum(torch.minimum(params, hi), lo)
 
@@ -357,22 +359,34 @@ def _posterior(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, pool=None
             raise ValueError("no Gaussian-process fit: the covariance of all training poses is singular")
         inverse = torch.cholesky_inverse(chol)
         a = (inverse @ y[part, :, None])[:, :, 0]
-        useless = ~(loo_residuals(inverse, y[part]).square().mean(1) < y[part].square().mean(1))
+        residuals = loo_residuals(inverse, y[part])
+        useless = ~(residuals.square().mean(1) < y[part].square().mean(1))
         if done is not None:
             done(part.stop - part.start)
-        return torch.where(useless[:, None], torch.zeros_like(a), a)
+        a = torch.where(useless[:, None], torch.zeros_like(a), a)
+        if not out_of_sample:
+            return a
+        return a, y[part] - residuals, 1.0 / torch.diagonal(inverse, dim1=1, dim2=2)
 
     with _workers(z.device) if pool is None else contextlib.nullcontext(pool) as threads:
-        return torch.cat(_map(threads, part_alpha, _parts(len(y), len(z), z.device)))
+        out = _map(threads, part_alpha, _parts(len(y), len(z), z.device))
+    return tuple(torch.cat([o[i] for o in out]) for i in range(3)) if out_of_sample else torch.cat(out)
 
 
 def _inducing_alpha(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, inducing: torch.Tensor,
-                    pool=None, done: Callable[[int], None] | None = None) -> torch.Tensor:
+                    pool=None, done: Callable[[int], None] | None = None, folds: int = 0):
     """Subset-of-regressors posterior mean weights (C,M) of C GPs on all K poses z (K,P),
     expanded on the M poses z[inducing]: α = (σ² K_mm + K_mk K_km)⁻¹ K_mk y (Rasmussen &
     Williams, eq. 8.14), computed stably as L⁻ᵀ (σ²I + AAᵀ)⁻¹ A y with K_mm = LLᵀ and
     A = L⁻¹ K_mk. The prediction k(θ, Z_m) α is then the exact GP's when M = K.
-    `done(rows)` is called as each part of the rows is done."""
+    `done(rows)` is called as each part of the rows is done.
+
+    With `folds` > 0, also each pose's prediction by the model fitted without its fold (every
+    `folds`-th pose), same hyperparameters, and its noisy variance (C,K): the sparse GP is
+    Bayesian linear regression on the features A (weights of prior N(0, I)), so with
+    S = σ²I + AAᵀ and the hat matrix H = AᵀS⁻¹A the refit's prediction of fold f is
+    y_f - (I - H_ff)⁻¹ (y_f - (Hy)_f), its variance σ² diag((I - H_ff)⁻¹) (Woodbury); S's
+    factor is the fit's own. Returns (α, mean, variance) then."""
     lo, hi = bounds(z.shape[1], z.device)
     q = torch.maximum(torch.minimum(params, hi), lo)
     p = z.shape[1]
@@ -395,16 +409,38 @@ def _inducing_alpha(z: torch.Tensor, y: torch.Tensor, params: torch.Tensor, indu
         a = torch.linalg.solve_triangular(chol, kernel_matrix(zm, z, rows[:, :p], rows[:, p], rows[:, p + 2]),
                                           upper=False)  # (R,M,K)
         noise = torch.exp(2 * rows[:, p + 1]) + NOISE_FLOOR
-        b = a @ a.transpose(1, 2) + noise[:, None, None] * eye
-        c = torch.cholesky_solve((a @ y[part, :, None]), torch.linalg.cholesky(b))
+        b = torch.linalg.cholesky(a @ a.transpose(1, 2) + noise[:, None, None] * eye)
+        c = torch.cholesky_solve((a @ y[part, :, None]), b)
+        alpha = torch.linalg.solve_triangular(chol.transpose(1, 2), c, upper=True)[:, :, 0]
+        if folds:
+            alpha = (alpha, *_fold_predictions(torch.linalg.solve_triangular(b, a, upper=False), y[part], noise,
+                                               folds))
         if done is not None:
             done(part.stop - part.start)
-        return torch.linalg.solve_triangular(chol.transpose(1, 2), c, upper=True)[:, :, 0]
+        return alpha
 
     size = max(1, min(_PART_ROWS, _PART_ELEMENTS // (m * len(z))))
     parts = [slice(i, min(i + size, len(y))) for i in range(0, len(y), size)]
     with _workers(z.device) if pool is None else contextlib.nullcontext(pool) as threads:
-        return torch.cat(_map(threads, part_alpha, parts))
+        out = _map(threads, part_alpha, parts)
+    return tuple(torch.cat([o[i] for o in out]) for i in range(3)) if folds else torch.cat(out)
+
+
+def _fold_predictions(v: torch.Tensor, y: torch.Tensor, noise: torch.Tensor, folds: int
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fold-out predictions and variances (R,K) of sparse GPs from v = S^-1/2 A (R,M,K)
+    (`_inducing_alpha`), targets y (R,K), noise variances (R,)."""
+    fitted = (v.transpose(1, 2) @ (v @ y[:, :, None]))[:, :, 0]  # Hy
+    mean, var = torch.empty_like(y), torch.empty_like(y)
+    for f in range(folds):
+        rows = torch.arange(f, y.shape[1], folds, device=y.device)
+        if not len(rows):
+            continue
+        vf = v[:, :, rows]
+        inverse = torch.linalg.inv(torch.eye(len(rows), dtype=y.dtype, device=y.device) - vf.transpose(1, 2) @ vf)
+        mean[:, rows] = y[:, rows] - (inverse @ (y[:, rows] - fitted[:, rows])[:, :, None])[:, :, 0]
+        var[:, rows] = noise[:, None] * torch.diagonal(inverse, dim1=1, dim2=2)
+    return mean, var
 
 
 def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40,
@@ -435,12 +471,13 @@ def fit_pose_gp(poses: np.ndarray, d, components: int = 32, iterations: int = 40
     pca, reads = pose_pca_counted(poses, d, components, progress)
     _, _, _, mean_d, basis, coef = pca
     return fit_components(pca, residual_var(d, mean_d, basis, coef), int(np.shape(d)[2]), iterations, progress,
-                          device, inducing, reads)
+                          device, inducing, reads)[0]
 
 
 def fit_components(pca: tuple, residual: np.ndarray, channels: int, iterations: int = 40,
                    progress: Callable[[int, int], None] | None = None, device: str | torch.device = "cpu",
-                   inducing: int = INDUCING_POSES, reads: int = 0) -> PoseGP:
+                   inducing: int = INDUCING_POSES, reads: int = 0, out_of_sample: int = 0
+                   ) -> tuple[PoseGP, tuple[np.ndarray, np.ndarray] | None]:
     """The GPs of `fit_pose_gp` on principal components already taken.
 
     Args:
@@ -449,6 +486,14 @@ def fit_components(pca: tuple, residual: np.ndarray, channels: int, iterations: 
         channels: c, values per vertex (2 for d).
         iterations, progress, device, inducing: as `fit_pose_gp`; reads: the progress steps
             already taken by reading the training values.
+        out_of_sample: > 0: also every training pose's out-of-sample coefficients, from the
+            factorisations the fit makes anyway: the closed-form leave-one-out of an exact
+            model, or `out_of_sample`-fold predictions of a sparse one (same hyperparameters).
+
+    Returns:
+        the model, and with `out_of_sample` (mean, variance) (K,C) float64 of the
+        coefficients (the noisy variance; a component predicted as 0 gives 0 and its prior
+        variance), else None.
     """
     if not 1 <= inducing <= MAX_TRAIN:
         raise ValueError(f"inducing must be in 1..{MAX_TRAIN}, got {inducing}")
@@ -493,13 +538,17 @@ def fit_components(pca: tuple, residual: np.ndarray, channels: int, iterations: 
         with torch.no_grad(), _workers(device) as pool:
             params = _fit_hyperparameters(zt[hyper], yt[:, hyper], iterations, pool, starts,
                                           lambda done, _: report(reads + done, total))
+            oos = None
             if exact:
-                alpha = _posterior(zt, yt, params, pool, rows_done).cpu()
+                alpha = _posterior(zt, yt, params, pool, rows_done, out_of_sample=bool(out_of_sample))
+                alpha, oos = (alpha[0].cpu(), alpha[1:]) if out_of_sample else (alpha.cpu(), None)
             else:
                 # A component is kept if its leave-one-out error on the hyperparameters' poses
                 # beats predicting 0 (the exact test, as below MAX_TRAIN).
                 useful = _posterior(zt[hyper], yt[:, hyper], params, pool, rows_done).abs().sum(1) > 0
-                alpha = _inducing_alpha(zt, yt, params, torch.from_numpy(expansion).to(device), pool, rows_done)
+                alpha = _inducing_alpha(zt, yt, params, torch.from_numpy(expansion).to(device), pool, rows_done,
+                                        folds=out_of_sample)
+                alpha, oos = (alpha[0], alpha[1:]) if out_of_sample else (alpha, None)
                 alpha = torch.where(useful[:, None], alpha, torch.zeros_like(alpha)).cpu()
             lo, hi = bounds(p, "cpu")
             params = torch.maximum(torch.minimum(params.cpu(), hi), lo)
@@ -510,8 +559,18 @@ def fit_components(pca: tuple, residual: np.ndarray, channels: int, iterations: 
             model.alpha.copy_((alpha / torch.from_numpy(scale)[:, None]).T)  # ...and α / scale: k α = scale k̃ α̃
             noise = torch.exp(2 * params[:, p + 1]) + NOISE_FLOOR  # the variance the posterior used
             model.log_noise.copy_(0.5 * torch.log(noise) + log_scale)
+            if oos is not None:  # back to coefficient units; a component predicted as 0: its prior
+                kept = (model.alpha != 0).any(0)
+                prior = (torch.exp(2 * model.log_signal) + p * torch.exp(2 * model.log_additive)
+                         + torch.exp(2 * model.log_noise))
+                s = torch.from_numpy(scale)
+                mean = torch.where(kept[None], oos[0].cpu().T * s, 0.0)
+                var = torch.where(kept[None], oos[1].cpu().T * s ** 2, prior[None])
+                oos = (mean.numpy(), var.numpy())
         report(total, total)
-    elif progress is not None:
-        progress(0, 0)
+    else:
+        oos = (np.zeros((k, 0)), np.zeros((k, 0))) if out_of_sample else None
+        if progress is not None:
+            progress(0, 0)
     model.eval()
-    return model
+    return model, oos

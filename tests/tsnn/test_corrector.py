@@ -132,18 +132,19 @@ def test_sparse_folds_are_the_refit_without_the_fold():
     what the sparse GP is, Bayesian linear regression on the features φ(θ) = L⁻¹ k_m(θ)
     (K_mm = LLᵀ, the model's jitter): w = (Φ_-fᵀ Φ_-f + σ²I)⁻¹ Φ_-fᵀ y_-f, prediction Φ_f w,
     variance σ² + σ² φᵀ (Φ_-fᵀ Φ_-f + σ²I)⁻¹ φ (R&W eq. 8.14-8.15 in the weight view)."""
-    from mvtex.tsnn.corrector import _sparse_out_of_sample
-    from mvtex.tsnn.gp import fit_pose_gp
+    from mvtex.tsnn.gp import fit_components
+    from mvtex.tsnn.pca import pose_pca, residual_var
 
     rng = np.random.default_rng(2)
     theta = rng.uniform(-1.5, 1.5, (90, 2))
     values = np.einsum("kc,cnd->knd", truth(theta), rng.normal(size=(3, 7, 3))) + 0.05 * rng.normal(size=(90, 7, 3))
-    gp = fit_pose_gp(theta, values, components=3, iterations=20, inducing=25)
+    pca = pose_pca(theta, values, 3)
+    gp, (mean, var) = fit_components(pca, residual_var(values, *pca[3:]), 3, iterations=20, inducing=25,
+                                     out_of_sample=4)
     assert gp.config.num_train == 25 and gp.config.channels == 3
     b = {k: v.numpy() for k, v in gp.state_dict().items()}
     z = (theta - b["pose_mean"]) / b["pose_std"]
     y = (values.reshape(90, -1) - b["mean"]) @ b["basis"].T
-    mean, var = _sparse_out_of_sample(gp, torch.from_numpy(z), y, folds=4)
     zm = b["inputs"]
     for c in range(3):
         args = (b["log_lengthscale"][c], b["log_signal"][c], b["log_additive"][c])
