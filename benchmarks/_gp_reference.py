@@ -102,7 +102,8 @@ def fit_pose_gp(poses, d, components=32, iterations=60, progress=None, device="c
     """The reference fit, with `mvtex.tsnn.gp.fit_pose_gp`'s signature (CPU only)."""
     import torch
 
-    from mvtex.tsnn.gp import GPConfig, PoseGP, pose_pca
+    from mvtex.tsnn.gp import GPConfig, PoseGP
+    from mvtex.tsnn.pca import pose_pca
 
     x, mean_x, std_x, mean_d, basis, coef = pose_pca(poses, d, components)
     k, p = x.shape

@@ -8,7 +8,7 @@ WORK is a `tsnn_paper_scale.py` work folder (WORK/data, the dataset; WORK/ts, it
 texcoord set of the camera). Scored on the same test images as that script.
 
 1. The ceiling: each test pose's TS + 1 displacement projected on the first C principal
-   components of the training displacements (`mvtex.tsnn.gp.pose_pca`, the basis `gp` and
+   components of the training displacements (`mvtex.tsnn.pca.pose_pca`, the basis `gp` and
    `mlp` use: 2,000 evenly spaced training poses), written as a texcoord set and scored by
    `mvtex.evaluate`: the most a model of C components can reach.
 2. `gp` trained on the first SIZE training poses with each component count, its test poses
@@ -47,7 +47,8 @@ def main() -> None:
 
     from mvtex.data.dataset import load_dataset
     from mvtex.data.texcoords import open_texcoords, save_texcoords
-    from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced, pose_pca
+    from mvtex.tsnn.gp import MAX_TRAIN
+    from mvtex.tsnn.pca import evenly_spaced, pose_pca
     from mvtex.tsnn.predict import predict
     from mvtex.tsnn.train import TrainOptions, train
 

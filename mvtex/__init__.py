@@ -79,6 +79,9 @@ if TYPE_CHECKING:
     from mvtex.tsnn.cameras import train_cameras, train_models
     from mvtex.tsnn.predict import predict, load_model
     from mvtex.tsnn.config import ModelConfig
+    from mvtex.tsnn.options import GeometryOptions, CorrectOptions
+    from mvtex.tsnn.corrector import GeometryResult, train_geometry, load_corrector
+    from mvtex.tsnn.correct import correct, CorrectResult
     # applications
     from mvtex.apps.bench import run_bench
     from mvtex.apps.options import DemoOptions
@@ -150,6 +153,13 @@ __all__ = [
     "predict",
     "load_model",
     "ModelConfig",
+    "GeometryOptions",
+    "CorrectOptions",
+    "GeometryResult",
+    "train_geometry",
+    "load_corrector",
+    "correct",
+    "CorrectResult",
     "run_bench",
     "DemoOptions",
     "run_demo",

@@ -252,3 +252,32 @@ def held_elsewhere(claim):
     finally:
         done.set()
         holder.join()
+
+
+def three_camera_rig(width: int = 160, height: int = 120):
+    """Three cameras 1.2 m in front of the origin, 12 degrees apart (a `Rig`)."""
+    from mvtex.data.camera import look_at
+    from mvtex.data.rig import Rig
+
+    cams = []
+    for name, angle in (("a", -12.0), ("b", 0.0), ("c", 12.0)):
+        r = np.radians(angle)
+        cams.append(look_at(name, (1.2 * np.sin(r), 0.05, 1.2 * np.cos(r)), (0, 0, 0), width=width, height=height,
+                            focal=230.0))
+    return Rig(tuple(cams))
+
+
+def sheet_in_front():
+    """Flat gt (z = 0), the inferred sheet 1 cm in front of it, and each camera's exact T_N
+    (closed form: the ray through an inferred vertex meets the plane z = 0)."""
+    size = 0.9
+    faces, uv, rest = grid_mesh(36, 30, size=size)
+    inferred = rest + np.array([0.0, 0.0, 0.01])
+    rig = three_camera_rig()
+    exact = {}
+    for cam in rig:
+        C = cam.center
+        s = C[2] / (C[2] - inferred[:, 2])
+        hit = C + s[:, None] * (inferred - C)
+        exact[cam.name] = (hit[:, :2] + size / 2) / size
+    return faces, uv, rest, inferred, rig, exact

@@ -23,7 +23,8 @@ PUBLIC = {
     "export_scene",
     "BoardSpec", "parse_board_spec", "write_board_png", "CalibrateOptions", "calibrate", "calibrate_folder",
     "TrainOptions", "TrainResult", "TrainedCameras", "train", "train_cameras", "train_models", "predict", "load_model",
-    "ModelConfig",
+    "ModelConfig", "GeometryOptions", "GeometryResult", "train_geometry", "load_corrector", "correct", "CorrectOptions",
+    "CorrectResult",
     "run_bench", "DemoOptions", "run_demo",
 }
 

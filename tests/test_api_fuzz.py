@@ -104,6 +104,14 @@ def targets(sb: Sandbox) -> dict:
                                           values=np.zeros((n, 2)), assigned=np.arange(n) % 2 == 0),
                  every("faces", "positions", "values", "assigned", "method", "groups")),
         "load_model": (mvtex.load_model, lambda: dict(path=sb.out("model")), {"path": NOT_TEXT}),
+        "load_corrector": (mvtex.load_corrector, lambda: dict(path=sb.out("geometry")), {"path": NOT_TEXT}),
+        "train_geometry": (mvtex.train_geometry,
+                           lambda: dict(dataset=ds, out=sb.out("geometry"), options=mvtex.GeometryOptions(components=2),
+                                        progress=False),
+                           {"dataset": NOT_TEXT, "out": NOT_TEXT, "options": HOSTILE}),
+        "correct": (mvtex.correct, lambda: dict(dataset=ds, model=sb.out("geometry"), out=sb.out("corrected"),
+                                                progress=False),
+                    {"dataset": NOT_TEXT, "model": NOT_TEXT, "out": NOT_TEXT, "poses": NOT_TEXT, "options": HOSTILE}),
         "ModelConfig": (mvtex.ModelConfig.read, lambda: dict(directory=sb.out("model")), {"directory": NOT_TEXT}),
         "slide_dataset": (mvtex.slide_dataset,
                           lambda: dict(dataset=ds, rig=rig, out=sb.out("slid"), poses=[0],
@@ -209,12 +217,14 @@ OPTIONS = {
     "ReconOptions": ("max_reprojection_px", "max_surface_distance", "max_stretch", "consensus_px",
                      "consensus_scale", "fill_shape", "smooth", "smooth_iterations", "uv_resolution",
                      "depth_tolerance", "require_assigned", "max_combinations", "refine_iterations",
-                     "error_scale_m", "strain_scale", "engine"),
+                     "error_scale_m", "strain_scale", "engine", "use_prior", "prior_gate", "prior_fill"),
     "ViewOptions": ("method", "uv_resolution"),
     "PreviewOptions": ("ipd", "method", "path", "frames_per_segment", "margin"),
     "ExportOptions": ("texture_size", "viewer"),
     "TrainOptions": ("arch", "components", "widths", "epochs", "resolution", "batch_size", "lr", "device", "seed",
                      "patience", "weight_assigned"),
+    "GeometryOptions": ("components", "iterations", "device"),
+    "CorrectOptions": ("shrink",),
     "DemoOptions": ("num_poses", "seed", "tsnn"),
     "BoardSpec": ("cols", "rows", "square_m", "marker_m", "dictionary"),
     "CalibrateOptions": ("board", "reference", "min_corners", "distortion", "huber_px"),
@@ -247,7 +257,7 @@ NAMES = ["Camera", "look_at", "Rig", "load_rig", "save_rig", "load_dataset", "sa
          "save_texcoords", "project_points", "triangulate_points", "interpolate_camera", "parse_board_spec",
          "write_board_png", "fill", "load_model", "ModelConfig", "slide_dataset", "evaluate", "triangulate_pose",
          "novel_views", "stereo_preview", "export_scene", "render_pose", "train", "train_cameras", "train_models",
-         "predict", "run_bench", "run_demo",
+         "predict", "run_bench", "run_demo", "train_geometry", "correct", "load_corrector",
          "write_synth", "synthesize", "import_sequences", "calibrate_folder", "calibrate", "rasterize",
          "render_textured", "rasterize_uv", "interpolate", "MaterialMap", "slide_pose", "reconstruct"]
 
@@ -289,5 +299,6 @@ def test_an_options_field_of_a_hostile_type_raises_a_typed_error(name, sandbox):
 def test_the_fuzzed_names_are_the_public_api():
     """Every public function and options class is fuzzed (the result types are not)."""
     results = {"InputError", "OptionError", "OutputError", "NoGroundTruthError", "Dataset", "TexcoordSet", "SynthResult", "GLContext", "Raster",
-               "Evaluation", "Reconstruction", "ReconReport", "TrainResult", "TrainedCameras", "__version__"}
+               "Evaluation", "Reconstruction", "ReconReport", "TrainResult", "TrainedCameras", "GeometryResult",
+               "CorrectResult", "__version__"}
     assert set(mvtex.__all__) - results - set(NAMES) - set(OPTIONS) == set()

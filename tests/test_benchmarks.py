@@ -76,3 +76,31 @@ def test_body_hidden_counts_what_the_body_hides(tmp_path):
         assert row["hidden"] > 1000 and row["assigned_total"] > 1000
         assert row["assigned"] == 0
     assert (tmp_path / "rows.json").exists()
+
+
+@pytest.mark.slow
+def test_table_corrector_small(tmp_path):
+    """The five columns on a 14-pose shirt with the stereo rig: every number there, the
+    corrector's ratio the one computed here from the files, the merged table the same."""
+    import sys
+
+    sys.path.insert(0, str(BENCHMARKS))  # it reads table_recon beside it
+    from mvtex.data.dataset import load_dataset
+
+    table = load("table_corrector")
+    summary = table.main([str(tmp_path), "--garments", "shirt", "--num-poses", "14", "--rigs", "stereo",
+                          "--json", str(tmp_path / "out.json")])
+    (row,) = summary["rows"]
+    assert row["train_poses"] == 12 and row["split"] == "test"
+    assert set(row["stereo"]) >= set(table.COLUMNS) and row["stereo"]["num_images"] == 2 * len(row["poses"])
+    rec = row["rigs"]["stereo"]
+    assert set(rec) >= set(table.COLUMNS[1:])
+    source = load_dataset(tmp_path / "data" / "shirt14")
+    fixed = load_dataset(tmp_path / "work" / "shirt14" / "corrected")
+
+    def rmse(a, b):
+        return np.sqrt(np.mean(np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=1)))
+
+    expected = [rmse(source.inferred[k], source.gt[k]) / rmse(fixed.inferred[k], source.gt[k]) for k in row["poses"]]
+    assert rec["corrector"]["per_pose"] == pytest.approx(expected, rel=1e-9)
+    assert table.merge([tmp_path / "out.json"]) == summary["table"]

@@ -1,12 +1,14 @@
 """`mvtex demo`: the whole pipeline on the built-in garment, with pictures to look at.
 
     synth -> render -> slide (stereo, square4) -> eval + heatmaps -> triangulate (square4)
-          -> a gp model of camera left (Gaussian processes of the pose) -> predict -> eval
+          -> the learned path, no gt at run time: the geometry corrector -> the corrected set ->
+             texture sliding on it (a gp model per stereo camera) -> predict -> eval ->
+             triangulate, fused with the corrected mesh
           -> novel views (two-camera plot, four-camera map) -> stereo preview
           -> export (the reconstruction's pose as a glTF scene with its viewer)
           -> new frames, no ground truth: the test frames as OBJ + pose vectors, imported without
-             gt, predicted by the models of left and right, one frame triangulated and previewed
-             (`mvtex.apps.new_frames`)
+             gt, corrected by the geometry corrector, predicted by the models of left and right,
+             one frame triangulated and previewed (`mvtex.apps.new_frames`)
           -> report.html
 
 Numbers are over the dataset's test split (the poses no model was fitted to). Each step
@@ -18,17 +20,44 @@ reruns in seconds. OUT/demo.json records the options; a rerun with other options
 
 from __future__ import annotations
 
+import json
 import os
+import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+
+from mvtex import __version__
+from mvtex.apps.new_frames import demo_new_frames, summary_line
 from mvtex.apps.options import DemoOptions
-from mvtex.util.output import writer
+from mvtex.apps.report import demo_novel_views, demo_preview, demo_report
+from mvtex.data.dataset import default_split, load_dataset
+from mvtex.data.rig import builtin_rig_file, load_rig
+from mvtex.data.texcoords import open_texcoords
+from mvtex.evaluation.evaluate import evaluate
+from mvtex.recon.pose import triangulate_pose
+from mvtex.recon.triangulate import ReconOptions
+from mvtex.render.context import GLContext
+from mvtex.render.pose import render_pose
+from mvtex.sliding.dataset import slide_complete, slide_dataset
+from mvtex.sliding.options import SlideOptions
+from mvtex.synth.generate import SynthOptions, write_synth
+from mvtex.tsnn.cameras import train_cameras
+from mvtex.tsnn.correct import correct
+from mvtex.tsnn.corrector import train_geometry
+from mvtex.tsnn.options import TrainOptions
+from mvtex.tsnn.predict import predict
+from mvtex.util.checks import as_path, check_instance
+from mvtex.util.errors import InputError
+from mvtex.util.files import read_json, write_json
+from mvtex.util.output import MARKER, clear_output, writer
+from mvtex.views.scene import export_scene
 
 
 def _step(name: str, progress: bool) -> float:
     if progress:
-        import sys
 
         print(f"[demo] {name}", file=sys.stderr, flush=True)
     return time.perf_counter()
@@ -37,7 +66,6 @@ def _step(name: str, progress: bool) -> float:
 def _evaluated(out: Path, name: str, compute) -> dict:
     """The headline numbers of evaluation `name`: read from OUT/eval/<name>.json when an
     earlier run wrote them, else `compute()` (an `Evaluation`) summarised and written there."""
-    from mvtex.util.files import read_json, write_json
 
     path = out / "eval" / f"{name}.json"
     if path.is_file():
@@ -56,22 +84,9 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     with other options it is refused (InputError), or with `overwrite` emptied of what the
     demo wrote there and run again. Never a folder holding files mvtex did not write.
     """
-    from mvtex.util.checks import as_path, check_instance
 
     out = as_path(out, "out")
     check_instance(options, DemoOptions, "options")
-    from mvtex.data.dataset import load_dataset
-    from mvtex.data.rig import builtin_rig_file, load_rig
-    from mvtex.data.texcoords import open_texcoords
-    from mvtex.evaluation.evaluate import evaluate
-    from mvtex.recon.pose import triangulate_pose
-    from mvtex.recon.triangulate import ReconOptions
-    from mvtex.render.pose import render_pose
-    from mvtex.sliding.dataset import slide_complete, slide_dataset
-    from mvtex.sliding.options import SlideOptions
-    from mvtex.synth.generate import SynthOptions, write_synth
-    from mvtex.util.files import read_json, write_json
-    from mvtex.views.scene import export_scene
 
     out = Path(out)
     _check_resume(out, options, overwrite)
@@ -125,32 +140,7 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     timings["triangulate"] = time.perf_counter() - t
 
     if options.tsnn:
-        from mvtex.tsnn.predict import predict
-        from mvtex.tsnn.train import TrainOptions, train
-
-        t = _step("fitting a gp model of camera left (Gaussian processes of the pose) to the training split",
-                  progress)
-        model = out / "gp_left"
-        train_opts = TrainOptions(seed=options.seed)  # the per-camera default: gp
-        if not _model_current(model, dataset):
-            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), model, camera="left",
-                  options=train_opts, progress=progress)
-        timings["train"] = time.perf_counter() - t
-        t = _step("predicting texcoords for the test split with the gp model and evaluating", progress)
-        pred = out / "gp_pred"
-        if not (pred / "texcoords.json").is_file():
-            predict(dataset, [model], pred, poses=test, rig=stereo.select(["left"]), progress=progress)
-        heat = out / "heatmaps" / "gp_left"
-
-        def evaluate_model():
-            return evaluate(dataset, stereo.select(["left"]), open_texcoords(pred, dataset.num_vertices),
-                            progress=progress, heatmaps=None if heat.is_dir() else heat)
-
-        summary["tsnn"] = {**_evaluated(out, "gp_left", evaluate_model), "arch": "gp",
-                           "train_poses": len(dataset.split["train"])}
-        timings["tsnn_predict_eval"] = time.perf_counter() - t
-
-    from mvtex.apps.report import demo_novel_views, demo_preview
+        summary["tsnn"], summary["learned"] = _learned(dataset, stereo, out, options, timings, progress)
 
     t = _step("novel views: two-camera path (stereo) and four-camera map (square4)", progress)
     summary["views"] = demo_novel_views(dataset, stereo, square, out, progress=progress)
@@ -166,21 +156,15 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     timings["export"] = time.perf_counter() - t
 
     if options.tsnn:
-        from mvtex.apps.new_frames import demo_new_frames
-        from mvtex.tsnn.train import TrainOptions, train
 
-        t = _step("new frames, no ground truth: import without gt, predict, triangulate, preview", progress)
-        if not (out / "gp_right" / "config.json").exists():  # the second camera a triangulation needs
-            train(dataset, open_texcoords(out / "ts_stereo", dataset.num_vertices), out / "gp_right",
-                  camera="right", options=TrainOptions(seed=options.seed), progress=progress)
-        summary["new_frames"] = demo_new_frames(dataset, out, [out / "gp_left", out / "gp_right"],
-                                                progress=progress)
+        t = _step("new frames, no ground truth: import without gt, correct, predict, triangulate, preview", progress)
+        summary["new_frames"] = demo_new_frames(dataset, out, [out / "tsnn" / c for c in stereo.names],
+                                                geometry=out / "geometry", progress=progress)
         timings["new_frames"] = time.perf_counter() - t
 
     summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     summary["pictures"] = sorted(str(p.relative_to(out)) for p in out.rglob("*.png")
                                  if "heatmaps" in p.parts or p.parent.name in ("render", "reconstruction"))
-    from mvtex.apps.report import demo_report
 
     t = _step("writing report.html", progress)
     summary["report"] = str(demo_report(out, summary, dataset))
@@ -190,15 +174,64 @@ def run_demo(out: str | os.PathLike, options: DemoOptions = DemoOptions(), progr
     return summary
 
 
+def _learned(dataset, stereo, out: Path, options: DemoOptions, timings: dict, progress: bool) -> tuple[dict, dict]:
+    """The learned stage: inferred -> corrected -> + texture sliding -> triangulated, on the
+    test poses. Returns the per-camera models' evaluation (`_short`) and each step's numbers."""
+    test = [int(k) for k in dataset.split["test"]]
+    saved = out / "eval" / "learned.json"  # the stage's numbers, once it is done
+    if saved.is_file():
+        record = read_json(saved)
+        return record["tsnn"], record["learned"]
+    t = _step("the geometry corrector (pose -> gt - inferred) and the corrected set", progress)
+    if not (out / "geometry" / "config.json").exists():
+        train_geometry(dataset, out / "geometry", progress=progress)
+    if not (out / "corrected" / "dataset.json").exists():
+        correct(dataset, out / "geometry", out / "corrected", progress=progress)
+    corrected = load_dataset(out / "corrected")
+    timings["corrector"] = time.perf_counter() - t
+    t = _step("texture sliding on the corrected set (stereo) and a gp model per camera", progress)
+    if not (out / "corrected_ts_stereo" / "texcoords.json").exists():  # the models' targets (train needs val too)
+        slide_dataset(corrected, stereo, out / "corrected_ts_stereo",
+                      poses=sorted(corrected.split["train"] + corrected.split["val"]),
+                      options=SlideOptions(subdiv=1), progress=progress)
+    tc = open_texcoords(out / "corrected_ts_stereo", corrected.num_vertices)
+    train_cameras(corrected, tc, list(stereo.names), out / "tsnn", TrainOptions(seed=options.seed), progress=progress)
+    timings["train"] = time.perf_counter() - t
+    t = _step("predicting texcoords for the test poses, evaluating, triangulating", progress)
+    pred = out / "tsnn_pred"
+    if not (pred / "texcoords.json").exists():
+        predict(corrected, [out / "tsnn" / c for c in stereo.names], pred, poses=test, progress=progress)
+    tc_pred = open_texcoords(pred, corrected.num_vertices)
+    with GLContext() as ctx:
+        result = evaluate(corrected, stereo, tc_pred, progress=progress, ctx=ctx)
+        if not (out / "heatmaps" / "tsnn").exists():
+            evaluate(corrected, stereo, tc_pred, poses=test[:1], heatmaps=out / "heatmaps" / "tsnn", progress=False,
+                     ctx=ctx)
+        reports = [triangulate_pose(corrected, stereo, tc_pred, k, None, ReconOptions(), progress=False, ctx=ctx)
+                   for k in test]
+
+    def rmse(a, b) -> float:
+        return float(np.sqrt(np.mean(np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=1))))
+
+    m = result.material_rmse_m
+    learned = {"test_poses": len(test), "train_poses": len(dataset.split["train"]), "images": result.num_images,
+               "material_mm": {"inferred": round(result.original_inferred["material_rmse_m"].mean * 1e3, 3),
+                               "corrected": round(m.inferred.mean * 1e3, 3),
+                               "texture_sliding": round(m.texcoords.mean * 1e3, 3)},
+               "rmse_mm": {"inferred": round(1e3 * float(np.mean([rmse(corrected.original_inferred[k], corrected.gt[k])
+                                                                  for k in test])), 3),
+                           "corrected": round(1e3 * float(np.mean([r.rmse_m.inferred for r in reports])), 3),
+                           "triangulated": round(1e3 * float(np.mean([r.rmse_m.reconstructed for r in reports])), 3)}}
+    timings["tsnn_predict_eval"] = time.perf_counter() - t
+    short = _short(result)
+    short["train_poses"] = len(dataset.split["train"])
+    write_json(saved, {"tsnn": short, "learned": learned})
+    return short, learned
+
+
 def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
     """Resume only a demo of the same options, as demo.json records them and as what it
     wrote bears them out (its dataset's poses and split); record them for a new one."""
-    from dataclasses import asdict
-
-    from mvtex import __version__
-    from mvtex.util.errors import InputError
-    from mvtex.util.files import read_json, write_json
-    from mvtex.util.output import MARKER, clear_output
 
     record = {"options": asdict(options), "mvtex": __version__}
     started = any(p.name != MARKER for p in out.iterdir())
@@ -224,8 +257,6 @@ def _check_resume(out: Path, options: DemoOptions, overwrite: bool) -> None:
 def _content_differs(out: Path, options: DemoOptions) -> str | None:
     """What in a demo folder contradicts `options` (demo.json edited, or the dataset replaced):
     its dataset's pose count and its split (seeded by `options.seed`); None when nothing does."""
-    from mvtex.data.dataset import default_split, load_dataset
-    from mvtex.util.errors import InputError
 
     data = out / "shirt"
     if not (data / "dataset.json").exists():
@@ -243,7 +274,6 @@ def _content_differs(out: Path, options: DemoOptions) -> str | None:
 
 def _model_current(model: Path, dataset) -> bool:
     """Whether the demo's model at `model` was trained on this dataset's training poses."""
-    import json
 
     try:
         meta = json.loads((model / "config.json").read_text())
@@ -303,11 +333,22 @@ def _text(summary: dict) -> str:
                  f"on the {rec['num_triangulated']} triangulated vertices, "
                  f"{rec['rmse_m']['inferred']*1e3:.2f} -> {rec['rmse_m']['reconstructed']*1e3:.2f} mm "
                  f"on all {rec['num_vertices']}")
-    if "tsnn" in summary:
-        r = summary["tsnn"]
-        lines.append(f"gp model of camera left, no ground truth at run time (test split, {r['num_images']} images; "
-                     f"fitted to the {r['train_poses']} training poses):{_pair(r)}")
-        lines.append("  a model's accuracy grows with its training poses (docs/tsnn.md)")
+    if "learned" in summary:
+        r = summary["learned"]
+        mat, rms = r["material_mm"], r["rmse_mm"]
+
+        def step(name: str, key: str, material: bool = True) -> str:
+            text = f"material error {mat[key]:.2f} mm (x{mat['inferred'] / mat[key]:.2f})" if material else ""
+            if key in rms:
+                text += ("; " if text else "") + f"RMSE to gt {rms[key]:.2f} mm (x{rms['inferred'] / rms[key]:.2f})"
+            return f"\n  {name}: {text}"
+
+        lines.append(f"learned path, no ground truth at run time ({r['test_poses']} test poses, {r['images']} stereo "
+                     f"images; trained on {r['train_poses']} poses; ratios to the inferred mesh):"
+                     + step("inferred", "inferred") + step("-> corrected (the geometry corrector)", "corrected")
+                     + step("-> + texture sliding (a gp model per camera on the corrected set)", "texture_sliding")
+                     + step("-> triangulated (stereo, fused with the corrected mesh)", "triangulated", False))
+        lines.append("  the models' accuracy grows with their training poses (docs/tsnn.md)")
     if "views" in summary:
         v = summary["views"]["two_camera"]["midpoint_same_chart_e3"]
         names = {"baseline": "inferred (T_G)",
@@ -323,7 +364,6 @@ def _text(summary: dict) -> str:
         lines.append(f"scene of test pose {summary['scene']['pose']} to look around in: "
                      f"{Path(summary['out']) / 'scene' / 'viewer.html'}")
     if "new_frames" in summary:
-        from mvtex.apps.new_frames import summary_line
 
         lines.append(summary_line(summary["new_frames"]))
     if "report" in summary:

@@ -5,11 +5,12 @@ frame and the pose vectors in a text file, with no ground truth; then
 
     mvtex import --out dataset --inferred 'meshes/inferred_*.obj' --body 'meshes/body_*.obj' \\
         --pose-vectors meshes/poses.txt                      (no --gt: an inference set)
-    mvtex predict dataset --model gp_left --model gp_right --out pred
-    mvtex triangulate dataset --texcoords pred --pose 0 --out reconstruction
-    mvtex preview dataset --texcoords pred --pose 0 --out preview
+    mvtex correct dataset --model geometry --out corrected   (the geometry corrector)
+    mvtex predict corrected --model tsnn/left --model tsnn/right --out pred
+    mvtex triangulate corrected --texcoords pred --pose 0 --out reconstruction
+    mvtex preview corrected --texcoords pred --pose 0 --out preview
 
-into OUT/new_frames/. `predict` records the models' cameras (pred/rig.yaml), so the two
+into OUT/new_frames/ (without a geometry model, the models run on the imported set itself). `predict` records the models' cameras (pred/rig.yaml), so the two
 commands after it need no rig. Each step is skipped when its output is there (the demo
 resumes).
 """
@@ -27,6 +28,7 @@ from mvtex.data.importer import import_sequences
 from mvtex.data.rig import load_rig
 from mvtex.data.texcoords import open_texcoords, recorded_rig
 from mvtex.recon.pose import triangulate_pose
+from mvtex.tsnn.correct import correct
 from mvtex.tsnn.predict import predict
 from mvtex.util.files import read_json, read_row
 from mvtex.util.output import atomic_path
@@ -65,9 +67,10 @@ def write_frames(dataset, poses: Sequence[int], folder: str | os.PathLike) -> Pa
 
 
 def demo_new_frames(dataset, out: str | os.PathLike, models: Sequence[str | os.PathLike], *,
-                    progress: bool = True) -> dict:
+                    geometry: str | os.PathLike | None = None, progress: bool = True) -> dict:
     """Run the stage (module docstring) on the test frames of `dataset` with `models`
-    (one-camera models of two or more cameras); returns its summary."""
+    (one-camera models of two or more cameras, trained on the set `geometry` corrected when
+    given); returns its summary."""
     root = Path(out) / FOLDER
     test = list(dataset.split["test"])
     meshes = root / "meshes"
@@ -78,6 +81,10 @@ def demo_new_frames(dataset, out: str | os.PathLike, models: Sequence[str | os.P
         import_sequences(root / "dataset", None, str(meshes / "inferred_*.obj"), poses_file=meshes / "poses.txt",
                          body_glob=body, progress=progress)
     frames = load_dataset(root / "dataset")
+    if geometry is not None:
+        if not (root / "corrected" / "dataset.json").is_file():
+            correct(frames, geometry, root / "corrected", progress=progress)
+        frames = load_dataset(root / "corrected")
     pred = root / "pred"
     if not (pred / "texcoords.json").is_file():
         predict(frames, list(models), pred, poses=frames.select("all"), progress=progress)
@@ -94,6 +101,7 @@ def demo_new_frames(dataset, out: str | os.PathLike, models: Sequence[str | os.P
         preview = stereo_preview(frames, rig, tc, frame, root / "preview", progress=progress).to_json()
     return {"folder": FOLDER, "frames": frames.num_poses, "from_test_poses": test, "ground_truth": frames.has_gt,
             "cameras": tc.cameras, "models": [str(m) for m in models], "frame": frame,
+            "geometry": None if geometry is None else str(geometry),
             "reconstruction": {k: rec[k] for k in ("num_vertices", "num_triangulated", "triangulated_share",
                                                    "mean_reprojection_error_px", "mean_trust", "displacement_m",
                                                    "rmse_m")},
@@ -106,10 +114,11 @@ def summary_line(stage: dict) -> str:
     reproj = rec["mean_reprojection_error_px"]
     trust = rec["mean_trust"]
     return (f"new frames, no ground truth ({stage['frames']} test frames as OBJ + pose vectors, imported without "
-            f"--gt, predicted by the models of {' and '.join(stage['cameras'])}):\n"
+            f"--gt, {'corrected by the geometry corrector, ' if stage.get('geometry') else ''}predicted by the models "
+            f"of {' and '.join(stage['cameras'])}):\n"
             f"  frame {stage['frame']}: triangulated {100 * rec['triangulated_share']:.1f} % of "
             f"{rec['num_vertices']} vertices, mean reprojection error "
             f"{'n/a' if reproj is None else f'{reproj:.2f} px'}, mean trust {'n/a' if trust is None else f'{trust:.2f}'}, "
-            f"moved from the inferred mesh {rec['displacement_m']['mean'] * 1e3:.2f} mm on average "
+            f"moved from the {'corrected' if stage.get('geometry') else 'inferred'} mesh {rec['displacement_m']['mean'] * 1e3:.2f} mm on average "
             f"({rec['displacement_m']['max'] * 1e3:.2f} mm at most); {FOLDER}/reconstruction (PLY, COLMAP), "
             f"{FOLDER}/preview (stereo pair)")

@@ -14,13 +14,22 @@ import base64
 import html
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from mvtex.data.texcoords import open_texcoords
 from mvtex.formats.glb import export_glb
+from mvtex.render.pictures import NOT_TRIANGULATED_RGB, TRIANGULATED_RGB, ColorScale, colorbar, comparison_scales
+from mvtex.render.shading import BODY_RGB
+from mvtex.util.files import read_json, write_json
+from mvtex.util.output import atomic_path
+from mvtex.views.cameras import between_weights, grid_weights, view_names
+from mvtex.views.measure import measure_views, plot_grid, plot_path
+from mvtex.views.preview import PreviewOptions, stereo_preview
 from mvtex.views.scene import SCRIPTS, glb_element, script_path
 
 VIEWER_FILES = tuple(SCRIPTS) + (("vendor", "three.LICENSE"),)
@@ -31,7 +40,6 @@ MESH_ORDER = (("gt", "gt"), ("inferred", "inferred"), ("reconstruction", "recons
 def copy_viewer(out: str | os.PathLike) -> Path:
     """Copy the viewer's scripts (three.js and its licence, mvtex's viewer) to OUT/viewer/;
     returns that folder."""
-    from mvtex.util.output import atomic_path
 
     folder = Path(out) / "viewer"
     for where, name in VIEWER_FILES:
@@ -59,7 +67,7 @@ def figure(src: str, caption: str, width: str = "100%") -> str:
 
 def png_data_uri(image: np.ndarray) -> str:
     """An RGB uint8 image as a data URI (PNG), for pictures that exist only in the page."""
-    import cv2
+    import cv2  # noqa: PLC0415 (loaded on use)
 
     ok, data = cv2.imencode(".png", np.ascontiguousarray(np.asarray(image, np.uint8)[..., ::-1]))
     return "data:image/png;base64," + base64.b64encode(data.tobytes()).decode("ascii")
@@ -125,7 +133,6 @@ def page(title: str, sections: Sequence[tuple[str, str]], viewer: bool) -> str:
 
 
 def write_html(path: str | os.PathLike, text: str) -> Path:
-    from mvtex.util.output import atomic_path
 
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -135,7 +142,6 @@ def write_html(path: str | os.PathLike, text: str) -> Path:
 
 def missing_images(html_text: str, folder: str | os.PathLike) -> list[str]:
     """The `<img src>` of a page that are not files under `folder` (data URIs count as present)."""
-    import re
 
     folder = Path(folder)
     out = []
@@ -151,10 +157,6 @@ def demo_novel_views(dataset, stereo, square, out: str | os.PathLike, *, path_po
     """The two-camera plot (stereo, 5 views, first `path_poses` test poses) and the
     four-camera map (square4, 3×3 views, first `grid_poses` test poses) into OUT/views/.
     Skipped when OUT/views/views.json exists (the demo resumes)."""
-    from mvtex.data.texcoords import open_texcoords
-    from mvtex.util.files import read_json, write_json
-    from mvtex.views.cameras import between_weights, grid_weights, view_names
-    from mvtex.views.measure import measure_views, plot_grid, plot_path
 
     folder = Path(out) / "views"
     if (folder / "views.json").is_file():
@@ -186,9 +188,6 @@ def demo_novel_views(dataset, stereo, square, out: str | os.PathLike, *, path_po
 def demo_preview(dataset, stereo, out: str | os.PathLike, pose: int, *, progress: bool = True) -> dict:
     """`mvtex preview` of one pose from the stereo TS set into OUT/preview/ (with path.gif);
     skipped when OUT/preview/preview.json exists."""
-    from mvtex.data.texcoords import open_texcoords
-    from mvtex.util.files import read_json
-    from mvtex.views.preview import PreviewOptions, stereo_preview
 
     folder = Path(out) / "preview"
     if (folder / "preview.json").is_file():
@@ -258,7 +257,6 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
         ply = out / "reconstruction" / "reconstruction.ply"
         if ply.is_file():
             glb, frame, scale = _reconstruction_glb(out, ply, dataset, int(rec["pose"]))
-            from mvtex.render.pictures import colorbar
 
             content += model_view(glb, "left to right as in comparison.png: gt (green: triangulated vertices, grey: "
                                        "not), inferred, reconstruction; coloured by the distance to gt on the scale of "
@@ -283,14 +281,13 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
 
     if "tsnn" in summary:
         r = summary["tsnn"]
-        sections.append(("A gp model of camera left (no ground truth at run time)",
-                         f"<p>Gaussian processes of the pose on the principal components of the displacements, "
-                         f"fitted to the {r.get('train_poses')} training poses; evaluated on the test split.</p>"
-                         + ts_tables([("gp model", r)]) +
-                         "".join(figure(p, f"heatmaps of test pose {Path(p).stem.split('_')[1].lstrip('0') or '0'}, "
-                                           "camera left: the inferred mesh (T_G) | the gp model's prediction, on the "
-                                           "scales of the heatmaps above", width="60%")
-                                 for p in _pictures(out, "heatmaps/gp_left", 1))))
+        sections.append(("The learned path: the geometry corrector, texture sliding on top (stereo, test poses)",
+                         _learned_table(summary.get("learned")) +
+                         f"<p>a gp model per camera, trained on {r.get('train_poses')} poses of the set the geometry "
+                         "corrector made; the baseline (inferred) is the corrected mesh.</p>" + ts_tables([("gp models", r)]) +
+                         "".join(figure(p, f"error heatmaps {Path(p).stem}: the corrected mesh (T_G) | the gp models' "
+                                           "prediction", width="60%")
+                                 for p in _pictures(out, "heatmaps/tsnn", 1))))
 
     views = summary.get("views")
     if views:
@@ -340,6 +337,31 @@ def demo_report(out: str | os.PathLike, summary: dict, dataset) -> Path:
     return write_html(out / "report.html", text)
 
 
+def _learned_table(learned: dict | None) -> str:
+    """The demo's learned path step by step (`mvtex.apps.demo`): material error and RMSE to
+    gt of each step, with its ratio to the inferred mesh."""
+    if not learned:
+        return ""
+    mat, rms = learned["material_mm"], learned["rmse_mm"]
+    steps = (("inferred", "inferred"), ("-> corrected (the geometry corrector)", "corrected"),
+             ("-> + texture sliding (a gp model per camera)", "texture_sliding"),
+             ("-> triangulated (fused with the corrected mesh)", "triangulated"))
+
+    def cell(values: dict, key: str) -> str:
+        return "" if key not in values else f"{values[key]:.2f} (x{values['inferred'] / values[key]:.2f})"
+
+    rows = [[name, cell(mat, key), cell(rms, key)] for name, key in steps]
+    render = ("the corrected mesh with its own texture coordinates" if mat["corrected"] <= mat["texture_sliding"]
+              else "the gp models' texture coordinates on the corrected mesh")
+    shape = ("the reconstruction fused with the corrected mesh" if rms["triangulated"] < rms["corrected"]
+             else "the corrected mesh")
+    return (f"<p>{learned['test_poses']} test poses, {learned['images']} stereo images, trained on "
+            f"{learned['train_poses']} poses; no ground truth at run time. Ratios are to the inferred mesh.</p>"
+            + table(["step", "material error mm", "RMSE to gt mm (all vertices)"], rows)
+            + f"<p>Here the best for rendering is {render}, and for the 3-D shape {shape} (which path serves "
+            "what on larger sets: docs/tsnn.md).</p>")
+
+
 def _new_frames_section(stage: dict) -> tuple[str, str]:
     """The section of the demo's new-frames stage (`mvtex.apps.new_frames`): what it can say
     without gt, and its preview."""
@@ -347,8 +369,9 @@ def _new_frames_section(stage: dict) -> tuple[str, str]:
     rows = [[stage["frame"], 100 * rec["triangulated_share"], rec["mean_reprojection_error_px"], rec["mean_trust"],
              rec["displacement_m"]["mean"] * 1e3, rec["displacement_m"]["max"] * 1e3]]
     content = (f"<p>{stage['frames']} test frames written as OBJ (inferred cloth, body) and pose vectors, imported "
-               "without ground truth, predicted by the per-camera models of "
-               f"{', '.join(stage['cameras'])}; frame {stage['frame']} triangulated and previewed. What can be said "
+               "without ground truth, "
+               + ("corrected by the geometry corrector, " if stage.get("geometry") else "")
+               + f"predicted by the per-camera models of {', '.join(stage['cameras'])}; frame {stage['frame']} triangulated and previewed. What can be said "
                "without gt:</p>"
                + table(["frame", "triangulated %", "reprojection px", "mean trust", "moved mean mm", "moved max mm"],
                        rows)
@@ -363,10 +386,7 @@ def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):
     reconstruction's comparison.png (gt: triangulated vertices green; the others: distance
     to gt on the comparison's error scale, read from reconstruction/comparison.json). Returns
     (path, frame for `model_view`, the error `ColorScale`)."""
-    import trimesh
-
-    from mvtex.render.pictures import NOT_TRIANGULATED_RGB, TRIANGULATED_RGB, ColorScale, comparison_scales
-    from mvtex.util.files import read_json
+    import trimesh  # noqa: PLC0415 (loaded on use)
 
     loaded = trimesh.load(ply, process=False)
     rec = np.asarray(loaded.vertices, np.float64)
@@ -394,7 +414,6 @@ def _reconstruction_glb(out: Path, ply: Path, dataset, pose: int):
     meshes = [(name, positions[name], dataset.faces, colours[name]) for name, _ in MESH_ORDER]
     body = None
     if dataset.body is not None:
-        from mvtex.render.shading import BODY_RGB
 
         body = (dataset.body.pose(pose), dataset.body.faces, BODY_RGB)
     path = export_glb(out / "reconstruction.glb", meshes, body=body)

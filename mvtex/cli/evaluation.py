@@ -37,6 +37,12 @@ def summary_text(result) -> str:
                  + ("" if m is not None else f" ({result.num_images} images)"))
     lines.append(f"uv error, same chart (e-3): {c.inferred.mean*1e3:.3f} -> {c.texcoords.mean*1e3:.3f}, "
                  f"ratio {result.ratio_same_chart:.2f}")
+    o = result.original_inferred
+    if o is not None:  # a corrected set: "inferred" above is the corrected mesh
+        material = "" if o["material_rmse_m"] is None else (
+            f"material error {o['material_rmse_m'].mean*1e3:.2f} mm (ratio {result.ratio_material_original:.2f}), ")
+        lines.append(f"corrected set, the mesh before the correction: {material}uv error (e-3) "
+                     f"{o['sqrt_mse'].mean*1e3:.2f} (ratio {result.ratio_original:.2f})")
     return "\n".join(lines)
 
 

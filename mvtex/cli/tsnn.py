@@ -1,18 +1,26 @@
-"""`mvtex train` and `mvtex predict`: texture sliding models per camera or for every camera."""
+"""`mvtex train`, `mvtex predict` and `mvtex correct`: texture sliding models per camera or for every
+camera, and the geometry corrector."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from mvtex.cli.common import add_common, add_workers, cameras, emit, output, rig_of
+from mvtex.cli.common import UsageError, add_common, add_workers, cameras, emit, output, rig_of
 from mvtex.cli.options import add_options, options_from
-from mvtex.tsnn.options import TrainOptions
+from mvtex.tsnn.options import CorrectOptions, GeometryOptions, TrainOptions
+from mvtex.util.options import option_fields
+
+TRAIN_KNOBS = tuple(f.name for f, _, _ in option_fields(TrainOptions))
 
 
 def register(sub) -> None:
     p = sub.add_parser("train", help="train a texture sliding model (per camera, or one for every camera)")
     p.add_argument("dataset", type=Path, help="dataset directory")
-    p.add_argument("--texcoords", metavar="TC", type=Path, required=True, help="texcoord set with the training targets")
+    p.add_argument("--texcoords", metavar="TC", type=Path, help="texcoord set with the training targets (required "
+                   "without --geometry)")
+    p.add_argument("--geometry", action="store_true",
+                   help="train the geometry corrector instead: the pose -> gt - inferred per vertex (Gaussian "
+                   "processes on its principal components, --components), for mvtex correct")
     p.add_argument("--cameras", metavar="A,B", help="A: the model of camera A (gp by default); A,B,...: one model per camera, "
                    "OUT/<camera>, trained side by side with --workers or --scheduler; default: one network for "
                    "every camera of --texcoords, conditioned on the camera (unet)")
@@ -21,6 +29,7 @@ def register(sub) -> None:
                    "the texcoord set's record of them)")
     p.add_argument("--out", type=Path, required=True, help="model directory to write")
     add_options(p, TrainOptions)
+    add_options(p, GeometryOptions, skip=TRAIN_KNOBS)
     add_workers(p, "1; they train several --cameras side by side")
     add_common(p)
     p.set_defaults(run=cmd_train)
@@ -36,9 +45,25 @@ def register(sub) -> None:
     add_common(p)
     p.set_defaults(run=cmd_predict)
 
+    p = sub.add_parser("correct", help="geometry corrector -> a corrected dataset (its inferred mesh corrected)")
+    p.add_argument("dataset", type=Path, help="dataset directory")
+    p.add_argument("--model", type=Path, required=True, help="geometry model directory (mvtex train --geometry)")
+    p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    p.add_argument("--poses", metavar="SPEC", help="pose SPEC: all, train, val, test, a:b or 3,5,7 (default: all)")
+    add_options(p, CorrectOptions)
+    add_common(p)
+    p.set_defaults(run=cmd_correct)
+
 
 def cmd_train(args):
     from mvtex.data.dataset import load_dataset
+
+    if args.geometry:
+        return cmd_train_geometry(args)
+    if args.texcoords is None:
+        raise UsageError("mvtex train: error: the following arguments are required: --texcoords (or --geometry)")
+    if hasattr(args, "iterations"):
+        raise UsageError("mvtex train: error: --iterations applies to --geometry only")
     from mvtex.data.texcoords import open_texcoords
     from mvtex.tsnn.cameras import train_models
 
@@ -76,3 +101,39 @@ def cmd_predict(args):
     emit(args, {"out": str(out), "poses": len(poses), "models": [str(m) for m in args.model], "cameras": cameras,
                 "rig": None if rig_file is None else str(rig_file), "ground_truth": dataset.has_gt},
          f"wrote {out}: {len(poses)} poses x {len(cameras)} cameras ({', '.join(cameras)}), {where}")
+
+
+def cmd_train_geometry(args):
+    from mvtex.data.dataset import load_dataset
+    from mvtex.tsnn.corrector import train_geometry
+
+    geometry = {f.name for f, _, _ in option_fields(GeometryOptions)}
+    unused = [f"--{name}" for name in ("texcoords", "cameras", "rig", "workers", "scheduler")
+              if getattr(args, name, None) is not None]
+    unused += [f"--{name.replace('_', '-')}" for name in TRAIN_KNOBS if name not in geometry and hasattr(args, name)]
+    if unused:
+        raise UsageError(f"mvtex train: error: {unused[0]} does not apply to --geometry")
+    options = options_from(args, GeometryOptions)
+    dataset = load_dataset(args.dataset)
+    with output(args, "train"):
+        result = train_geometry(dataset, args.out, options=options, progress=not args.quiet)
+    v = result.validation
+    emit(args, result, f"wrote {args.out} (geometry corrector, {result.components} components, "
+         f"{result.num_poses['train']} training poses); validation poses: RMSE {v['rmse_m']['inferred'] * 1e3:.2f} -> "
+         f"{v['rmse_m']['corrected'] * 1e3:.2f} mm, ratio median {v['ratio']['median']:.2f} / worst "
+         f"{v['ratio']['worst']:.2f}, sigma calibrated x{result.sigma_scale:.2f}")
+
+
+def cmd_correct(args):
+    from mvtex.data.dataset import load_dataset
+    from mvtex.tsnn.correct import correct
+
+    options = options_from(args, CorrectOptions)
+    dataset = load_dataset(args.dataset)
+    poses = None if args.poses is None else dataset.select(args.poses)
+    with output(args, "correct"):
+        result = correct(dataset, args.model, args.out, poses=poses, options=options, progress=not args.quiet)
+    rmse = "" if result.rmse_m is None else (f"; RMSE to gt {result.rmse_m['original'] * 1e3:.2f} -> "
+                                             f"{result.rmse_m['corrected'] * 1e3:.2f} mm (mean over poses)")
+    emit(args, result, f"wrote {result.out} ({result.poses} poses corrected, {result.out_of_sample_poses} of them "
+         f"training poses of the model, out of sample; mean sigma {result.mean_sigma_m * 1e3:.2f} mm){rmse}")

@@ -11,9 +11,15 @@ pose selection specs, and import from OBJ/PLY sequences.
     body.npz       optional, with body.npy: faces int32 (mb,3) of the wearer's body (or any
                    opaque thing that is not cloth), counter-clockwise seen from outside
     body.npy       optional, with body.npz: float32 (K,nb,3), row k = the body in pose k
+    original_inferred.npy      a corrected set (`mvtex correct`): float32 (K,n,3), the
+                               predictor's mesh before the correction (inferred.npy is the
+                               corrected one)
+    geometry_uncertainty.npy   a corrected set: float32 (K,n), the corrector's predictive
+                               standard deviation per vertex, in metres
 
 dataset.json may record the body's size as "body": {"num_vertices": nb, "num_faces": mb};
-readers do not require it.
+readers do not require it. A corrected set's dataset.json records the correction under
+"correction" (its model, its source dataset and the source's pose of each row).
 
 An *inference set* is a dataset without ground truth: the frames a trained model serves at
 run time (the predictor's mesh, the pose, the body). `Dataset.has_gt` says which;
@@ -24,6 +30,7 @@ one.
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,8 +39,10 @@ from typing import Sequence
 import numpy as np
 
 from mvtex.data.camera import MAX_COORDINATE_M
+from mvtex.util.checks import as_array, as_indices, as_path
 from mvtex.util.errors import InputError, NoGroundTruthError, OptionError
 from mvtex.util.files import load_npy, load_npz, read_header, read_json, read_row, read_rows
+from mvtex.util.fingerprint import fingerprint
 from mvtex.util.output import atomic_path, writer
 
 FORMAT = "mvtex-dataset"
@@ -46,6 +55,10 @@ BODY_FILES = ("body.npz", "body.npy")
 
 
 GROUND_TRUTH_KEY = "ground_truth"  # dataset.json: false in an inference set; absent means true
+ORIGINAL_FILE = "original_inferred.npy"  # a corrected set: the mesh before the correction
+
+
+UNCERTAINTY_FILE = "geometry_uncertainty.npy"  # a corrected set: the corrector's σ per vertex (m)
 
 
 @dataclass(frozen=True)
@@ -82,6 +95,11 @@ class Dataset:
         body: the wearer's body (`Body`), or None when the dataset has no body files.
         ground_truth: (K,n,3) float32 gt positions (memory-mapped), or None in an inference
             set; read it as `gt`, which says what is missing when there is none.
+        original_inferred: (K,n,3) float32 (memory-mapped), a corrected set's mesh before
+            the correction (`inferred` is the corrected mesh); None for any other dataset.
+        geometry_uncertainty: (K,n) float32 (memory-mapped), a corrected set's predictive
+            standard deviation of each corrected vertex (m); None for any other dataset.
+        correction: dataset.json's "correction" record of a corrected set, else None.
     """
 
     path: Path
@@ -116,6 +134,15 @@ class Dataset:
         if self.ground_truth is None:
             raise NoGroundTruthError(self.path, f"an inference set, no ground truth (gt.npy): {what} needs the "
                                      "ground-truth cloth")
+    original_inferred: np.ndarray | None = None
+    geometry_uncertainty: np.ndarray | None = None
+    correction: dict | None = None
+
+    @property
+    def corrected(self) -> bool:
+        """True for a corrected set (`mvtex correct`): it keeps the mesh before the
+        correction (`original_inferred`) and the corrector's σ (`geometry_uncertainty`)."""
+        return self.original_inferred is not None
 
     @property
     def num_poses(self) -> int:
@@ -132,7 +159,6 @@ class Dataset:
     def check_poses(self, poses) -> list[int]:
         """Pose indices as ints; InputError (naming the dataset) when none, one out of range
         or one given twice; OptionError when `poses` is not a list of integers."""
-        from mvtex.util.checks import as_indices
 
         poses = as_indices(poses, "poses")
         if not poses:
@@ -188,7 +214,6 @@ def content_fingerprint(dataset: Dataset) -> str:
     one), inferred and pose arrays, and the body's when it has one. Texcoord sets and models
     record it, so that they are never used with another dataset's content under the same
     path."""
-    from mvtex.util.fingerprint import fingerprint
 
     # Computed once per loaded dataset: a command that checks a dataset and then uses it
     # reads its arrays once.
@@ -304,7 +329,6 @@ def _check_finite(array: np.ndarray, source: Path) -> None:
 
 def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
     """Open a dataset directory (arrays memory-mapped); problems raise InputError."""
-    from mvtex.util.checks import as_path
 
     path = as_path(path, "path")
     meta = read_header(path, "dataset.json", FORMAT, VERSION, "an mvtex dataset")
@@ -345,9 +369,42 @@ def load_dataset(path: str | os.PathLike, validate: bool = True) -> Dataset:
                 raise InputError(path / "dataset.json", f"{key} is {meta[key]} but the arrays say {expected}")
     body = _load_body(path, num_poses, meta, validate)
     split = _load_split(path, num_poses)
+    original, sigma, correction = _load_correction(path, inferred.shape, meta, validate)
     return Dataset(path=path, name=str(meta.get("name", path.name)), faces=faces.astype(np.int32),
                    uv=uv.astype(np.float32), rest=None if rest is None else rest.astype(np.float32),
-                   ground_truth=gt, inferred=inferred, poses=poses, split=split, body=body)
+                   ground_truth=gt, inferred=inferred, poses=poses, split=split, body=body, original_inferred=original,
+                   geometry_uncertainty=sigma, correction=correction)
+
+
+def _load_correction(path: Path, shape: tuple[int, ...], meta: dict, validate: bool
+                     ) -> tuple[np.ndarray | None, np.ndarray | None, dict | None]:
+    """A corrected set's original_inferred.npy and geometry_uncertainty.npy (both or
+    neither) and its "correction" record; checked like gt (never loaded whole)."""
+    present = [(path / name).is_file() for name in (ORIGINAL_FILE, UNCERTAINTY_FILE)]
+    if not any(present):
+        return None, None, None
+    if not all(present):
+        have, missing = (ORIGINAL_FILE, UNCERTAINTY_FILE) if present[0] else (UNCERTAINTY_FILE, ORIGINAL_FILE)
+        raise InputError(path / missing, f"file not found ({have} is there: a corrected set needs both files)")
+    original = load_npy(path / ORIGINAL_FILE)
+    sigma = load_npy(path / UNCERTAINTY_FILE)
+    if original.dtype != np.float32 or original.shape != tuple(shape):
+        raise InputError(path / ORIGINAL_FILE, f"expected float32 of shape {tuple(shape)} (as inferred.npy), "
+                         f"got {original.dtype} {original.shape}")
+    if sigma.dtype != np.float32 or sigma.shape != tuple(shape[:2]):
+        raise InputError(path / UNCERTAINTY_FILE, f"expected float32 of shape {tuple(shape[:2])}, "
+                         f"got {sigma.dtype} {sigma.shape}")
+    correction = meta.get("correction")
+    if correction is not None and not isinstance(correction, dict):
+        raise InputError(path / "dataset.json", f"correction must be an object, got {correction!r:.60}")
+    if validate:
+        _check_finite(original, path / ORIGINAL_FILE)
+        for start in range(0, sigma.shape[0], 256):
+            block = read_rows(sigma, start, start + 256)
+            if not np.all(np.isfinite(block) & (block >= 0)):
+                raise InputError(path / UNCERTAINTY_FILE, "negative, NaN or infinite standard deviations "
+                                 f"(pose {start + int(np.argmax(~(np.isfinite(block) & (block >= 0)).all(1)))})")
+    return original, sigma, correction
 
 
 def validate_body_faces(faces: np.ndarray, num_vertices: int, source: str | os.PathLike | None) -> None:
@@ -468,9 +525,6 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
     Raises:
         OptionError: naming the argument of a wrong type, shape or value.
     """
-    import json
-
-    from mvtex.util.checks import as_array, as_path
 
     path = as_path(path, "path")
     if not isinstance(name, str):
@@ -510,7 +564,6 @@ def save_dataset(path: str | os.PathLike, *, faces: np.ndarray, uv: np.ndarray, 
     if split is not None:
         if not isinstance(split, dict) or not all(k in split for k in ("train", "val", "test")):
             raise OptionError("split", "must be a dict with lists 'train', 'val' and 'test'")
-        from mvtex.util.checks import as_indices
 
         split = {k: as_indices(split[k], f"split[{k!r}]") for k in ("train", "val", "test")}
         if any(not 0 <= i < num_poses for k in split for i in split[k]):

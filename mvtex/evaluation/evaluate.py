@@ -24,6 +24,10 @@ vertices, filled smoothly). `material_rmse_assigned_m` is the material error ove
 pixels of the set's triangles whose three corners are all assigned (`assigned.npy`), and
 `assigned_share` the share of the compared pixels that is; the baseline is measured over
 the same pixels. For a set assigned everywhere (a model's prediction) both errors are one.
+
+On a corrected set (`mvtex correct`: its inferred mesh is the geometry corrector's) the
+baseline is the corrected mesh with T_G, and `original_inferred` also reports the mesh
+before the correction with T_G (the set keeps it), so a ratio can be read against either.
 """
 
 from __future__ import annotations
@@ -33,20 +37,27 @@ import os
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import Any, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
-from mvtex.data.rig import Rig, check_outside_body, check_sees
-from mvtex.util.errors import OptionError
-from mvtex.util.files import read_row
-from mvtex.util.output import atomic_path, writer
-from mvtex.util.parallel import ThreadState, WorkerState, check_backend
-
-if TYPE_CHECKING:
-    from mvtex.render.context import GLContext
+from mvtex.data.dataset import as_dataset, load_dataset
+from mvtex.data.mesh import apply_extension, charts_through_parent, extension_matrix, subdivide, uv_charts
+from mvtex.data.rig import Rig, as_rig, check_outside_body, check_sees
+from mvtex.data.texcoords import TexcoordSet, open_texcoords
+from mvtex.evaluation.kernels import pixel_errors
 from mvtex.evaluation.material import MaterialMap
 from mvtex.evaluation.uv import CHART_BOUNDARY_COLOR
+from mvtex.render.context import GLContext
+from mvtex.render.pictures import BACKGROUND, ColorScale, caption, colorbar, heatmap, legend, side_by_side, stack
+from mvtex.render.raster import PairRaster, rasterize, rasterize_pair_attributes
+from mvtex.render.shading import BODY_RGB
+from mvtex.util.checks import as_indices, as_path
+from mvtex.util.errors import OptionError
+from mvtex.util.files import read_row, save_png
+from mvtex.util.output import atomic_path, writer
+from mvtex.util.parallel import ThreadState, WorkerState, check_backend, configure_threads, map_unordered
 
 
 @dataclass(frozen=True)
@@ -99,6 +110,9 @@ class Evaluation:
         assigned_share: of the compared pixels, the share on fully assigned triangles, per
             image.
         per_camera: camera name -> the same for its images (no `per_camera` of its own).
+        original_inferred: on a corrected set, the errors of the mesh before the correction
+            with T_G over the same images: {"sqrt_mse", "material_rmse_m" (None without a
+            rest shape)} as `Stats`; None on any other dataset.
     """
 
     num_images: int
@@ -109,6 +123,22 @@ class Evaluation:
     material_rmse_assigned_m: Comparison | None = None
     assigned_share: Stats | None = None
     per_camera: dict[str, "Evaluation"] = field(default_factory=dict)
+    original_inferred: dict[str, Stats | None] | None = None
+
+    @property
+    def ratio_original(self) -> float | None:
+        """On a corrected set: the original mesh's uv error over the texcoords' (else None)."""
+        if self.original_inferred is None:
+            return None
+        return Comparison(self.original_inferred["sqrt_mse"], self.sqrt_mse.texcoords).ratio
+
+    @property
+    def ratio_material_original(self) -> float | None:
+        """On a corrected set with a rest shape: the original mesh's material error over the
+        texcoords' (else None)."""
+        if self.original_inferred is None or self.original_inferred["material_rmse_m"] is None:
+            return None
+        return Comparison(self.original_inferred["material_rmse_m"], self.material_rmse_m.texcoords).ratio
 
     @property
     def ratio(self) -> float:
@@ -138,25 +168,36 @@ class Evaluation:
                "ratio_material_assigned": self.ratio_material_assigned,
                "assigned_share": None if self.assigned_share is None else asdict(self.assigned_share),
                "body_share": None if self.body_share is None else asdict(self.body_share)}
+        if self.original_inferred is not None:
+            m = self.original_inferred["material_rmse_m"]
+            out["original_inferred"] = {"sqrt_mse": asdict(self.original_inferred["sqrt_mse"]),
+                                        "material_rmse_m": None if m is None else asdict(m),
+                                        "ratio": self.ratio_original, "ratio_material": self.ratio_material_original}
         if self.per_camera:
             out["per_camera"] = {name: e.to_json() for name, e in self.per_camera.items()}
         return out
 
 
 def _summary(images: list[tuple], has_rest: bool, has_body: bool,
-             per_camera: dict[str, Evaluation] | None = None) -> Evaluation:
-    """Per-image values (`ImageErrors.values`; NaN where an image does not count) -> an
-    `Evaluation` over the images where both the baseline and the texcoords have an error."""
+             per_camera: dict[str, Evaluation] | None = None, has_original: bool = False) -> Evaluation:
+    """Per-image values (`ImageErrors.values`, then on a corrected set the original mesh's
+    uv and material errors; NaN where an image does not count) -> an `Evaluation` over the
+    images where both the baseline and the texcoords have an error."""
     ok = [v for v in images if np.isfinite(v[0]) and np.isfinite(v[1])]
 
     def compare(i):
         return Comparison(Stats.of([v[i] for v in ok]), Stats.of([v[i + 1] for v in ok]))
 
+    original = None
+    if has_original:
+        original = {"sqrt_mse": Stats.of([v[10] for v in ok]),
+                    "material_rmse_m": Stats.of([v[11] for v in ok]) if has_rest else None}
     return Evaluation(num_images=len(ok), sqrt_mse=compare(0), sqrt_mse_same_chart=compare(2),
                       material_rmse_m=compare(4) if has_rest else None,
                       body_share=Stats.of([v[6] for v in ok]) if has_body else None,
                       material_rmse_assigned_m=compare(7) if has_rest else None,
-                      assigned_share=Stats.of([v[9] for v in ok]), per_camera=per_camera or {})
+                      assigned_share=Stats.of([v[9] for v in ok]), per_camera=per_camera or {},
+                      original_inferred=original)
 
 
 @dataclass(frozen=True)
@@ -167,6 +208,7 @@ class _EvalSpec:
     texcoords: str
     rig: Rig
     heatmaps: str | None
+    original: bool = False  # a corrected set: also the mesh before the correction with T_G
 
     @property
     def key(self) -> tuple[str, str]:
@@ -236,7 +278,6 @@ class ImageEvaluator:
     """
 
     def __init__(self, ctx: GLContext, dataset, faces: np.ndarray, uv: np.ndarray, parent: np.ndarray):
-        from mvtex.data.mesh import charts_through_parent, extension_matrix, subdivide, uv_charts
 
         self.ctx, self.dataset = ctx, dataset
         self.faces = np.ascontiguousarray(dataset.faces, np.int64)
@@ -255,12 +296,10 @@ class ImageEvaluator:
 
     def positions(self, base: np.ndarray) -> np.ndarray:
         """Base positions (n,3) on the set's mesh, (n',3) float64."""
-        from mvtex.data.mesh import apply_extension
 
         return np.asarray(apply_extension(self._extend, np.asarray(base, np.float64)), np.float64)
 
     def _renders(self, gt: np.ndarray, inferred: np.ndarray, cam, body):
-        from mvtex.render.raster import PairRaster, rasterize, rasterize_pair_attributes
 
         if self.pair:
             pixels = np.concatenate([cam.project(gt)[0], cam.project(inferred)[0]])
@@ -280,7 +319,6 @@ class ImageEvaluator:
         mesh, over the pixels where both renders show cloth. assigned: (n',) bool, the set's
         assigned vertices for this image (None: all). gt, inferred: the pose's base
         positions when already read (else read through the files)."""
-        from mvtex.evaluation.kernels import pixel_errors
 
         ds = self.dataset
         # Through the files (`read_row`): rows read through the dataset's maps stay resident.
@@ -334,10 +372,6 @@ def _open_eval_state(ds, tc, ctx: GLContext, owns_ctx: bool) -> _EvalState:
 
 def _eval_state(spec: _EvalSpec) -> _EvalState:
     """A worker's state for an evaluation (one in this process puts its own in place up front)."""
-    from mvtex.data.dataset import load_dataset
-    from mvtex.data.texcoords import open_texcoords
-    from mvtex.render.context import GLContext
-    from mvtex.util.parallel import configure_threads
 
     configure_threads(1)
     ds = load_dataset(spec.dataset, validate=False)
@@ -354,7 +388,6 @@ MATERIAL_HEATMAP_SCALE = (1e-5, 3e-2)  # metres: 0.01 to 30 mm
 def heatmap_scales(has_material: bool = True) -> dict:
     """The `ColorScale`s of the eval heatmaps: "uv" (the uv error on same-chart pixels) and,
     with a rest shape, "material" (the material error, shown in mm)."""
-    from mvtex.render.pictures import ColorScale
 
     scales = {"uv": ColorScale(*UV_HEATMAP_SCALE, True, "jet", "uv error on same-chart pixels", "uv units")}
     if has_material:
@@ -375,8 +408,6 @@ def _heatmap_picture(image: ImageErrors, cam, source: str, pose: int) -> np.ndar
     error over the same pixels, RMSE of the material error); a title names the pose and the
     camera; a legend the other colours (magenta: the two meshes show different UV charts,
     where a uv difference means nothing; grey: the body)."""
-    from mvtex.render.pictures import BACKGROUND, caption, colorbar, heatmap, legend, side_by_side, stack
-    from mvtex.render.shading import BODY_RGB
 
     raster = image.raster
     r0, r1, c0, c1 = raster.box
@@ -426,7 +457,6 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
     """Evaluate (job index, pose, camera name) images; returns (index, s_b, s_t, same_b,
     same_t, material_b, material_t, body_share) each (NaN material without a rest shape,
     NaN body share without a body)."""
-    from mvtex.util.files import save_png
 
     state = _EVAL_STATE.get(spec.key, lambda: _eval_state(spec))
     tc = state.texcoord_set
@@ -434,7 +464,11 @@ def _eval_images(spec: _EvalSpec, jobs: list[tuple[int, int, str]]) -> list[tupl
     for index, k, name in jobs:
         cam = spec.rig[name]
         image = state.evaluator(k, cam, tc.texcoords(cam.name, k), assigned=tc.assigned(cam.name, k))
-        out.append((index, *image.values()))
+        original = ()
+        if spec.original:  # the same pixels' errors with the original mesh as the baseline
+            before = state.evaluator(k, cam, tc.uv, inferred=read_row(state.evaluator.dataset.original_inferred, k))
+            original = (before.sqrt_mse[0], before.material_rmse_m[0])
+        out.append((index, *image.values(), *original))
         if spec.heatmaps is not None:
             save_png(Path(spec.heatmaps) / f"pose_{k:05d}_{cam.name}.png",
                      _heatmap_picture(image, cam, tc.source, k))
@@ -475,20 +509,12 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     Returns:
         An `Evaluation`; `.to_json()` is the JSON object of `mvtex eval --json`.
     """
-    from mvtex.util.checks import as_indices, as_path
 
     heatmaps = as_path(heatmaps, "heatmaps", optional=True)
     poses = None if poses is None else as_indices(poses, "poses")
     if cameras is not None and (isinstance(cameras, (str, bytes)) or not hasattr(cameras, "__iter__")
                                 or not all(isinstance(c, str) for c in cameras)):
         raise OptionError("cameras", f"must be a list of camera names, got {cameras!r:.60}")
-    from tqdm import tqdm
-
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import TexcoordSet, open_texcoords
-    from mvtex.render.context import GLContext
-    from mvtex.util.parallel import map_unordered
 
     check_backend(workers, scheduler)
     workers = 1 if workers is None else workers
@@ -520,7 +546,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
         if out_dir is not None:
             out_dir.mkdir()
         spec = _EvalSpec(dataset=str(Path(ds.path).resolve()), texcoords=str(Path(tc.path).resolve()), rig=rig,
-                         heatmaps=None if out_dir is None else str(out_dir.resolve()))
+                         heatmaps=None if out_dir is None else str(out_dir.resolve()), original=ds.corrected)
         local = workers <= 1 and not scheduler
         if local:  # this process: reuse what is open
             own = GLContext() if ctx is None else None
@@ -542,5 +568,7 @@ def evaluate(dataset, rig, texcoord_set, *, poses: Sequence[int] | None = None,
     per_cam: dict[str, list[tuple]] = {c.name: [] for c in rig}
     for (_, _, name), image in zip(jobs, values):
         per_cam[name].append(image)
-    per_camera = {name: _summary(images, has_rest, has_body) for name, images in per_cam.items()}
-    return _summary([v for images in per_cam.values() for v in images], has_rest, has_body, per_camera=per_camera)
+    per_camera = {name: _summary(images, has_rest, has_body, has_original=ds.corrected)
+                  for name, images in per_cam.items()}
+    return _summary([v for images in per_cam.values() for v in images], has_rest, has_body, per_camera=per_camera,
+                    has_original=ds.corrected)

@@ -6,18 +6,19 @@ from __future__ import annotations
 
 import os
 from dataclasses import replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mvtex.data.rig import Rig, check_outside_body
-from mvtex.util.errors import InputError
-
-if TYPE_CHECKING:
-    from mvtex.render.context import GLContext
+from mvtex.data.dataset import as_dataset
+from mvtex.data.rig import Rig, as_rig, check_outside_body
+from mvtex.data.texcoords import as_texcoords
+from mvtex.recon.export import export_reconstruction
 from mvtex.recon.options import check_observation_count
 from mvtex.recon.report import ReconReport, reconstruction_report
 from mvtex.recon.triangulate import ReconOptions, reconstruct
+from mvtex.render.context import GLContext
+from mvtex.util.checks import as_index, as_path, check_instance
+from mvtex.util.errors import InputError
 from mvtex.util.output import writer
 
 
@@ -35,7 +36,9 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         pose: dataset pose index (must be one of the texcoord set's poses).
         out: output directory (written atomically by `mvtex.recon.export.export_reconstruction`),
             or None for the numbers only.
-        options: see ReconOptions.
+        options: see ReconOptions. On a corrected set (`mvtex.tsnn.correct.correct`) the
+            corrected mesh is the prior, fused with its σ (`ReconOptions.use_prior`), and
+            the report also holds the errors of the mesh before the correction.
         progress: progress bars on stderr.
         overwrite: replace another command's output at `out` (never files mvtex did not
             write, never an input: the writer policy of `mvtex.util.output`).
@@ -48,10 +51,6 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
         InputError: a pose outside the dataset or the texcoord set, a texcoord set made
             for another mesh, fewer than 2 cameras shared by rig and texcoord set.
     """
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import as_texcoords
-    from mvtex.util.checks import as_index, as_path, check_instance
 
     pose = as_index(pose, "pose")  # the plain arguments first, before any file is opened
     out = as_path(out, "out", optional=True)
@@ -60,7 +59,6 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     rig = as_rig(rig)
     texcoords = as_texcoords(texcoords)
     if ctx is None:
-        from mvtex.render.context import GLContext
 
         with GLContext() as own:
             return triangulate_pose(dataset, rig, texcoords, pose, out, options, progress, ctx=own)
@@ -77,8 +75,10 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     check_observation_count(dataset.num_vertices, len(names), texcoords.path)  # before anything is allocated
     sub_rig = rig.select(names)
     check_outside_body(sub_rig, dataset, [pose])
-    options = options.for_source(texcoords.source)
+    prior = dataset.geometry_uncertainty is not None and options.use_prior
+    options = options.for_source(texcoords.source, prior=prior)
     X_N = texcoords.positions(np.asarray(dataset.inferred[pose], np.float64))
+    prior_sigma = np.asarray(dataset.geometry_uncertainty[pose], np.float64) if prior else None
     T = {c: np.asarray(texcoords.texcoords(c, pose), np.float64) for c in names}
     assigned = {c: texcoords.assigned(c, pose) for c in names}
     uncertainty = {c: texcoords.uncertainty(c, pose) for c in names}
@@ -87,13 +87,14 @@ def triangulate_pose(dataset, rig: Rig, texcoords, pose: int, out: str | os.Path
     body = None if dataset.body is None else (dataset.body.pose(pose), dataset.body.faces)
     rec = reconstruct(dataset.uv, X_N, texcoords.faces, texcoords.uv, T, sub_rig, options,
                       gt_faces=dataset.faces, assigned=assigned, rest=rest, body=body, uncertainty=uncertainty,
-                      progress=progress, ctx=ctx)
+                      prior_sigma=prior_sigma, progress=progress, ctx=ctx)
     gt = np.asarray(dataset.gt[pose], np.float64) if dataset.has_gt else None
-    report = replace(reconstruction_report(rec, gt, dataset.faces, rest, pose, options), cameras=tuple(names),
+    original = None if dataset.original_inferred is None else np.asarray(dataset.original_inferred[pose], np.float64)
+    report = replace(reconstruction_report(rec, gt, dataset.faces, rest, pose, options, original),
+                     cameras=tuple(names),
                      texcoords=str(texcoords.path), source=texcoords.source, subdiv=texcoords.subdiv)
     if out is not None:
         # The command's one edge up the layers: its output directory is the export module's.
-        from mvtex.recon.export import export_reconstruction
 
         export_reconstruction(out, rec, sub_rig, faces=dataset.faces, uv=dataset.uv, gt=gt, rest=rest,
                               inferred_mesh=(X_N, texcoords.faces, T), report=report.to_json(), options=options,

@@ -68,6 +68,9 @@ class ReconReport:
         options: the `ReconOptions` used, as a dict.
         cameras, texcoords, source, subdiv: the cameras and texcoord set (set by
             `triangulate_pose`).
+        original: on a corrected set, the mesh before the correction against gt:
+            {"rmse_m": over all vertices, "rmse_triangulated_m": over the triangulated ones}
+            (`rmse_m.inferred` is then the corrected mesh's); None on any other dataset.
     """
 
     pose: int
@@ -89,6 +92,14 @@ class ReconReport:
     texcoords: str | None = None
     source: str | None = None
     subdiv: int | None = None
+    original: Mapping[str, float] | None = None
+
+    @property
+    def ratio_original(self) -> float | None:
+        """On a corrected set, the original mesh's all-vertex RMSE over the reconstruction's."""
+        if self.original is None:
+            return None
+        return ErrorPair(self.original["rmse_m"], self.rmse_m.reconstructed).ratio
 
     def to_json(self) -> dict:
         """The JSON object of report.json and `mvtex triangulate --json`."""
@@ -102,15 +113,19 @@ class ReconReport:
                "rejected_observations": dict(self.rejected_observations), "stats": dict(self.stats),
                "strain_energy": None if self.strain_energy is None else dict(self.strain_energy),
                "smooth": dict(self.smooth), "options": dict(self.options)}
+        if self.original is not None:
+            out["original_inferred"] = dict(self.original)
         if self.cameras is not None:
             out.update(cameras=list(self.cameras), texcoords=self.texcoords, source=self.source, subdiv=self.subdiv)
         return out
 
 
 def reconstruction_report(rec: Reconstruction, gt: np.ndarray | None, faces: np.ndarray, rest: np.ndarray | None,
-                          pose: int, options: ReconOptions = ReconOptions()) -> ReconReport:
+                          pose: int, options: ReconOptions = ReconOptions(),
+                          original: np.ndarray | None = None) -> ReconReport:
     """The report (DESIGN §7) of a reconstruction, against the gt positions (n,3) where
-    given (None: an inference set; every measure against gt is None)."""
+    given (None: an inference set; every measure against gt is None); with `original`
+    (n,3), a corrected set's mesh before the correction, its errors too."""
     tri = rec.triangulated
     n = len(rec.points)
     err = rec.reprojection_error[tri]
@@ -137,4 +152,6 @@ def reconstruction_report(rec: Reconstruction, gt: np.ndarray | None, faces: np.
         mean_trust=float(trust) if tri.any() else None,
         displacement_m={"mean": float(moved.mean()) if n else 0.0, "max": float(moved.max()) if n else 0.0},
         rejected=dict(rec.rejected), rejected_observations=dict(rec.rejected_observations), stats=dict(rec.stats),
-        strain_energy=strain, smooth=smooth, options=asdict(options))
+        strain_energy=strain, smooth=smooth, options=asdict(options),
+        original=None if original is None or gt is None else {"rmse_m": rmse(original, gt),
+                                                              "rmse_triangulated_m": rmse(original, gt, tri)})

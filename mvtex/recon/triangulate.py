@@ -47,37 +47,41 @@ import scipy.sparse as sp
 
 from mvtex.data.camera import Camera
 from mvtex.data.mesh import weld_groups, welded_adjacency
-from mvtex.data.rig import Rig
+from mvtex.data.rig import Rig, as_rig
+from mvtex.formats.colmap import triangulate_tracks
 from mvtex.recon.consensus import HypothesisLedger, Vote, screen_hypotheses, vote
 from mvtex.recon.geometry import (
     MIN_TRIANGULATION_ANGLE_DEG,
-    camera_arrays,
     observed,
     project_points,
-    projection_jacobian,
     reprojection_errors,
     surface_distance,
     triangulate_points,
     triangulation_angles,
 )
 from mvtex.recon.locate import Hypotheses, collect_hypotheses
-from mvtex.recon.options import MIN_SIGMA_PX, ReconOptions, check_observation_count
-from mvtex.util.checks import check_shape
+from mvtex.recon.options import ReconOptions, check_observation_count
+from mvtex.recon.trust import (
+    CONSISTENCY_INFLATION,
+    consistency_sigma_px,
+    fusion_factors,
+    observation_sigma_px,
+    point_sigma,
+    trust_factors,
+)
+from mvtex.render.raster import check_mesh
+from mvtex.sliding.fill import fill
+from mvtex.util.checks import as_array, check_instance, check_shape
+from mvtex.util.errors import OptionError
 
 if TYPE_CHECKING:
     from mvtex.render.context import GLContext
 
-# ReconOptions lives in mvtex.recon.options; importing it from here keeps working.
+# ReconOptions lives in mvtex.recon.options, the trust in mvtex.recon.trust; importing them
+# from here keeps working.
 __all__ = ["ReconOptions", "Reconstruction", "Triangulator", "accept_points", "consensus_threshold",
-           "pool_and_fill", "reconstruct", "reconstruct_from_hypotheses", "taubin_smooth", "track_triangulator",
-           "triangulate_observations"]
-
-# Texcoords without a reported uncertainty: each observation's standard deviation is this
-# many times the pose's disagreement between the cameras (`consistency_sigma_px`). Errors
-# that the cameras share (a predictor wrong in the same way for every camera) do not show
-# as disagreement; the factor was chosen with `ReconOptions.shrink` on held-out poses of
-# both built-in garments (docs/reconstruction.md).
-CONSISTENCY_INFLATION = 12.0
+           "consistency_sigma_px", "point_sigma", "pool_and_fill", "reconstruct", "reconstruct_from_hypotheses",
+           "taubin_smooth", "track_triangulator", "triangulate_observations", "trust_factors"]
 
 # A triangulation engine: (cameras, pixels (N,C,2), weights (N,C)) -> points (N,3), NaN where degenerate.
 Triangulator = Callable[[Sequence[Camera], np.ndarray, np.ndarray], np.ndarray]
@@ -150,100 +154,6 @@ def consensus_threshold(hypotheses: Hypotheses, num_vertices: int, cameras: Sequ
     return float(max(options.consensus_px, options.consensus_scale * np.median(err)))
 
 
-def observation_sigma_px(hypotheses: Hypotheses, pixels: np.ndarray, points: np.ndarray,
-                         cameras: Sequence[Camera]) -> np.ndarray | None:
-    """The standard deviation (px) of each chosen observation (n,C) from its hypothesis'
-    3-D standard deviation (`Hypotheses.sigma`) seen at the depth of `points` (fx / z), at
-    least `MIN_SIGMA_PX`; inf where none was chosen. None when the hypotheses carry no sigma."""
-    if hypotheses.sigma is None:
-        return None
-    n, C = pixels.shape[:2]
-    sigma = np.full((n, C), np.inf)
-    hv, hc = hypotheses.vertex, hypotheses.camera
-    same = np.all(pixels[hv, hc] == hypotheses.pixel, axis=1)
-    sigma[hv[same], hc[same]] = hypotheses.sigma[same]
-    K, R, t = camera_arrays(cameras)
-    z = np.einsum("cj,nj->nc", R[:, 2], np.nan_to_num(points)) + t[None, :, 2]
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        px = sigma * K[None, :, 0, 0] / z
-    return np.where(np.isfinite(px) & (z > 0), np.maximum(px, MIN_SIGMA_PX), np.inf)
-
-
-def point_sigma(cameras: Sequence[Camera], points: np.ndarray, weights: np.ndarray, sigma_px: np.ndarray
-                ) -> np.ndarray:
-    """The standard deviation (m, root of the covariance's trace) of triangulated points
-    from independent observation errors of standard deviation sigma_px (n,C): the inverse
-    of the Fisher information Σ_c J_cᵀ J_c / σ_c² of the projections. NaN where the
-    point is not finite; inf where the observations do not fix it."""
-    K, R, t = camera_arrays(cameras)
-    X = np.nan_to_num(points)
-    y = np.einsum("cij,nj->nci", R, X) + t[None]
-    J = np.nan_to_num(projection_jacobian(K, R, y))  # (n,C,2,3)
-    with np.errstate(divide="ignore"):
-        w = np.where((weights > 0) & np.isfinite(sigma_px), 1.0 / np.maximum(sigma_px, 1e-300) ** 2, 0.0)
-    info = np.einsum("nc,ncki,nckj->nij", w, J, J)
-    out = np.full(len(X), np.inf)
-    ok = np.linalg.det(info) > 0
-    if ok.any():
-        cov = np.linalg.inv(info[ok])
-        out[ok] = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0))
-    out[~np.all(np.isfinite(points), axis=1)] = np.nan
-    return out
-
-
-def consistency_sigma_px(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndarray,
-                         weights: np.ndarray) -> float:
-    """The standard deviation (px, per image coordinate) of the observations of one pose,
-    from how well the cameras agree: the squared reprojection errors of the triangulated
-    points summed over the pose, over their degrees of freedom (2 per observation, less 3
-    per point). For texcoords without a reported uncertainty. NaN without a point seen
-    more than twice over."""
-    used = np.asarray(weights) > 0
-    views = used.sum(axis=1)
-    rows = np.flatnonzero((views >= 2) & np.all(np.isfinite(points), axis=1))
-    if not len(rows):
-        return math.nan
-    err = reprojection_errors(cameras, points[rows], pixels[rows])
-    err2 = np.where(used[rows], np.nan_to_num(err, nan=0.0) ** 2, 0.0).sum()
-    dof = float(np.sum(2 * views[rows] - 3))
-    return float(np.sqrt(err2 / dof)) if dof > 0 else math.nan
-
-
-def trust_factors(displacement: np.ndarray, sigma: np.ndarray, shrink: float,
-                  max_sigma: float = math.inf) -> np.ndarray:
-    """How much of each triangulated point's displacement to keep: τ² / (τ² + κ σ²).
-
-    The Wiener factor of a displacement δ = true + noise, the noise of variance κσ² (σ the
-    point's standard deviation), the true displacement of prior variance τ², taken for the
-    pose as the mean of ‖δ‖² over its points: a pose whose points move about as far as
-    their noise lets them keeps little of it, and a point far noisier than the pose's
-    displacement keeps almost none. (A prior per pose rather than ‖δ‖² per point: a noisy
-    point that happens to move far is not trusted for it.) A point with σ above max_sigma
-    (the reconstruction's `max_surface_distance`: it could be anywhere a point is
-    accepted) is not trusted at all, and not counted in τ².
-
-    Args:
-        displacement: (k,3) δ = triangulated - inferred; sigma: (k,) their standard
-            deviations (m); shrink: κ ≥ 0; max_sigma: the largest σ trusted (m).
-
-    Returns:
-        (k,) factors in [0,1]: 1 everywhere when κ is 0; 0 where σ is not finite or above
-        max_sigma.
-    """
-    d2 = np.sum(np.asarray(displacement, dtype=np.float64) ** 2, axis=1)
-    if not shrink:
-        return np.ones(len(d2))
-    sigma = np.asarray(sigma, dtype=np.float64)
-    s2 = float(shrink) * sigma ** 2
-    finite = np.isfinite(s2) & (sigma <= max_sigma)
-    if not finite.any():
-        return np.zeros(len(d2))
-    tau2 = float(np.mean(d2[finite]))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f = tau2 / (tau2 + s2)
-    return np.where(finite & np.isfinite(f), f, 0.0)
-
-
 def track_triangulator(options: ReconOptions = ReconOptions()) -> Triangulator:
     """The triangulation engine `options.engine` names, as a function of (cameras, pixels, weights).
 
@@ -252,7 +162,6 @@ def track_triangulator(options: ReconOptions = ReconOptions()) -> Triangulator:
     triangulation + points-only bundle adjustment; cameras without skew).
     """
     if options.engine == "pycolmap":
-        from mvtex.formats.colmap import triangulate_tracks
 
         return triangulate_tracks
     return partial(triangulate_points, iterations=options.refine_iterations)
@@ -363,7 +272,8 @@ def accept_points(cameras: Sequence[Camera], points: np.ndarray, pixels: np.ndar
 
 def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.ndarray, faces: np.ndarray,
                   options: ReconOptions = ReconOptions(), rest: np.ndarray | None = None,
-                  trust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, dict[str, int]]:
+                  trust: np.ndarray | None = None, extend: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray | None, dict[str, int]]:
     """Step 6: displacement on every gt vertex from the triangulated ones.
 
     Seam copies (split vertices at one position) are one physical point: their
@@ -381,6 +291,8 @@ def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.nda
         trust: optional (n,) factors in [0,1] of the triangulated displacements
             (`trust_factors`): a vertex of factor 0 keeps its inferred position, and is a
             fixed zero of the extension, so it passes no displacement on either.
+        extend: extend the displacement to the vertices without one; False: they keep
+            their `inferred` position (a prior that stands where no camera triangulates).
 
     Returns:
         positions (n,3) float64, the positions before smoothing (None when not smoothed),
@@ -404,7 +316,10 @@ def pool_and_fill(points: np.ndarray, triangulated: np.ndarray, inferred: np.nda
     if options.fill_shape == "rest" and rest is not None:
         shape = np.asarray(rest, dtype=np.float64)
         check_shape(shape, "rest", (n, 3))
-    disp = _fill(faces, shape, disp, known, groups)
+    if extend:
+        disp = _fill(faces, shape, disp, known, groups)
+    else:
+        disp[~known] = 0.0
     out = inferred + disp
     unsmoothed = None
     if options.smooth:
@@ -419,7 +334,6 @@ def _fill(faces: np.ndarray, positions: np.ndarray, values: np.ndarray, assigned
         return np.zeros_like(values)
     if assigned.all():
         return values.copy()
-    from mvtex.sliding.fill import fill
 
     return np.asarray(fill(faces, positions, values, assigned, method="harmonic", groups=groups), dtype=np.float64)
 
@@ -446,8 +360,8 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
                 texcoords: dict[str, np.ndarray], rig: Rig, options: ReconOptions = ReconOptions(), *,
                 gt_faces: np.ndarray | None = None, assigned: dict[str, np.ndarray] | None = None,
                 rest: np.ndarray | None = None, body: tuple[np.ndarray, np.ndarray] | None = None,
-                uncertainty: dict[str, np.ndarray] | None = None, progress: bool = False,
-                ctx: GLContext | None = None) -> Reconstruction:
+                uncertainty: dict[str, np.ndarray] | None = None, prior_sigma: np.ndarray | None = None,
+                progress: bool = False, ctx: GLContext | None = None) -> Reconstruction:
     """Triangulate the gt vertices from per-camera texture coordinates of an inferred mesh.
 
     Runs steps 1-6 of the module docstring.
@@ -471,6 +385,11 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
             camera's T_N (uv units; `mvtex.data.texcoords.TexcoordSet.uncertainty`), for
             every camera or none: observations are weighted by it and points trusted by it
             (options.use_uncertainty).
+        prior_sigma: optional (n,) standard deviation (m) of `inferred_positions` as a
+            prior (a corrected set's `geometry_uncertainty`): each point is fused with it
+            (`mvtex.recon.trust.fusion_factors`); with options.prior_fill (the default)
+            the fused displacement is extended to the vertices no camera triangulates,
+            without it they keep the prior.
         progress: show a progress bar over cameras.
         ctx: the GL context (`mvtex.render.context.GLContext`); one is made when None.
 
@@ -480,10 +399,6 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
     Raises:
         ValueError: shapes that do not fit, or fewer than 2 cameras.
     """
-    from mvtex.data.rig import as_rig
-    from mvtex.render.raster import check_mesh
-    from mvtex.util.checks import as_array, check_instance
-    from mvtex.util.errors import OptionError
 
     check_instance(options, ReconOptions, "options")
     rig = as_rig(rig)
@@ -526,6 +441,11 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
         body = check_mesh(body[0], body[1], "body positions")
     if rest is not None:
         check_shape(rest, "rest", (n, 3))
+    if prior_sigma is not None:
+        prior_sigma = as_array(prior_sigma, "prior_sigma")
+        check_shape(prior_sigma, "prior_sigma", (n,))
+        if not np.all(np.isfinite(prior_sigma) & (prior_sigma >= 0)):
+            raise OptionError("prior_sigma", "must be finite and non-negative")
     names = [c for c in rig.names if c in texcoords]
     if len(names) < 2:
         raise OptionError("texcoords", f"must hold texcoords of ≥ 2 rig cameras for a reconstruction, got "
@@ -538,19 +458,21 @@ def reconstruct(gt_uv: np.ndarray, inferred_positions: np.ndarray, faces: np.nda
                                            uncertainty=uncertainty if options.use_uncertainty else None,
                                            progress=progress, ctx=ctx)
     return reconstruct_from_hypotheses(hypotheses, stats, n, X_N, faces, uv, {c: texcoords[c] for c in names},
-                                       rig.select(names), options, gt_faces=gt_faces, rest=rest)
+                                       rig.select(names), options, gt_faces=gt_faces, rest=rest,
+                                       prior_sigma=prior_sigma)
 
 
 def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], num_vertices: int,
                                 inferred_positions: np.ndarray, faces: np.ndarray, uv: np.ndarray,
                                 texcoords: dict[str, np.ndarray], rig: Rig, options: ReconOptions = ReconOptions(),
-                                *, gt_faces: np.ndarray, rest: np.ndarray | None = None) -> Reconstruction:
+                                *, gt_faces: np.ndarray, rest: np.ndarray | None = None,
+                                prior_sigma: np.ndarray | None = None) -> Reconstruction:
     """Steps 2-6 of the module docstring from the located hypotheses (no GL).
 
     Args:
         hypotheses, stats: from `collect_hypotheses` with the cameras of `rig` in its order.
         num_vertices: n, the number of gt vertices.
-        inferred_positions, faces, uv, texcoords, options, rest: as `reconstruct`.
+        inferred_positions, faces, uv, texcoords, options, rest, prior_sigma: as `reconstruct`.
         rig: the cameras, one per texcoords entry, in the hypotheses' camera order.
         gt_faces: (m,3) faces of the gt mesh (its n vertices are the first n of the
             texcoord set's mesh).
@@ -602,12 +524,22 @@ def reconstruct_from_hypotheses(hypotheses: Hypotheses, stats: dict[str, int], n
     if sigma_px is not None:
         sigma = np.full(n, np.nan)
         sigma[triangulated] = point_sigma(cameras, X[triangulated], weights[triangulated], sigma_px[triangulated])
-    if options.shrink:
+    fused = prior_sigma is not None and options.use_prior
+    if fused:
+        trust = np.zeros(n)
+        trust[triangulated], outlier = fusion_factors(
+            X[triangulated] - base[triangulated], None if sigma is None else sigma[triangulated],
+            np.asarray(prior_sigma, np.float64)[triangulated], options.shrink or 0.0, options.prior_gate,
+            options.max_surface_distance)
+        stats.update(prior_outliers=int(outlier.sum()),
+                     mean_trust=float(trust[triangulated].mean()) if triangulated.any() else 0.0)
+    elif options.shrink:
         trust = np.zeros(n)
         trust[triangulated] = trust_factors(X[triangulated] - base[triangulated], sigma[triangulated], options.shrink,
                                             options.max_surface_distance)
         stats["mean_trust"] = float(trust[triangulated].mean()) if triangulated.any() else 0.0
-    points, unsmoothed, counts = pool_and_fill(X, triangulated, base, gt_faces, options, rest, trust)
+    points, unsmoothed, counts = pool_and_fill(X, triangulated, base, gt_faces, options, rest, trust,
+                                               extend=not fused or options.prior_fill)
     stats.update(counts)
 
     obs = {name: np.where(observed[:, [c]], pixels[:, c], np.nan) for c, name in enumerate(names)}

@@ -1,6 +1,6 @@
 """Pose -> per-vertex displacements by an ensemble of small MLPs on a PCA basis (`--arch mlp`).
 
-The same representation as `gp` (mvtex.tsnn.gp): d of one camera is the mean plus the
+The same representation as `gp` (mvtex.tsnn.pca): d of one camera is the mean plus the
 first C principal components of the training displacements,
 
     d(θ) = mean + Σ_c f_c(θ) · basis_c,
@@ -28,6 +28,9 @@ from typing import Any, Callable
 import numpy as np
 import torch
 from torch import nn
+
+from mvtex.tsnn.modeldir import integer_config
+from mvtex.tsnn.pca import pose_pca_counted
 
 MAX_MEMBERS = 32
 
@@ -81,8 +84,6 @@ class MLPConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "MLPConfig":
-        from mvtex.tsnn.gp import integer_config
-
         return integer_config(cls, d, "mlp")
 
 
@@ -164,7 +165,7 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
         seed: seeds the initialisation and the batch order of every member.
         lr: AdamW learning rate (cosine decay to 5 % over the fit); weight_decay: AdamW's.
         progress: called with (steps done, steps): the chunks of training poses read
-            (`mvtex.tsnn.gp.pose_pca`), then one step per epoch.
+            (`mvtex.tsnn.pca.pose_pca`), then one step per epoch.
         threads: torch threads of the fit. The steps are small: on a shared 2-core machine
             two threads ran a fit 7 times slower than one (per-operation barriers).
         steps: optimiser steps (None: `STEPS`); at least one epoch, at most `MAX_EPOCHS`.
@@ -174,7 +175,6 @@ def fit_pose_mlp(poses: np.ndarray, d, val_poses: np.ndarray, val_d: np.ndarray,
         over members of the squared error of d per vertex (uv², the sum over its two
         coordinates, within the basis), plus "best_epoch": [...] per member).
     """
-    from mvtex.tsnn.gp import pose_pca_counted
 
     (x, mean_x, std_x, mean_d, basis, coef), reads = pose_pca_counted(poses, d, components, progress)
     k, p = x.shape

@@ -5,7 +5,7 @@ picture, and a `unet`'s geometry.npz): written here; config.json's keys are
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,20 @@ from mvtex.util.output import atomic_path
 
 __all__ = ["MODEL_FORMAT", "MODEL_VERSION", "READABLE_VERSIONS", "TrainResult", "TrainedCameras", "mesh_fingerprint",
            "rebuild_mesh"]
+
+
+def integer_config(cls, d: dict[str, Any], arch: str):
+    """A config dataclass of integer fields from its dict (config.json's "architecture",
+    "arch" left out), validated: ValueError on unknown keys or values that are not integers."""
+    d = {k: v for k, v in d.items() if k != "arch"}
+    unknown = set(d) - {f.name for f in fields(cls)}
+    if unknown:
+        raise ValueError(f"unknown architecture keys {sorted(unknown)}")
+    if any(isinstance(v, bool) or not isinstance(v, int) for v in d.values()):
+        raise ValueError(f"{arch} architecture values must be integers")
+    config = cls(**d)
+    config.validate()
+    return config
 
 
 @dataclass(frozen=True)
@@ -95,8 +109,8 @@ LOSS_AXIS = {"mlp": "squared error of d per vertex (uv²)",  # within the PCA ba
 def _loss_plot(path: Path, history: dict[str, list[float]], best_epoch: int, title: str,
                axis: str = "weighted squared error of d per vertex (uv²)") -> None:
     # The object-oriented API with an Agg canvas: no global backend switch, no display.
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415 (loaded on use)
+    from matplotlib.figure import Figure  # noqa: PLC0415 (loaded on use)
 
     fig = Figure(figsize=(6, 4), dpi=100)
     FigureCanvasAgg(fig)
@@ -133,8 +147,8 @@ def _kept_model(path: Path, key: str) -> TrainResult | None:
 
 def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
     """Heatmap of a `gp` model's inverse lengthscales: component (rows) x pose coordinate."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415 (loaded on use)
+    from matplotlib.figure import Figure  # noqa: PLC0415 (loaded on use)
 
     c, p = relevance.shape
     fig = Figure(figsize=(min(12.0, 2.0 + 0.45 * p), min(8.0, 1.6 + 0.3 * c)), dpi=100)
@@ -153,7 +167,7 @@ def _relevance_plot(path: Path, relevance: np.ndarray, title: str) -> None:
 def _write_model(out: Path, model, config: ModelConfig, geometry: dict[str, np.ndarray] | None = None) -> None:
     """Write a model directory atomically: the weights, config.json, its picture and, given
     `geometry` (a `unet`'s reference arrays, `MeshGeometry.reference_arrays`), geometry.npz."""
-    from safetensors.torch import save
+    from safetensors.torch import save  # noqa: PLC0415 (loaded on use)
 
     arch = config.architecture
     with atomic_path(out) as tmp:

@@ -75,7 +75,7 @@ class TrainOptions(Options):
         "of MLPs of the pose on the same components, per camera; unet: geometry images of the inferred mesh + pose, "
         "any camera; paper: the paper's pose-only decoder, per camera",
         auto="gp with --cameras, unet without")
-    components: int = knob(32, "principal components of d that gp and mlp model", low=1, high=MAX_COMPONENTS)
+    components: int = knob(32, "principal components of d that gp and mlp model (with --geometry: of gt - inferred)", low=1, high=MAX_COMPONENTS)
     widths: tuple[int, ...] | None = knob(None, "channels per U-Net level, comma-separated", low=1,
                                           auto="8,16,32,64", metavar="A,B,...")
     epochs: int = knob(60, "most training epochs of unet, paper and mlp", low=1)
@@ -112,3 +112,49 @@ class TrainOptions(Options):
             if self.resolution < 2 ** levels:
                 raise OptionError("resolution", f"must be at least {2 ** levels} for the unet ({levels} levels), "
                                   f"got {self.resolution}")
+
+
+@dataclass(frozen=True)
+class GeometryOptions(Options):
+    """Options of `train_geometry` (`mvtex train --geometry`).
+
+    Attributes:
+        components: principal components of the residual gt - inferred modelled, each by
+            its own GP (fewer when the training poses are fewer). 32: on the validation
+            poses of both built-in garments (240 training poses) 16, 64 and 128 give the
+            same RMSE within 0.5 %, 8 is 4-9 % worse.
+        iterations: most L-BFGS iterations of each component's hyperparameters. 20 (`gp`
+            takes 40): on the validation poses of both built-in garments (240 training
+            poses) the corrected mesh's RMSE is 0.4 % above 40 iterations' on the T-shirt and
+            1.8 % below on the skirt, and the fit costs 25-40 % less.
+        device: "cpu", "cuda", "cuda:N", "mps" or "auto" (CUDA when available): where the
+            likelihoods are evaluated; the model is the same up to rounding.
+    """
+
+    components: int = knob(32, "principal components of the residual gt - inferred that the corrector models",
+                           low=1, high=MAX_COMPONENTS)
+    iterations: int = knob(20, "with --geometry: most L-BFGS iterations of each component's hyperparameters",
+                           low=1, high=1000)
+    device: str = knob("auto", "cpu, cuda, cuda:N, mps or auto (CUDA when available)")
+
+    def validate(self) -> None:
+        if not _DEVICE.match(self.device):
+            raise OptionError("device", f"must be auto, cpu, mps, cuda or cuda:N, got {self.device!r}")
+
+
+@dataclass(frozen=True)
+class CorrectOptions(Options):
+    """Options of `correct` (`mvtex correct`).
+
+    Attributes:
+        shrink: κ ≥ 0: each vertex keeps f = ‖r‖² / (‖r‖² + κσ²) of its predicted residual
+            r (σ its predictive standard deviation): where the corrector's σ is large
+            against the correction it makes, the mesh stays nearer the predictor's. 0: the
+            whole correction. The default 0.25 was chosen on the validation poses of both
+            built-in garments (240 training poses; docs/tsnn.md): the worst pose's ratio
+            there rises from 0.93 to 1.03 (T-shirt) and from 0.72 to 0.79 (skirt), the
+            median falls by 1.2 % and 0 %, the mean RMSE grows by 0.7 % and 2.5 %.
+    """
+
+    shrink: float = knob(0.25, "keep |r|2/(|r|2 + K sigma2) of each vertex's correction r, sigma its uncertainty; "
+                         "0 keeps all of it", low=0, metavar="K")

@@ -43,7 +43,12 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from tqdm import tqdm
 
+from mvtex.data.dataset import as_dataset
+from mvtex.data.rig import as_rig
+from mvtex.data.texcoords import as_texcoords
+from mvtex.tsnn.atlas import AtlasSampler
 from mvtex.tsnn.config import (
     GEOMETRY_FILE,
     MODEL_VERSION,
@@ -53,27 +58,42 @@ from mvtex.tsnn.config import (
     mesh_fingerprint,
     training_rig,
 )
-from mvtex.tsnn.geometry import MeshGeometry
+from mvtex.tsnn.geometry import NUM_CHANNELS, MeshGeometry, geometry_images
+from mvtex.tsnn.gp import MAX_TRAIN, fit_pose_gp
+from mvtex.tsnn.mlp import fit_pose_mlp
+from mvtex.tsnn.model import TSNN, PaperConfig, UNet, UNetConfig
 from mvtex.tsnn.modeldir import TrainResult, _write_model, rebuild_mesh
 from mvtex.tsnn.options import TrainOptions
+from mvtex.tsnn.pca import evenly_spaced
 from mvtex.tsnn.samples import DisplacementRows, Forward, Samples, sample_losses, weighted_mse
+from mvtex.util.checks import as_path, check_instance
 from mvtex.util.errors import InputError, OptionError
+from mvtex.util.fingerprint import fingerprint, fingerprint_record
 from mvtex.util.output import writer
 
 __all__ = ["TrainOptions", "dataset_fingerprint", "resolve_options", "train", "train_camera"]
 
 
+def resolve_device(device: str) -> str:
+    """The device that runs `device` ("auto": CUDA when available, else the CPU).
+
+    Raises:
+        OptionError: CUDA requested but not available.
+    """
+    import torch  # noqa: PLC0415 (loaded on use)
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise OptionError("device", f"{device!r} requested but CUDA is not available")
+    return device
+
+
 def resolve_options(options: TrainOptions) -> TrainOptions:
     """`options` with device, resolution, widths and the other automatic values filled in for
     the device that runs them."""
-    import torch
-
-    device = options.device
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
+    device = resolve_device(options.device)
     gpu = device.startswith("cuda")
-    if gpu and not torch.cuda.is_available():
-        raise OptionError("device", f"{device!r} requested but CUDA is not available")
 
     def given(value, default):
         return default if value is None else value
@@ -128,7 +148,6 @@ def _resolve(options: TrainOptions, camera: str | None) -> TrainOptions:
 
 def dataset_fingerprint(dataset) -> str:
     """What a model depends on of the dataset: its inferred shapes, poses, mesh and body."""
-    from mvtex.util.fingerprint import fingerprint
 
     return fingerprint(dataset.inferred, dataset.poses, dataset.faces, dataset.uv, *dataset.body_arrays())
 
@@ -141,7 +160,6 @@ def _inputs_key(dataset, texcoords, cameras: Sequence[str], views: dict, split: 
     config.json records of them, `training_rig`) and the resolved options.
     config.json records it as "inputs"; `train_cameras` keeps a camera's model that records
     the key it would train with (the same inputs train the same model: bit for bit for `gp`)."""
-    from mvtex.util.fingerprint import fingerprint, fingerprint_record
 
     record = {
         "version": MODEL_VERSION,
@@ -189,10 +207,6 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
             mesh that is not the dataset mesh subdivided, overlapping uv charts.
         OptionError: bad options (`paper` without a camera name).
     """
-    from mvtex.data.dataset import as_dataset
-    from mvtex.data.rig import as_rig
-    from mvtex.data.texcoords import as_texcoords
-    from mvtex.util.checks import as_path, check_instance
 
     dataset = as_dataset(dataset)
     texcoords = as_texcoords(texcoords)
@@ -201,7 +215,7 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
     check_instance(options, TrainOptions, "options")
     if camera is not None and not isinstance(camera, str):
         raise OptionError("camera", f"must be a camera name or None, got {type(camera).__name__}")
-    import torch
+    import torch  # noqa: PLC0415 (loaded on use)
 
     out = Path(out)
     options = _resolve(options, camera)
@@ -288,9 +302,7 @@ def _masked_stats(images: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.
 
 def _build(options: TrainOptions, sampler, train: Samples, views: dict, pose_dim: int, geometry_train):
     """The network with its normalisation set from the training samples."""
-    import torch
-
-    from mvtex.tsnn.model import TSNN, PaperConfig, UNet, UNetConfig
+    import torch  # noqa: PLC0415 (loaded on use)
 
     mean_d = train.d_numpy.mean(axis=0)  # (n',2): the pose-independent part of d
     scale = float(np.sqrt(np.mean((train.d_numpy - mean_d) ** 2))) if len(train) > 1 else 0.0
@@ -302,7 +314,6 @@ def _build(options: TrainOptions, sampler, train: Samples, views: dict, pose_dim
         model = TSNN(config)
         model.set_normalisation(x_train.mean(0), x_train.std(0), scale)
     else:
-        from mvtex.tsnn.geometry import NUM_CHANNELS
 
         config = UNetConfig(pose_dim=pose_dim, resolution=options.resolution, geometry_channels=NUM_CHANNELS,
                             view=bool(views), widths=tuple(options.widths))
@@ -333,16 +344,12 @@ def _build(options: TrainOptions, sampler, train: Samples, views: dict, pose_dim
 
 def _train(dataset, texcoords, cameras, views, faces, uv, parent, split, options: TrainOptions, device, progress,
            reference=None):
-    import torch
-    from tqdm import tqdm
-
-    from mvtex.tsnn.atlas import AtlasSampler
+    import torch  # noqa: PLC0415 (loaded on use)
 
     sampler = AtlasSampler(faces, uv, options.resolution, dilation=options.dilation, source=texcoords.path / "mesh.npz")
     grid = sampler.grid().to(device)
     geometry = {k: None for k in split}
     if options.arch == "unet":
-        from mvtex.tsnn.geometry import geometry_images
 
         geometry = {k: geometry_images(dataset, split[k], sampler, parent, geometry=reference) for k in split}
     data = {k: Samples(dataset, texcoords, cameras, split[k], options.weight_assigned, device, geometry[k])
@@ -411,9 +418,6 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, dev
     back on the CPU); `_train`'s results. Every training pose is used (above `MAX_TRAIN`
     by the inducing-pose posterior); the training losses are those of at most `MAX_TRAIN`
     evenly spaced training poses."""
-    from tqdm import tqdm
-
-    from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced, fit_pose_gp
 
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
@@ -443,10 +447,6 @@ def _train_mlp(dataset, texcoords, camera: str, split, options: TrainOptions, pr
     """`mlp`: fit an ensemble of MLPs on the principal components of one camera's d (on the
     CPU, float32), each member's epoch chosen on the validation poses; `_train`'s results.
     The training losses are those of at most `MAX_TRAIN` evenly spaced training poses."""
-    from tqdm import tqdm
-
-    from mvtex.tsnn.gp import MAX_TRAIN, evenly_spaced
-    from mvtex.tsnn.mlp import fit_pose_mlp
 
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)

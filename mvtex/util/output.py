@@ -162,24 +162,29 @@ def mark_output(directory: str | os.PathLike, command: str) -> None:
     _write_marker(Path(directory), command)
 
 
-def _claimed_root(path: Path) -> Path | None:
-    """The nearest claimed folder, with a manifest, that strictly contains `path` (not
-    through one of mvtex's temporaries: what is written there is recorded when the
-    temporary is renamed into place)."""
+def _claimed_roots(path: Path) -> list[Path]:
+    """The claimed folders, with a manifest, that strictly contain `path`, the nearest first
+    (not through one of mvtex's temporaries: what is written there is recorded when the
+    temporary is renamed into place). A command that writes in place inside another's
+    folder (the demo's models) is recorded in both manifests."""
     real = os.path.realpath(path)
-    best = None
-    for key in _CLAIMED.get():
-        if _inside(real, key) and is_regular(Path(key) / MARKER) and (best is None or len(key) > len(best)):
-            best = key
-    if best is None:
-        return None
-    rel = Path(os.path.relpath(real, best))
-    probe = Path(best)
+    roots = sorted((key for key in _CLAIMED.get() if _inside(real, key) and is_regular(Path(key) / MARKER)),
+                   key=len, reverse=True)
+    if not roots:
+        return []
+    rel = Path(os.path.relpath(real, roots[-1]))
+    probe = Path(roots[-1])
     for part in rel.parts[:-1]:
         probe = probe / part
         if is_temporary(probe):
-            return None
-    return Path(best)
+            return []
+    return [Path(key) for key in roots]
+
+
+def _claimed_root(path: Path) -> Path | None:
+    """The nearest of `_claimed_roots(path)`, None without one."""
+    roots = _claimed_roots(path)
+    return roots[0] if roots else None
 
 
 def _relative_entries(rel: Path, contents: list[str]) -> set[str]:
@@ -192,22 +197,22 @@ def _recorded(target: Path, contents: list[str], source: Path | None = None) -> 
     in the manifest of the claimed folder it is about to be renamed into, in place of what
     was listed there and of `source` when that lay in the folder too; put the list back
     when the block fails. Listing first: a kill after the rename leaves nothing unlisted."""
-    root = _claimed_root(target)
-    if root is None:
-        yield
-        return
-    marker = read_manifest(root) or {}
-    before = list(marker.get("files") or [])
-    rel = Path(os.path.relpath(os.path.realpath(target), os.path.realpath(root)))
-    gone = [rel.as_posix()]
-    if source is not None and _claimed_root(source) == root:
-        gone.append(Path(os.path.relpath(os.path.realpath(source), os.path.realpath(root))).as_posix())
-    files = {f for f in before if not any(f == g or f.startswith(g + "/") for g in gone)}
-    write_manifest(root, {**marker, "files": sorted(files | _relative_entries(rel, contents))})
+    saved = []
     try:
+        for root in _claimed_roots(target):
+            marker = read_manifest(root) or {}
+            before = list(marker.get("files") or [])
+            saved.append((root, marker, before))
+            rel = Path(os.path.relpath(os.path.realpath(target), os.path.realpath(root)))
+            gone = [rel.as_posix()]
+            if source is not None and root in _claimed_roots(source):
+                gone.append(Path(os.path.relpath(os.path.realpath(source), os.path.realpath(root))).as_posix())
+            files = {f for f in before if not any(f == g or f.startswith(g + "/") for g in gone)}
+            write_manifest(root, {**marker, "files": sorted(files | _relative_entries(rel, contents))})
         yield
     except BaseException:
-        write_manifest(root, {**marker, "files": before})
+        for root, marker, before in saved:
+            write_manifest(root, {**marker, "files": before})
         raise
 
 
@@ -450,7 +455,8 @@ def claim_output(path: str | os.PathLike, command: str, *, overwrite: bool = Fal
             try:
                 created = not path.is_dir()
                 if created:
-                    _make_folders(path)
+                    with _recorded(path, []):  # in the manifests of the claimed folders around it
+                        _make_folders(path)
             except OSError as err:
                 raise InputError(path, f"cannot create ({err.strerror or err})") from None
             _take(path, command)

@@ -133,7 +133,12 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys, monkeypa
     mesh = trimesh.load(out_dir / "reconstruction" / "reconstruction.ply", process=False)
     assert len(mesh.vertices) == n
     assert summary["tsnn"]["num_images"] >= 1 and summary["tsnn"]["train_poses"] == 8
-    assert summary["tsnn"]["arch"] == "gp" and "gp model of camera left" in summary["summary_text"]
+    learned = summary["learned"]  # inferred -> corrected -> + texture sliding -> triangulated, each step printed
+    assert set(learned["material_mm"]) == {"inferred", "corrected", "texture_sliding"}
+    assert set(learned["rmse_mm"]) == {"inferred", "corrected", "triangulated"}
+    assert all(v > 0 for v in [*learned["material_mm"].values(), *learned["rmse_mm"].values()])
+    assert "learned path" in summary["summary_text"] and "-> corrected" in summary["summary_text"]
+    assert summary["new_frames"]["geometry"] and not summary["new_frames"]["ground_truth"]
     assert "TSNN" not in summary["summary_text"] and "network" not in summary["summary_text"]
     for picture in summary["pictures"]:
         assert (out_dir / picture).stat().st_size > 0
@@ -147,20 +152,17 @@ def test_demo_runs_the_whole_pipeline_and_resumes(tmp_path, gl, capsys, monkeypa
     for eye in summary["preview"]["eyes"].values():
         assert eye["ssim"]["texcoords"] > eye["ssim"]["inferred"]
     # A second run finds every step's output, computes nothing again and reports the same numbers.
-    import mvtex.evaluation.evaluate
-    import mvtex.recon.pose
-    import mvtex.render.pose
-    import mvtex.sliding.dataset
-    import mvtex.tsnn.predict
-    import mvtex.views.scene
+    import mvtex.apps.demo
+    import mvtex.apps.new_frames
 
     def recomputed(*args, **kwargs):
         raise AssertionError("a finished demo computed a step again")
 
-    for module, name in ((mvtex.evaluation.evaluate, "evaluate"), (mvtex.recon.pose, "triangulate_pose"),
-                         (mvtex.render.pose, "render_pose"), (mvtex.sliding.dataset, "slide_dataset"),
-                         (mvtex.tsnn.predict, "predict"), (mvtex.views.scene, "export_scene")):
-        monkeypatch.setattr(module, name, recomputed)
+    for module, names in ((mvtex.apps.demo, ("evaluate", "triangulate_pose", "render_pose", "slide_dataset", "predict",
+                                             "export_scene", "train_geometry", "correct", "write_synth")),
+                          (mvtex.apps.new_frames, ("predict", "correct", "triangulate_pose", "stereo_preview"))):
+        for name in names:  # the modules that call them (they import them by name)
+            monkeypatch.setattr(module, name, recomputed)
     code, out2, err = run(capsys, "demo", "--out", out_dir, "--num-poses", 10, "--json", "--quiet")
     assert code == 0, err
     again = json.loads(out2)

@@ -11,22 +11,11 @@ import subprocess
 import numpy as np
 import pytest
 import trimesh
-from helpers import grid_mesh, wave
+from helpers import grid_mesh, sheet_in_front, three_camera_rig, wave
 
 from mvtex.data.camera import look_at
 from mvtex.data.mesh import barycentric_2d, subdivide
-from mvtex.data.rig import Rig
 from mvtex.util.errors import InputError
-
-
-def three_camera_rig(width: int = 160, height: int = 120) -> Rig:
-    cams = []
-    for name, angle in (("a", -12.0), ("b", 0.0), ("c", 12.0)):
-        r = np.radians(angle)
-        cams.append(look_at(name, (1.2 * np.sin(r), 0.05, 1.2 * np.cos(r)), (0, 0, 0), width=width, height=height,
-                            focal=230.0))
-    return Rig(tuple(cams))
-
 
 # -- UV lookup ----------------------------------------------------------------------------
 
@@ -179,7 +168,7 @@ def test_untriangulated_get_the_extended_displacement(gl):
     displacement, i.e. gt as well."""
     from mvtex.recon.triangulate import reconstruct
 
-    faces, uv, rest, inferred, rig, T = _sheet_in_front()
+    faces, uv, rest, inferred, rig, T = sheet_in_front()
     rec = reconstruct(uv, inferred, faces, uv, T, rig)
     assert 0.3 < rec.triangulated.mean() < 0.97
     assert np.abs(rec.points - rest).max() < 1e-6
@@ -493,22 +482,6 @@ def test_no_observation_the_body_hides(gl):
 
 # -- trust: a predictor's uncertainty, or the cameras' agreement ------------------------------
 
-def _sheet_in_front():
-    """Flat gt (z = 0), the inferred sheet 1 cm in front of it, and each camera's exact T_N
-    (closed form: the ray through an inferred vertex meets the plane z = 0)."""
-    size = 0.9
-    faces, uv, rest = grid_mesh(36, 30, size=size)
-    inferred = rest + np.array([0.0, 0.0, 0.01])
-    rig = three_camera_rig()
-    exact = {}
-    for cam in rig:
-        C = cam.center
-        s = C[2] / (C[2] - inferred[:, 2])
-        hit = C + s[:, None] * (inferred - C)
-        exact[cam.name] = (hit[:, :2] + size / 2) / size
-    return faces, uv, rest, inferred, rig, exact
-
-
 def _rmse(a, b):
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
@@ -521,7 +494,7 @@ def test_a_bad_predictor_with_its_uncertainty_falls_back_to_the_inferred_mesh(gl
     uncertainty machinery, given the exact T_N and a small uncertainty, still recovers gt."""
     from mvtex.recon.triangulate import ReconOptions, reconstruct
 
-    faces, uv, rest, inferred, rig, exact = _sheet_in_front()
+    faces, uv, rest, inferred, rig, exact = sheet_in_front()
     rng = np.random.default_rng(11)
     bad, std = {}, {}
     for name, T in exact.items():
@@ -552,7 +525,7 @@ def test_without_uncertainty_the_cameras_disagreement_decides(gl):
     from mvtex.recon.geometry import reprojection_errors
     from mvtex.recon.triangulate import ReconOptions, consistency_sigma_px, reconstruct
 
-    faces, uv, rest, inferred, rig, exact = _sheet_in_front()
+    faces, uv, rest, inferred, rig, exact = sheet_in_front()
     rng = np.random.default_rng(12)
     noisy = {name: T + rng.normal(scale=0.012, size=T.shape) for name, T in exact.items()}
     options = ReconOptions(shrink=0.7, consensus_scale=4)

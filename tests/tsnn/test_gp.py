@@ -50,15 +50,15 @@ def test_likelihood_and_gradient_against_numpy_and_finite_differences(monkeypatc
     central differences of that NumPy NLL; tiles small enough that the covariance is built
     from many (each off-diagonal one standing for its transpose). A row below a bound acts
     at the bound with no gradient in that coordinate."""
-    import mvtex.tsnn.gp as G
+    import mvtex.tsnn.gp_kernel as G
 
-    monkeypatch.setattr(G, "_TILE_ELEMENTS", 3 * 4 * 7 * 7)  # 7 x 7 tiles of 37 poses
+    monkeypatch.setattr(G, "TILE_ELEMENTS", 3 * 4 * 7 * 7)  # 7 x 7 tiles of 37 poses
     rng = np.random.default_rng(1)
     z, y = rng.normal(size=(37, 4)), rng.normal(size=(3, 37))
     params = rng.normal(scale=0.4, size=(3, 7))
     params[0, 1] = -3.0  # below the lengthscale floor
-    nll, grad = G._negative_log_likelihood(torch.from_numpy(z), torch.from_numpy(y), torch.from_numpy(params))
-    lo, hi = (b.numpy() for b in G._bounds(4, "cpu"))
+    nll, grad = G.negative_log_likelihood(torch.from_numpy(z), torch.from_numpy(y), torch.from_numpy(params))
+    lo, hi = (b.numpy() for b in G.bounds(4, "cpu"))
     for r in range(3):
         at = np.clip(params[r], lo, hi)
         assert float(nll[r]) == pytest.approx(numpy_nll(z, y[r], at), rel=1e-10)
@@ -81,7 +81,8 @@ def test_batched_fit_is_the_component_by_component_fit(problem):
     parameters agree to 1e-5 (in log units, a relative 1e-5 of a lengthscale) except along
     a direction where the likelihood is flat (a noise far below the signal), where moving
     the parameter alone changes the likelihood by less than that."""
-    from mvtex.tsnn.gp import _fit_hyperparameters, _negative_log_likelihood
+    from mvtex.tsnn.gp import _fit_hyperparameters
+    from mvtex.tsnn.gp_kernel import negative_log_likelihood
 
     z, y, _, _ = problem
     zt, yt = torch.from_numpy(z), torch.from_numpy(y)
@@ -90,7 +91,7 @@ def test_batched_fit_is_the_component_by_component_fit(problem):
         alone = _fit_hyperparameters(zt, yt[c:c + 1], 60)
 
         def nll(params):
-            return float(_negative_log_likelihood(zt, yt[c:c + 1], params.reshape(1, -1))[0][0])
+            return float(negative_log_likelihood(zt, yt[c:c + 1], params.reshape(1, -1))[0][0])
 
         f_together, f_alone = nll(together[c]), nll(alone[0])
         assert f_together == pytest.approx(f_alone, rel=1e-9)
@@ -111,7 +112,8 @@ def test_fit_finds_the_optimum_an_independent_optimiser_finds_and_the_closed_for
     and the lengthscales say which coordinates each target depends on."""
     from scipy.optimize import minimize
 
-    from mvtex.tsnn.gp import _bounds, _fit_hyperparameters, _posterior, _start, kernel_matrix
+    from mvtex.tsnn.gp import _fit_hyperparameters, _posterior, _start
+    from mvtex.tsnn.gp_kernel import bounds, kernel_matrix
 
     z, y, z_test, truth = problem
     zt, yt = torch.from_numpy(z), torch.from_numpy(y)
@@ -125,7 +127,7 @@ def test_fit_finds_the_optimum_an_independent_optimiser_finds_and_the_closed_for
     assert lengthscale[0, 0] * 3 < lengthscale[0, 1:].min()  # sin(1.5 z0): z1, z2 irrelevant
     assert lengthscale[1, 1] * 3 < lengthscale[1, [0, 2]].min()  # z1²
     assert lengthscale[2, 1] > 3 * lengthscale[2, [0, 2]].max()  # sin(z0) cos(z2): z1 irrelevant
-    lo, hi = (b.numpy() for b in _bounds(3, "cpu"))
+    lo, hi = (b.numpy() for b in bounds(3, "cpu"))
     scipy = minimize(lambda q: numpy_nll(z, y[2], q), _start(1, 3, "cpu")[0].numpy(), method="L-BFGS-B",
                      jac="3-point", bounds=list(zip(np.maximum(lo, -50), np.minimum(hi, 50))),
                      options={"maxiter": 500, "ftol": 1e-15, "gtol": 1e-9})
@@ -288,6 +290,7 @@ def test_fit_above_the_exact_limit_uses_every_pose_and_reports_progress():
     evenly spaced inducing poses, closer to the noise-free truth on held-out poses than the
     exact GP fitted on those poses alone; the progress callback moves and ends at its total."""
     import mvtex.tsnn.gp as G
+    from mvtex.tsnn.pca import evenly_spaced
 
     rng = np.random.default_rng(4)
     big = rng.uniform(-2, 2, (240, 3))
@@ -297,10 +300,10 @@ def test_fit_above_the_exact_limit_uses_every_pose_and_reports_progress():
     model = G.fit_pose_gp(big, d, components=3, iterations=15, inducing=60,
                           progress=lambda done, total: calls.append((done, total)))
     assert model.config.num_train == 60
-    np.testing.assert_allclose(model.inputs.numpy(), ((big - big.mean(0)) / big.std(0))[G.evenly_spaced(240, 60)])
+    np.testing.assert_allclose(model.inputs.numpy(), ((big - big.mean(0)) / big.std(0))[evenly_spaced(240, 60)])
     assert len(calls) > 3 and calls[-1][0] == calls[-1][1] > 0
     assert all(b[0] >= a[0] for a, b in zip(calls, calls[1:]))
-    subset = G.fit_pose_gp(big[G.evenly_spaced(240, 60)], d[G.evenly_spaced(240, 60)], components=3, iterations=15)
+    subset = G.fit_pose_gp(big[evenly_spaced(240, 60)], d[evenly_spaced(240, 60)], components=3, iterations=15)
     test_poses = rng.uniform(-1.8, 1.8, (200, 3))
     true_d = np.stack([np.stack([f(test_poses) for f in TRUTHS]).T, 0.5 * np.stack([f(test_poses) for f in TRUTHS]).T], -1)
     with torch.no_grad():

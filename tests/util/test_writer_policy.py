@@ -196,7 +196,9 @@ def test_a_demo_with_other_options_is_not_resumed(tmp_path, monkeypatch):
     def no_work(*args, **kwargs):
         raise AssertionError("the demo started work instead of refusing")
 
-    monkeypatch.setattr(mvtex.synth.generate, "write_synth", no_work)
+    import mvtex.apps.demo  # the module that calls it
+
+    monkeypatch.setattr(mvtex.apps.demo, "write_synth", no_work)
     with pytest.raises(mvtex.InputError, match="other options .*num_poses=10"):
         mvtex.run_demo(out, mvtex.DemoOptions(num_poses=12), progress=False)
     assert json.loads((out / "demo.json").read_text())["options"]["num_poses"] == 10
