@@ -57,18 +57,12 @@ def triangulate_summary(result, out) -> str:
     if result.rmse_m is not None:
         lines.insert(0, f"RMSE vs gt, inferred -> reconstructed: triangulated vertices ({result.num_triangulated} of "
                      f"{result.num_vertices}) {pair(result.rmse_triangulated_m)}; all vertices {pair(result.rmse_m)}")
+        if result.original is not None:  # a corrected set (mvtex correct)
+            lines.insert(1, f"corrected set: the mesh before the correction {result.original['rmse_m'] * 1e3:.2f} mm "
+                         f"over all vertices, reconstructed {result.ratio_original:.2f}x better")
         files = "reconstruction.ply, colmap/, comparison.png"
     else:
         lines.append("no ground truth in the dataset: no RMSE against gt, no comparison.png")
         files = "reconstruction.ply, colmap/"
     lines.append(f"wrote {out} ({files})")
     return "\n".join(lines)
-    original = ""
-    if result.original is not None:
-        original = (f"\ncorrected set: the mesh before the correction {result.original['rmse_m'] * 1e3:.2f} mm over all "
-                    f"vertices, reconstructed {result.ratio_original:.2f}x better")
-    return (f"RMSE vs gt, inferred -> reconstructed: triangulated vertices ({result.num_triangulated} of "
-            f"{result.num_vertices}) {pair(result.rmse_triangulated_m)}; all vertices {pair(result.rmse_m)}{original}\n"
-            f"pose {result.pose}, mean reprojection error "
-            f"{'n/a' if reproj is None else f'{reproj:.3f} px'}; wrote {out} (reconstruction.ply, colmap/, "
-            "comparison.png)")

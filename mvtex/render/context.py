@@ -42,17 +42,18 @@ class GLContext:
         import moderngl  # noqa: PLC0415 (loaded on use)
 
         errors = []
-        self.mgl = None
+        mgl = None
         for kwargs in ({"backend": backend} if backend else {}, {}):
             try:
-                self.mgl = moderngl.create_standalone_context(require=330, **kwargs)
+                mgl = moderngl.create_standalone_context(require=330, **kwargs)
                 break
             except Exception as err:  # moderngl/glcontext raise plain Exceptions
                 errors.append(f"{kwargs or 'default'}: {err}")
-        if self.mgl is None:
+        if mgl is None:
             raise RuntimeError("no OpenGL 3.3 context could be created (needs EGL: on Debian "
                                "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1, or an NVIDIA driver): "
                                + "; ".join(errors))
+        self.mgl: moderngl.Context = mgl
         with self.mgl:  # read once here: leaving a nested `with` would release a caller's current context
             info = self.mgl.info
             self._max_size = int(min(info["GL_MAX_TEXTURE_SIZE"], info["GL_MAX_RENDERBUFFER_SIZE"],

@@ -119,6 +119,11 @@ class GeometryCorrector(nn.Module):
     factor of σ.
     """
 
+    train_poses: torch.Tensor  # a buffer
+    oos_mean: torch.Tensor  # a buffer
+    oos_var: torch.Tensor  # a buffer
+    sigma_scale: torch.Tensor  # a buffer
+
     def __init__(self, config: CorrectorConfig):
         super().__init__()
         config.validate()

@@ -171,24 +171,37 @@ class PoseGP(nn.Module):
     # Buffers a stored model may lack (one written before they existed): NaN then.
     optional_buffers = ("log_noise", "residual_var")
 
+    pose_mean: torch.Tensor
+    pose_std: torch.Tensor
+    inputs: torch.Tensor
+    log_lengthscale: torch.Tensor
+    log_signal: torch.Tensor
+    log_additive: torch.Tensor
+    alpha: torch.Tensor
+    basis: torch.Tensor
+    mean: torch.Tensor
+    output_scale: torch.Tensor
+    log_noise: torch.Tensor
+    residual_var: torch.Tensor
+
     def __init__(self, config: GPConfig):
         super().__init__()
         config.validate()
         self.config = config
         k, p, c, n = config.num_train, config.pose_dim, config.components, config.num_vertices * config.channels
-        f64 = {"dtype": torch.float64}
-        self.register_buffer("pose_mean", torch.zeros(p, **f64))
-        self.register_buffer("pose_std", torch.ones(p, **f64))
-        self.register_buffer("inputs", torch.zeros(k, p, **f64))
-        self.register_buffer("log_lengthscale", torch.zeros(c, p, **f64))
-        self.register_buffer("log_signal", torch.zeros(c, **f64))
-        self.register_buffer("log_additive", torch.zeros(c, **f64))
-        self.register_buffer("alpha", torch.zeros(k, c, **f64))
-        self.register_buffer("basis", torch.zeros(c, n, **f64))
-        self.register_buffer("mean", torch.zeros(n, **f64))
+        f64 = torch.float64
+        self.register_buffer("pose_mean", torch.zeros(p, dtype=f64))
+        self.register_buffer("pose_std", torch.ones(p, dtype=f64))
+        self.register_buffer("inputs", torch.zeros(k, p, dtype=f64))
+        self.register_buffer("log_lengthscale", torch.zeros(c, p, dtype=f64))
+        self.register_buffer("log_signal", torch.zeros(c, dtype=f64))
+        self.register_buffer("log_additive", torch.zeros(c, dtype=f64))
+        self.register_buffer("alpha", torch.zeros(k, c, dtype=f64))
+        self.register_buffer("basis", torch.zeros(c, n, dtype=f64))
+        self.register_buffer("mean", torch.zeros(n, dtype=f64))
         self.register_buffer("output_scale", torch.tensor(1.0))
-        self.register_buffer("log_noise", torch.full((c,), math.nan, **f64))
-        self.register_buffer("residual_var", torch.full((n,), math.nan, **f64))
+        self.register_buffer("log_noise", torch.full((c,), math.nan, dtype=f64))
+        self.register_buffer("residual_var", torch.full((n,), math.nan, dtype=f64))
         self._factors: tuple | None = None  # Cholesky factors of the training covariances, made on first use
 
     @property

@@ -95,6 +95,12 @@ class PoseMLP(nn.Module):
     mean (2n',), output_scale () the uv scale of the coefficients the members output.
     """
 
+    pose_mean: torch.Tensor  # a buffer
+    pose_std: torch.Tensor  # a buffer
+    basis: torch.Tensor  # a buffer
+    mean: torch.Tensor  # a buffer
+    output_scale: torch.Tensor  # a buffer
+
     per_vertex = True  # predicts d at the vertices, not an atlas image
 
     def __init__(self, config: MLPConfig):

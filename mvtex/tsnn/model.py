@@ -108,6 +108,10 @@ class TSNN(nn.Module):
     the input; `output_scale` () float32, the displacement unit the last layer works in.
     """
 
+    pose_mean: torch.Tensor  # a buffer
+    pose_std: torch.Tensor  # a buffer
+    output_scale: torch.Tensor  # a buffer
+
     def __init__(self, config: PaperConfig):
         super().__init__()
         config.validate()
@@ -221,6 +225,15 @@ class UNet(nn.Module):
     Args:
         config: the architecture.
     """
+
+    pose_mean: torch.Tensor  # a buffer
+    pose_std: torch.Tensor  # a buffer
+    geometry_mean: torch.Tensor  # a buffer
+    geometry_std: torch.Tensor  # a buffer
+    view_mean: torch.Tensor  # a buffer
+    view_std: torch.Tensor  # a buffer
+    atlas: torch.Tensor  # a buffer
+    output_scale: torch.Tensor  # a buffer
 
     def __init__(self, config: UNetConfig):
         super().__init__()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numbers
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Literal, Sequence, overload
 
 import numpy as np
 
@@ -82,7 +82,15 @@ def as_array(value, name: str, dtype=np.float64) -> np.ndarray:
         raise OptionError(name, f"must be an array of {np.dtype(dtype).name} values") from None
 
 
-def as_path(value, name: str, *, optional: bool = False):
+@overload
+def as_path(value: object, name: str, *, optional: Literal[False] = False) -> Path: ...
+
+
+@overload
+def as_path(value: object, name: str, *, optional: bool) -> Path | None: ...
+
+
+def as_path(value: object, name: str, *, optional: bool = False) -> Path | None:
     """`value` as a `pathlib.Path`; OptionError naming `name` when it is no path (None unless
     `optional`, a number, a list)."""
 
