@@ -39,7 +39,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -48,12 +47,11 @@ from typing import Any, Callable
 import numpy as np
 import torch
 from torch import nn
-from tqdm import tqdm
 
 from mvtex.data.dataset import as_dataset, content_fingerprint
 from mvtex.tsnn.config import mesh_fingerprint
 from mvtex.tsnn.gp import GPConfig, PoseGP, fit_components
-from mvtex.tsnn.modeldir import integer_config
+from mvtex.tsnn.modeldir import integer_config, read_weights
 from mvtex.tsnn.options import GeometryOptions
 from mvtex.tsnn.pca import pose_pca_counted, residual_var
 from mvtex.tsnn.train import resolve_device
@@ -61,6 +59,7 @@ from mvtex.util.checks import as_path, check_instance
 from mvtex.util.errors import InputError
 from mvtex.util.files import read_json, read_row
 from mvtex.util.output import atomic_path, readable, writer
+from mvtex.util.progress import step_bar
 
 GEOMETRY_FORMAT = "mvtex-geometry"
 
@@ -308,14 +307,7 @@ def train_geometry(dataset, out: str | os.PathLike, *, options: GeometryOptions 
                          "and the split has none: give the dataset a split.json with a non-empty 'val'")
     options = replace(options, device=resolve_device(options.device))
     t0 = time.perf_counter()
-    bar = tqdm(desc=f"train geometry ({len(split['train'])} poses)", unit="step", disable=not progress,
-               file=sys.stderr)
-
-    def advance(done: int, total: int) -> None:
-        if bar.total != total:
-            bar.total = total
-            bar.refresh()
-        bar.update(done - bar.n)
+    bar, advance = step_bar(f"train geometry ({len(split['train'])} poses)", progress)
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(0)
@@ -379,8 +371,6 @@ def load_corrector(path: str | os.PathLike) -> LoadedCorrector:
     """Open a geometry model directory written by `train_geometry`; InputError naming
     config.json or model.safetensors when either is missing, malformed or does not match
     the other (sizes are checked before anything is allocated; nothing is unpickled)."""
-    from safetensors import SafetensorError  # noqa: PLC0415 (loaded on use)
-    from safetensors.torch import load_file  # noqa: PLC0415 (loaded on use)
 
     path = as_path(path, "path")
     if not path.is_dir():
@@ -407,12 +397,7 @@ def load_corrector(path: str | os.PathLike) -> LoadedCorrector:
     if config.num_vertices != mesh["num_vertices"] or config.pose_dim != meta["pose_dim"]:
         raise InputError(file, "'architecture' does not match 'mesh' and 'pose_dim'")
     weights = path / "model.safetensors"
-    if not weights.is_file():
-        raise InputError(weights, "file not found")
-    try:
-        state = load_file(str(weights), device="cpu")
-    except (SafetensorError, OSError, ValueError, MemoryError) as err:
-        raise InputError(weights, f"not a readable safetensors file ({err})") from None
+    state = read_weights(weights)
     if set(state) != set(expected) or any(state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype
                                           for k in expected):
         raise InputError(weights, "does not match the architecture in config.json")

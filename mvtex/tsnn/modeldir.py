@@ -195,3 +195,17 @@ def _write_model(out: Path, model, config: ModelConfig, geometry: dict[str, np.n
                        + f"best epoch {config.best_epoch})"
                        + ("\nthe error of d within its principal components" if name == "mlp" else ""),
                        axis=LOSS_AXIS.get(name, LOSS_AXIS["paper"]))
+
+
+def read_weights(weights: Path) -> dict:
+    """The tensors of a model's model.safetensors, on the CPU (never unpickled); InputError
+    naming the file when it is missing or unreadable."""
+    from safetensors import SafetensorError  # noqa: PLC0415 (loaded on use)
+    from safetensors.torch import load_file  # noqa: PLC0415 (loaded on use)
+
+    if not weights.is_file():
+        raise InputError(weights, "file not found")
+    try:
+        return load_file(str(weights), device="cpu")
+    except (SafetensorError, OSError, ValueError, MemoryError) as err:
+        raise InputError(weights, f"not a readable safetensors file ({err})") from None

@@ -38,7 +38,7 @@ from mvtex.tsnn.atlas import AtlasSampler, sample_atlas, vertex_grid
 from mvtex.tsnn.config import CONFIG_FILE, GEOMETRY_FILE, ModelConfig
 from mvtex.tsnn.geometry import MeshGeometry, geometry_images
 from mvtex.tsnn.model import build_network
-from mvtex.tsnn.modeldir import rebuild_mesh
+from mvtex.tsnn.modeldir import read_weights, rebuild_mesh
 from mvtex.util.checks import as_path
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.files import create_npy, load_npz, write_npy_rows
@@ -128,20 +128,13 @@ def _network(config: ModelConfig, file: Path, weights: Path):
     the "meta" device (no memory) and compared with the file before anything is allocated:
     config.json cannot make us allocate more than the weights file holds."""
     import torch  # noqa: PLC0415 (loaded on use)
-    from safetensors import SafetensorError  # noqa: PLC0415 (loaded on use)
-    from safetensors.torch import load_file  # noqa: PLC0415 (loaded on use)
 
     try:
         with torch.device("meta"):
             network = build_network(config.architecture)
     except (TypeError, ValueError, OverflowError) as err:
         raise InputError(file, f"bad 'architecture' ({err})") from None
-    if not weights.is_file():
-        raise InputError(weights, "file not found")
-    try:
-        state = load_file(str(weights), device="cpu")
-    except (SafetensorError, OSError, ValueError, MemoryError) as err:
-        raise InputError(weights, f"not a readable safetensors file ({err})") from None
+    state = read_weights(weights)
     expected = network.state_dict()
     optional = set(getattr(network, "optional_buffers", ()))  # a model stored before they existed
     missing = sorted(set(expected) - set(state) - optional)

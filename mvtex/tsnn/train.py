@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -70,6 +69,7 @@ from mvtex.util.checks import as_path, check_instance
 from mvtex.util.errors import InputError, OptionError
 from mvtex.util.fingerprint import fingerprint, fingerprint_record
 from mvtex.util.output import writer
+from mvtex.util.progress import step_bar
 
 __all__ = ["TrainOptions", "dataset_fingerprint", "resolve_options", "train", "train_camera"]
 
@@ -421,14 +421,7 @@ def _train_gp(dataset, texcoords, camera: str, split, options: TrainOptions, dev
 
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
-    bar = tqdm(desc=f"train {camera} (gp, {len(train_poses)} poses)", unit="step", disable=not progress,
-               file=sys.stderr)
-
-    def advance(done: int, total: int) -> None:
-        if bar.total != total:
-            bar.total = total
-            bar.refresh()
-        bar.update(done - bar.n)
+    bar, advance = step_bar(f"train {camera} (gp, {len(train_poses)} poses)", progress)
 
     model = fit_pose_gp(pose_vectors, DisplacementRows(texcoords, camera, train_poses), components=options.components,
                         progress=advance, device=device)
@@ -451,11 +444,7 @@ def _train_mlp(dataset, texcoords, camera: str, split, options: TrainOptions, pr
     train_poses = split["train"]
     pose_vectors = np.asarray(dataset.poses[train_poses], dtype=np.float32).reshape(len(train_poses), -1)
     val = Samples(dataset, texcoords, [camera], split["val"], options.weight_assigned, "cpu")
-    bar = tqdm(desc=f"train {camera} (mlp, {len(train_poses)} poses)", unit="step", disable=not progress)
-
-    def advance(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
+    bar, advance = step_bar(f"train {camera} (mlp, {len(train_poses)} poses)", progress)
 
     model, history = fit_pose_mlp(pose_vectors, DisplacementRows(texcoords, camera, train_poses), val.x.numpy(), val.d_numpy,
                                   components=options.components, hidden=options.width, members=options.members,
