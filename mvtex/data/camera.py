@@ -35,7 +35,7 @@ allocated. Calibration and rig tools take cameras up to MAX_IMAGE_SIZE a side.""
 
 
 MAX_COORDINATE_M = 1e6
-"""Largest magnitude of a coordinate mvtex accepts, in metres: a camera's translation, a
+"""Largest magnitude of a coordinate mvtex accepts, in meters: a camera's translation, a
 vertex of a garment or a body (1000 km). Far beyond any rig, it keeps every product and
 square mvtex forms finite, and every value it hands the GPU a float32."""
 

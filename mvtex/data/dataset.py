@@ -15,7 +15,7 @@ pose selection specs, and import from OBJ/PLY sequences.
                                predictor's mesh before the correction (inferred.npy is the
                                corrected one)
     geometry_uncertainty.npy   a corrected set: float32 (K,n), the corrector's predictive
-                               standard deviation per vertex, in metres
+                               standard deviation per vertex, in meters
 
 dataset.json may record the body's size as "body": {"num_vertices": nb, "num_faces": mb};
 readers do not require it. A corrected set's dataset.json records the correction under

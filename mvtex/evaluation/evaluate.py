@@ -382,7 +382,7 @@ def _eval_state(spec: _EvalSpec) -> _EvalState:
 # The heatmaps' colour scales, the same in every picture of every run, so that two pictures
 # compare at a glance (logarithmic; values above the top are drawn in its colour, "+").
 UV_HEATMAP_SCALE = (1e-5, 3e-2)  # uv units
-MATERIAL_HEATMAP_SCALE = (1e-5, 3e-2)  # metres: 0.01 to 30 mm
+MATERIAL_HEATMAP_SCALE = (1e-5, 3e-2)  # meters: 0.01 to 30 mm
 
 
 def heatmap_scales(has_material: bool = True) -> dict:

@@ -11,7 +11,7 @@ it self-contained and traceable:
     original_inferred.npy     (K,n,3) float32 the mesh before the correction: the source's
                               inferred mesh (or the source's own original_inferred.npy,
                               when the source was corrected already)
-    geometry_uncertainty.npy  (K,n) float32 the corrector's σ per vertex, in metres
+    geometry_uncertainty.npy  (K,n) float32 the corrector's σ per vertex, in meters
     dataset.json "correction" {"model", "model_dataset", "source": {"path", "name",
                               "content"}, "source_poses", "out_of_sample_poses",
                               "sigma_scale", "options"}

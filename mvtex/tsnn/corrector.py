@@ -10,7 +10,7 @@ hyperparameters by maximum marginal likelihood:
 
     r(θ) = mean + Σ_c f_c(θ) · basis_c,      σ_i(θ)² = s² (Σ_c var_c(θ) basis_ci² + trunc_i)
 
-σ_i is the predictive standard deviation of vertex i in metres (the root of the expected
+σ_i is the predictive standard deviation of vertex i in meters (the root of the expected
 squared length of its error, summed over x, y, z), from each component's posterior
 variance carried through the basis plus what the C components leave out, times one
 factor s chosen on the validation poses: with it, the mean squared error of the corrected
@@ -152,7 +152,7 @@ class GeometryCorrector(nn.Module):
                 pose the posterior's).
 
         Returns:
-            residual (B,n,3) float64 (metres), sigma (B,n) float64 (metres, calibrated),
+            residual (B,n,3) float64 (meters), sigma (B,n) float64 (meters, calibrated),
             in_sample (B,) bool: the poses that are training poses.
         """
         x = torch.from_numpy(np.asarray(poses, dtype=np.float64).reshape(len(poses), -1))

@@ -224,7 +224,7 @@ class PoseGP(nn.Module):
 
     def predictive_std(self, poses: torch.Tensor) -> torch.Tensor | None:
         """Predictive standard deviation of d per vertex, (B,n') float64 in d's units (uv;
-        metres for the geometry corrector): the root of the expected squared length of d's
+        meters for the geometry corrector): the root of the expected squared length of d's
         error, sqrt(var_u + var_v) (sqrt(var_x + var_y + var_z) for 3 channels).
 
         Per component c, the GP's predictive variance of a new pose's coefficient,

@@ -16,7 +16,7 @@ Output (OUT, written whole or not at all):
                   URL parameters (view, camera, texcoords, body, stereo, ipd): docs/views.md.
     export.json   what was exported (`SceneExport.to_json()`).
 
-Positions stay in the dataset's world frame (metres): glTF's +Y up matches the built-in data,
+Positions stay in the dataset's world frame (meters): glTF's +Y up matches the built-in data,
 whose cameras look from +Z; other data keeps its own axes, cameras and mesh together.
 """
 
