@@ -34,6 +34,7 @@ from mvtex.apps.new_frames import demo_new_frames, summary_line
 from mvtex.apps.options import DemoOptions
 from mvtex.apps.report import demo_novel_views, demo_preview, demo_report
 from mvtex.data.dataset import default_split, load_dataset
+from mvtex.data.mesh import rms_distance
 from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.data.texcoords import open_texcoords
 from mvtex.evaluation.evaluate import evaluate
@@ -210,16 +211,13 @@ def _learned(dataset, stereo, out: Path, options: DemoOptions, timings: dict, pr
         reports = [triangulate_pose(corrected, stereo, tc_pred, k, None, ReconOptions(), progress=False, ctx=ctx)
                    for k in test]
 
-    def rmse(a, b) -> float:
-        return float(np.sqrt(np.mean(np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=1))))
-
     m = result.material_rmse_m
+    original = [rms_distance(corrected.original_inferred[k], corrected.gt[k]) for k in test]
     learned = {"test_poses": len(test), "train_poses": len(dataset.split["train"]), "images": result.num_images,
                "material_mm": {"inferred": round(result.original_inferred["material_rmse_m"].mean * 1e3, 3),
                                "corrected": round(m.inferred.mean * 1e3, 3),
                                "texture_sliding": round(m.texcoords.mean * 1e3, 3)},
-               "rmse_mm": {"inferred": round(1e3 * float(np.mean([rmse(corrected.original_inferred[k], corrected.gt[k])
-                                                                  for k in test])), 3),
+               "rmse_mm": {"inferred": round(1e3 * float(np.mean(original)), 3),
                            "corrected": round(1e3 * float(np.mean([r.rmse_m.inferred for r in reports])), 3),
                            "triangulated": round(1e3 * float(np.mean([r.rmse_m.reconstructed for r in reports])), 3)}}
     timings["tsnn_predict_eval"] = time.perf_counter() - t

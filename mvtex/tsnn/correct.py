@@ -34,6 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 from mvtex.data.dataset import ORIGINAL_FILE, UNCERTAINTY_FILE, as_dataset, content_fingerprint, metadata
+from mvtex.data.mesh import rms_distance
 from mvtex.tsnn.corrector import load_corrector
 from mvtex.tsnn.options import CorrectOptions
 from mvtex.util.checks import as_path, check_instance
@@ -160,9 +161,9 @@ def correct(dataset, model: str | os.PathLike, out: str | os.PathLike, *, poses:
             if has_gt:
                 gt = np.stack([read_row(dataset.gt, p) for p in rows])
                 write_npy_rows(tmp / "gt.npy", index, gt)
-                for g, o, c in zip(gt.astype(np.float64), original.astype(np.float64), corrected.astype(np.float64)):
-                    rmse["original"].append(float(np.sqrt(np.mean(np.sum((o - g) ** 2, axis=1)))))
-                    rmse["corrected"].append(float(np.sqrt(np.mean(np.sum((c - g) ** 2, axis=1)))))
+                for g, o, c in zip(gt, original, corrected):
+                    rmse["original"].append(rms_distance(o, g))
+                    rmse["corrected"].append(rms_distance(c, g))
             if dataset.body is not None:
                 write_npy_rows(tmp / "body.npy", index, np.stack([read_row(dataset.body.positions, p) for p in rows]))
             bar.update(len(rows))

@@ -49,6 +49,7 @@ import torch
 from torch import nn
 
 from mvtex.data.dataset import as_dataset, content_fingerprint
+from mvtex.data.mesh import rms_distance
 from mvtex.tsnn.config import mesh_fingerprint
 from mvtex.tsnn.gp import GPConfig, PoseGP, fit_components
 from mvtex.tsnn.modeldir import integer_config, read_weights
@@ -194,10 +195,6 @@ def calibrate_sigma(errors2: np.ndarray, variances: np.ndarray) -> float:
     return s
 
 
-def _rmse(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1))))
-
-
 @dataclass(frozen=True)
 class GeometryResult:
     """What `train_geometry` made (`mvtex train --geometry --json` is `to_json()`).
@@ -234,8 +231,8 @@ def _validation(model: GeometryCorrector, dataset, poses: list[int]) -> tuple[fl
             gt = read_row(dataset.gt, k).astype(np.float64)
             inferred = read_row(dataset.inferred, k).astype(np.float64)
             corrected = inferred + residual[i]
-            inferred_rmse.append(_rmse(inferred, gt))
-            corrected_rmse.append(_rmse(corrected, gt))
+            inferred_rmse.append(rms_distance(inferred, gt))
+            corrected_rmse.append(rms_distance(corrected, gt))
             err2.append(np.sum((corrected - gt) ** 2, axis=1))
             var.append(sigma[i] ** 2)
     e2, v = np.concatenate(err2), np.concatenate(var)
