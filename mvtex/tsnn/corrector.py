@@ -52,7 +52,7 @@ from mvtex.data.dataset import as_dataset, content_fingerprint
 from mvtex.data.mesh import rms_distance
 from mvtex.tsnn.config import mesh_fingerprint
 from mvtex.tsnn.gp import GPConfig, PoseGP, fit_components
-from mvtex.tsnn.modeldir import integer_config, read_weights
+from mvtex.tsnn.modeldir import IntegerConfig, read_weights
 from mvtex.tsnn.options import GeometryOptions
 from mvtex.tsnn.pca import pose_pca_counted, residual_var
 from mvtex.tsnn.train import resolve_device
@@ -78,7 +78,7 @@ _BLOCK = 256  # poses predicted at a time
 
 
 @dataclass(frozen=True)
-class CorrectorConfig:
+class CorrectorConfig(IntegerConfig):
     """Shape of a `GeometryCorrector`.
 
     Attributes:
@@ -86,6 +86,8 @@ class CorrectorConfig:
         num_train: poses the GP's posterior is expanded on (at most `MAX_TRAIN`).
         training_poses: K, the training poses whose out-of-sample prediction it keeps.
     """
+
+    ARCH = "geometry-gp"
 
     pose_dim: int
     num_vertices: int
@@ -102,12 +104,6 @@ class CorrectorConfig:
         return GPConfig(pose_dim=self.pose_dim, num_vertices=self.num_vertices, num_train=self.num_train,
                         components=self.components, channels=3)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"arch": "geometry-gp", **asdict(self)}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "CorrectorConfig":
-        return integer_config(cls, d, "geometry-gp")
 
 
 class GeometryCorrector(nn.Module):

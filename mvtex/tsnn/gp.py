@@ -54,8 +54,8 @@ import contextlib
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass
-from typing import Any, Callable
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -72,7 +72,7 @@ from mvtex.tsnn.gp_kernel import (
     negative_log_likelihood,
 )
 from mvtex.tsnn.lbfgs import minimise
-from mvtex.tsnn.modeldir import integer_config
+from mvtex.tsnn.modeldir import IntegerConfig
 from mvtex.tsnn.pca import evenly_spaced, pose_pca_counted, residual_var
 
 MAX_TRAIN = 2000  # training poses an exact GP is fitted on (O(K^3) time, O(K^2) memory)
@@ -116,7 +116,7 @@ _PART_ELEMENTS = 2 ** 23  # (rows, K, K) float64 arrays of one part: 64 MB each
 
 
 @dataclass(frozen=True)
-class GPConfig:
+class GPConfig(IntegerConfig):
     """Shape of a `PoseGP`.
 
     Attributes:
@@ -128,6 +128,8 @@ class GPConfig:
         channels: values per vertex: 2 for displacements d (a per-camera model), 3 for
             the geometry corrector's 3-D residual (`mvtex.tsnn.corrector`).
     """
+
+    ARCH = "gp"
 
     pose_dim: int
     num_vertices: int
@@ -145,12 +147,6 @@ class GPConfig:
         if self.channels not in (2, 3):
             raise ValueError(f"channels must be 2 or 3, got {self.channels}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"arch": "gp", **asdict(self)}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "GPConfig":
-        return integer_config(cls, d, "gp")
 
 
 class PoseGP(nn.Module):

@@ -22,14 +22,14 @@ networks (model.safetensors + config.json "architecture": {"arch": "mlp", ...}).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
-from typing import Any, Callable
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
 from torch import nn
 
-from mvtex.tsnn.modeldir import integer_config
+from mvtex.tsnn.modeldir import IntegerConfig
 from mvtex.tsnn.pca import pose_pca_counted
 
 MAX_MEMBERS = 32
@@ -53,7 +53,7 @@ BATCH = 128
 
 
 @dataclass(frozen=True)
-class MLPConfig:
+class MLPConfig(IntegerConfig):
     """Shape of a `PoseMLP`.
 
     Attributes:
@@ -63,6 +63,8 @@ class MLPConfig:
         hidden: H, units of each of the two hidden layers.
         members: E, networks averaged.
     """
+
+    ARCH = "mlp"
 
     pose_dim: int
     num_vertices: int
@@ -79,12 +81,6 @@ class MLPConfig:
             raise ValueError(f"hidden must be in 1..{MAX_HIDDEN} and members in 1..{MAX_MEMBERS}, "
                              f"got {self.hidden} and {self.members}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"arch": "mlp", **asdict(self)}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "MLPConfig":
-        return integer_config(cls, d, "mlp")
 
 
 class PoseMLP(nn.Module):

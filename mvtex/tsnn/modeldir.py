@@ -5,9 +5,9 @@ picture, and a `unet`'s geometry.npz): written here; config.json's keys are
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -39,6 +39,26 @@ def integer_config(cls, d: dict[str, Any], arch: str):
     config = cls(**d)
     config.validate()
     return config
+
+
+_Config = TypeVar("_Config", bound="IntegerConfig")
+
+
+class IntegerConfig:
+    """A model's shape as a dataclass of integer fields, stored as config.json's
+    "architecture" with its `ARCH` name (`to_dict`) and read back checked (`from_dict`)."""
+
+    ARCH: ClassVar[str]
+
+    def validate(self) -> None:
+        """Raise ValueError on a shape the model cannot take."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"arch": self.ARCH, **asdict(self)}  # type: ignore[call-overload]
+
+    @classmethod
+    def from_dict(cls: type[_Config], d: dict[str, Any]) -> _Config:
+        return integer_config(cls, d, cls.ARCH)
 
 
 @dataclass(frozen=True)
