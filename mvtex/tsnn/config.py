@@ -8,6 +8,8 @@
             (what `predict` records as the set's rig.yaml); absent in older models,
      "architecture": {"arch": "gp"|"mlp"|"unet"|"paper", ...},
      "pose_normalisation", "output_scale",
+     "gain": the factor every prediction is multiplied by, in [0, 1], fitted on the
+             validation poses (`TrainOptions.gain`); absent: 1,
      "mesh": {"subdiv", "num_base_vertices", "num_vertices", "num_faces",
               "base_mesh": fingerprint of the base mesh's faces and uv},
      "atlas": {"convention", "dilation"},
@@ -130,6 +132,8 @@ class ModelConfig:
         atlas: {"convention", "dilation"} of atlas-image models, or None.
         geometry: {"file": GEOMETRY_FILE} where a `unet` keeps its geometry reference.
         inputs: the content fingerprint of everything it was trained from, or None.
+        gain: the factor in [0, 1] every prediction is multiplied by (fitted on the
+            validation poses, `TrainOptions.gain`); None: 1.
         pose_normalisation ... history: the training record (None where absent).
     """
 
@@ -142,6 +146,7 @@ class ModelConfig:
     atlas: dict[str, Any] | None = None
     geometry: dict[str, Any] | None = None
     inputs: str | None = None
+    gain: float | None = None
     pose_normalisation: dict[str, Any] | None = None
     output_scale: float | None = None
     dataset: dict[str, Any] | None = None
@@ -178,6 +183,8 @@ class ModelConfig:
         for key in _RECORD[:2]:
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
+        if self.gain is not None:
+            out["gain"] = self.gain
         out["mesh"] = self.mesh.to_json()
         for key in ("atlas", "geometry", *_RECORD[2:]):
             if getattr(self, key) is not None:
@@ -222,10 +229,17 @@ class ModelConfig:
         config = cls(camera=camera, architecture=arch, mesh=_mesh(meta, file), version=version,
                      cameras=_cameras(meta.get("cameras"), file), rig=_rig(meta.get("rig"), file),
                      atlas=_optional(meta, file, "atlas", dict), geometry=_optional(meta, file, "geometry", dict),
-                     inputs=_optional(meta, file, "inputs", str),
+                     inputs=_optional(meta, file, "inputs", str), gain=_gain(meta, file),
                      **{key: _optional(meta, file, key, _KINDS[key]) for key in _RECORD})
         _check_consistent(config, file)
         return config
+
+
+def _gain(meta: dict, file) -> float | None:
+    gain = _optional(meta, file, "gain", (int, float))
+    if gain is not None and not 0.0 <= gain <= 1.0:  # NaN fails both
+        raise InputError(file, f"'gain' must be a number in [0, 1], got {gain}")
+    return None if gain is None else float(gain)
 
 
 def _check_consistent(config: ModelConfig, file) -> None:

@@ -71,6 +71,7 @@ class TrainResult:
         device: where it was trained; resolution: its atlas resolution (None for `gp`).
         epochs_run, best_epoch, seconds: the training's course and time.
         num_poses: {"train", "val", "test"} pose counts; losses: the final losses per split.
+        gain: the factor its predictions are multiplied by (`TrainOptions.gain`), None: off.
     """
 
     camera: str | None
@@ -84,12 +85,13 @@ class TrainResult:
     seconds: float
     num_poses: dict[str, int]
     losses: dict[str, Any]
+    gain: float | None = None
 
     def to_json(self) -> dict:
         return {"camera": self.camera, "cameras": list(self.cameras), "arch": self.arch, "out": self.out,
                 "device": self.device, "resolution": self.resolution, "epochs_run": self.epochs_run,
                 "best_epoch": self.best_epoch, "seconds": self.seconds, "num_poses": dict(self.num_poses),
-                "losses": self.losses}
+                "losses": self.losses, "gain": self.gain}
 
 
 @dataclass(frozen=True)
@@ -160,7 +162,8 @@ def _kept_model(path: Path, key: str) -> TrainResult | None:
         return TrainResult(camera=config.camera, cameras=list(config.cameras), arch=config.options["arch"],
                            out=str(path), device=config.device, resolution=config.architecture.get("resolution"),
                            epochs_run=config.epochs_run, best_epoch=config.best_epoch, seconds=config.seconds,
-                           num_poses={k: len(v) for k, v in config.split.items()}, losses=config.losses)
+                           num_poses={k: len(v) for k, v in config.split.items()}, losses=config.losses,
+                           gain=config.gain)
     except (InputError, OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 

@@ -68,6 +68,14 @@ class TrainOptions(Options):
         dropout: dropout probability on the pose embedding (the first stage's input; 0: off).
         members: networks of an `mlp` ensemble (its hidden layers have `width` units, its
             outputs are `components` principal components of d).
+        gain: multiply every prediction by the gain in [0, 1] that minimises the loss on the
+            validation poses (least squares; recorded in config.json): a model that learned
+            little of d is shrunk towards no sliding (the inferred mesh's own texture
+            coordinates). None: on for a corrected set (`mvtex correct`), where what the
+            corrector left is mostly not a function of the pose (on the validation poses of
+            both built-in garments at 160 and 240 training poses, `gp` models explain
+            -8 % to 12 % of it, and their fitted gains are 0.25-0.8), off otherwise (the same
+            models on the original sets explain 59-66 %, gains 0.97-1.10).
     """
 
     arch: Literal["gp", "mlp", "unet", "paper"] | None = knob(
@@ -101,6 +109,9 @@ class TrainOptions(Options):
                              low=0)
     dropout: float = knob(0.0, "dropout probability on the pose embedding", low=0, high=1, high_open=True)
     members: int = knob(5, "networks of an mlp ensemble", low=1, high=MAX_MEMBERS)
+    gain: bool | None = knob(None, "multiply predictions by the gain in [0, 1] fitted on the validation poses, "
+                             "which shrinks a model that learned little towards no sliding",
+                             auto="on for a corrected set (mvtex correct), off otherwise")
 
     def validate(self) -> None:
         if not _DEVICE.match(self.device):

@@ -167,8 +167,18 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
         cam_from_world: (3,4) extrinsics of the camera; camera-conditioned models only.
 
     Returns:
-        (K,n',2) float32 d.
+        (K,n',2) float32 d, times the model's gain (config.json's "gain", `TrainOptions.gain`).
     """
+    d = _network_displacements(model, poses, uv, geometry=geometry, cam_from_world=cam_from_world,
+                               batch_size=batch_size, device=device)
+    if model.config.gain is not None and model.config.gain != 1.0:
+        d *= np.float32(model.config.gain)
+    return d
+
+
+def _network_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray, *, geometry: np.ndarray | None,
+                           cam_from_world: np.ndarray | None, batch_size: int, device: str) -> np.ndarray:
+    """`predict_displacements` before the gain."""
     import torch  # noqa: PLC0415 (loaded on use)
 
     net = model.network.to(device)
@@ -177,7 +187,7 @@ def predict_displacements(model: LoadedModel, poses: np.ndarray, uv: np.ndarray,
             raise InputError(model.path / "config.json", f"predicts {net.config.num_vertices} vertices, "
                              f"the mesh has {len(uv)}")
         with torch.no_grad():
-            return net(torch.from_numpy(np.array(poses, dtype=np.float64)).to(device)).cpu().numpy()
+            return net(torch.from_numpy(np.array(poses, dtype=np.float64)).to(device)).cpu().numpy().astype(np.float32)
     grid = vertex_grid(uv).to(device)
     x = torch.from_numpy(np.array(poses, dtype=np.float32)).to(device)
     cam = None if cam_from_world is None else torch.tensor(np.asarray(cam_from_world, np.float32), device=device)

@@ -73,7 +73,10 @@ def weighted_mse(pred, target, weight):
 
 
 def sample_losses(predict, data: Samples, batch_size: int) -> dict[str, float]:
-    """Weighted MSE, unweighted RMSE and the zero predictor's weighted MSE over a sample set.
+    """Weighted MSE ("loss"), unweighted RMSE ("rmse") and the zero predictor's weighted MSE
+    ("zero_loss") over a sample set, and the gain g ≥ 0 of the predictions that minimises the
+    weighted MSE of g times them ("gain": Σ w p·d / Σ w p·p, 1 where every prediction is 0;
+    `TrainOptions.gain`) with that MSE ("gain_loss").
 
     Args:
         predict: (data, idx) -> (len(idx),n',2) per-vertex d of those samples (model in eval mode).
@@ -82,7 +85,7 @@ def sample_losses(predict, data: Samples, batch_size: int) -> dict[str, float]:
 
     if len(data) == 0:
         return {}
-    se_w = w_sum = se = zero_w = 0.0
+    se_w = w_sum = se = zero_w = cross_w = pred_w = 0.0
     with torch.no_grad():
         for start in range(0, len(data), batch_size):
             idx = torch.arange(start, min(start + batch_size, len(data)), device=data.d.device)
@@ -92,8 +95,13 @@ def sample_losses(predict, data: Samples, batch_size: int) -> dict[str, float]:
             w_sum += float(data.w[idx].sum())
             se += float(e.sum())
             zero_w += float((data.d[idx].square().sum(-1) * data.w[idx]).sum())
+            cross_w += float(((pred * data.d[idx]).sum(-1) * data.w[idx]).sum())
+            pred_w += float((pred.square().sum(-1) * data.w[idx]).sum())
     n = len(data) * data.d.shape[1]
-    return {"loss": se_w / w_sum, "rmse": math.sqrt(se / n), "zero_loss": zero_w / w_sum}
+    gain = max(cross_w, 0.0) / pred_w if pred_w > 0 else 1.0
+    gain_loss = (gain * gain * pred_w - 2.0 * gain * cross_w + zero_w) / w_sum
+    return {"loss": se_w / w_sum, "rmse": math.sqrt(se / n), "zero_loss": zero_w / w_sum, "gain": gain,
+            "gain_loss": max(gain_loss, 0.0)}
 
 
 class DisplacementRows:

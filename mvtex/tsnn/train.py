@@ -199,7 +199,8 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
 
     Returns:
         A JSON-serialisable summary: camera, cameras, arch, out, device, epochs_run,
-        best_epoch, seconds, losses {"train"|"val"|"test": {"loss", "rmse", "zero_loss"}},
+        best_epoch, seconds, gain (None: off), losses {"train"|"val"|"test": {"loss", "rmse",
+        "zero_loss", "gain", "gain_loss"}} (before the gain),
         split sizes (poses).
 
     Raises:
@@ -268,10 +269,11 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
         torch.use_deterministic_algorithms(previous_deterministic)
     model, config, history, best_epoch, losses = result
     seconds = time.perf_counter() - t0
+    gain = validation_gain(options, dataset, losses)
 
     record = ModelConfig(
         camera=camera, version=MODEL_VERSION,
-        inputs=_inputs_key(dataset, texcoords, cameras, views, split, options, rig=cameras_whole),
+        inputs=_inputs_key(dataset, texcoords, cameras, views, split, options, rig=cameras_whole), gain=gain,
         cameras={c: np.asarray(v) for c, v in views.items()} or {camera: None}, rig=cameras_whole,
         architecture=config.to_dict(),
         pose_normalisation={"mean": model.pose_mean.cpu().tolist(), "std": model.pose_std.cpu().tolist()},
@@ -291,7 +293,17 @@ def train(dataset, texcoords, out: str | os.PathLike, *, camera: str | None = No
     return TrainResult(camera=camera, cameras=list(cameras), arch=options.arch, out=str(out), device=str(device),
                        resolution=getattr(config, "resolution", None), epochs_run=record.epochs_run,
                        best_epoch=best_epoch, seconds=record.seconds, num_poses={k: len(v) for k, v in split.items()},
-                       losses=losses)
+                       losses=losses, gain=gain)
+
+
+def validation_gain(options: TrainOptions, dataset, losses: dict) -> float | None:
+    """The gain config.json records (`TrainOptions.gain`): the validation poses' least-squares
+    gain clipped to [0, 1], or None (off: predictions are used as they are). Its default is
+    on for a corrected set."""
+    on = dataset.correction is not None if options.gain is None else options.gain
+    if not on or "val" not in losses:
+        return None
+    return float(min(max(losses["val"]["gain"], 0.0), 1.0))
 
 
 def _masked_stats(images: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

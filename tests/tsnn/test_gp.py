@@ -189,6 +189,16 @@ def test_model_directory_in_the_stored_format_loads_and_predicts(tmp_path):
     assert math.isfinite(float(np.abs(got).max()))
     # Stored without noise levels (written before they existed): no uncertainty to report.
     assert predict_uncertainty(load_model(tmp_path), poses, np.zeros((n, 2), np.float32)) is None
+    # A gain multiplies every prediction; one outside [0, 1] is refused, naming the key.
+    (tmp_path / "config.json").write_text(json.dumps(meta | {"gain": 0.25}))
+    gained = predict_displacements(load_model(tmp_path), poses, np.zeros((n, 2), np.float32))
+    np.testing.assert_allclose(gained, 0.25 * expected, rtol=1e-6, atol=1e-7)
+    from mvtex.util.errors import InputError
+
+    for bad in (1.5, -0.1, "half"):
+        (tmp_path / "config.json").write_text(json.dumps(meta | {"gain": bad}))
+        with pytest.raises(InputError, match="gain"):
+            load_model(tmp_path)
 
 
 def test_predictive_std_is_the_closed_form_posterior_variance(problem):

@@ -743,3 +743,75 @@ def test_unet_predicts_the_same_for_an_inference_set_of_another_rest(rig_data, t
     old_new = open_texcoords(tmp_path / "old_new")
     assert max(np.abs(own.displacement(c, p) - old_new.displacement(c, i)).max()
                for c in rig.names for i, p in enumerate(test)) > 1e-5
+
+
+def test_gain_is_the_validation_poses_least_squares_factor(field_data, tmp_path):
+    """`TrainOptions.gain`: the recorded gain is Σ p·d / Σ p·p over the validation poses (p
+    the model's prediction without the gain, d the texcoord set's), clipped to [0, 1]; the
+    model's predictions are that factor times the ungained ones. A model of d that is not a
+    function of the pose gets a small gain; one of a smooth field keeps nearly all of it."""
+    from mvtex.data.texcoords import open_texcoords, save_texcoords
+    from mvtex.tsnn.predict import load_model, predict_displacements
+    from mvtex.tsnn.train import TrainOptions, train_camera
+
+    dataset, tc, _ = field_data
+    rng = np.random.default_rng(11)
+    noise = (0.01 * rng.normal(size=(dataset.num_poses, len(tc.uv), 2))).astype(np.float32)
+    save_texcoords(tmp_path / "noise", faces=tc.faces, uv=tc.uv, parent=tc.parent, source="synthetic", subdiv=1,
+                   poses=list(range(dataset.num_poses)), displacement={"cam": noise},
+                   assigned={"cam": np.ones(noise.shape[:2], bool)})
+    val = dataset.split["val"]
+    for texcoords, low, high in ((open_texcoords(tmp_path / "noise", dataset.num_vertices), 0.0, 0.5),
+                                 (tc, 0.9, 1.0)):
+        name = texcoords.path.name
+        off = train_camera(dataset, texcoords, "cam", tmp_path / f"{name}_off", TrainOptions(components=8, gain=False),
+                           progress=False)
+        on = train_camera(dataset, texcoords, "cam", tmp_path / f"{name}_on", TrainOptions(components=8, gain=True),
+                          progress=False)
+        assert off.gain is None and load_model(tmp_path / f"{name}_off").config.gain is None
+        raw = predict_displacements(load_model(tmp_path / f"{name}_off"), dataset.poses[val], tc.uv).astype(np.float64)
+        d = np.stack([texcoords.displacement("cam", p) for p in val]).astype(np.float64)
+        expected = float(np.clip(np.sum(raw * d) / np.sum(raw * raw), 0.0, 1.0))
+        assert low <= on.gain <= high
+        assert on.gain == pytest.approx(expected, rel=1e-4, abs=1e-6)
+        gained = load_model(tmp_path / f"{name}_on")
+        assert gained.config.gain == on.gain
+        np.testing.assert_allclose(predict_displacements(gained, dataset.poses[val], tc.uv), on.gain * raw,
+                                   rtol=1e-5, atol=1e-7)
+
+
+def test_gain_defaults_on_for_a_corrected_set_only():
+    """`TrainOptions.gain` None: on where the dataset records a correction, off elsewhere;
+    the validation gain is clipped to [0, 1]."""
+    from types import SimpleNamespace
+
+    from mvtex.tsnn.train import TrainOptions, validation_gain
+
+    losses = {"val": {"gain": 1.4}}
+    plain, corrected = SimpleNamespace(correction=None), SimpleNamespace(correction={"model": "m"})
+    assert validation_gain(TrainOptions(), plain, losses) is None
+    assert validation_gain(TrainOptions(), corrected, losses) == 1.0
+    assert validation_gain(TrainOptions(gain=True), plain, {"val": {"gain": 0.3}}) == 0.3
+    assert validation_gain(TrainOptions(gain=False), corrected, losses) is None
+    assert validation_gain(TrainOptions(gain=True), plain, {"val": {"gain": -0.2}}) == 0.0
+
+
+def test_sample_losses_gain_minimises_the_weighted_error():
+    """`sample_losses`' gain and gain_loss against the weighted least squares written out."""
+    from mvtex.tsnn.samples import sample_losses
+
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(7, 9, 2))
+    w = rng.uniform(0.5, 2.0, size=(7, 9))
+    pred = 0.6 * d + 0.3 * rng.normal(size=d.shape)
+    data = type("Samples", (), {"d": torch.from_numpy(d), "w": torch.from_numpy(w), "__len__": lambda self: 7})()
+    out = sample_losses(lambda _, idx: torch.from_numpy(pred)[idx], data, batch_size=3)
+    g = np.sum(w[..., None] * pred * d) / np.sum(w[..., None] * pred * pred)
+    assert out["gain"] == pytest.approx(g, rel=1e-9)
+
+    def loss(gain):
+        return np.sum(w * np.sum((gain * pred - d) ** 2, -1)) / w.sum()
+
+    assert out["gain_loss"] == pytest.approx(loss(g), rel=1e-9)
+    assert out["loss"] == pytest.approx(loss(1.0), rel=1e-9)
+    assert loss(g) < min(loss(g - 0.01), loss(g + 0.01))
