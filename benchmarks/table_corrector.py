@@ -14,6 +14,8 @@ made from it under WORK/work/<garment><N> (every step is kept and reused by a re
     geometry, corrected                          `train --geometry`, `correct` (every pose)
     cts_RIG, cgp_RIG/<camera>, cgp{val,test}_RIG the same per-camera path on the corrected set
 
+(A rerun reuses the predictions it finds: delete [c]gp{val,test}_RIG to score new models.)
+
 The five columns, on the poses of SPLIT (N evenly spaced ones with --test-poses):
 inferred; the corrector alone (the corrected mesh); per-camera `gp` alone (on the original
 mesh); the corrector + `gp` (models trained on the corrected set, fused with its prior in
@@ -78,13 +80,15 @@ def prepare(work: Path, garment: str, num_poses: int, rigs: list[str], workers: 
             if not (ts / "texcoords.json").exists():
                 slide_dataset(ds, rig, ts, poses=ds.select("all"), options=SlideOptions(), workers=workers,
                               progress=False)
-            tc = open_texcoords(ts, ds.num_vertices)
             models = base / f"{prefix}gp_{rig_name}"
+            outs = {split: base / f"{prefix}gp{split}_{rig_name}" for split in ("val", "test")}
+            if all((out / "texcoords.json").exists() for out in outs.values()):
+                continue  # kept predictions: delete them to score new models
             # One process: models trained on worker processes are not recorded in the folder's
             # manifest, and a rerun would refuse the folder.
-            train_cameras(ds, tc, list(rig.names), models, TrainOptions(arch="gp"), progress=False)
-            for split in ("val", "test"):
-                out = base / f"{prefix}gp{split}_{rig_name}"
+            train_cameras(ds, open_texcoords(ts, ds.num_vertices), list(rig.names), models, TrainOptions(arch="gp"),
+                          progress=False)
+            for split, out in outs.items():
                 if not (out / "texcoords.json").exists():
                     predict(ds, [models / c for c in rig.names], out, poses=ds.split[split], progress=False)
     return data, base
