@@ -81,6 +81,11 @@ def cmd_train(args):
         text = f"wrote {len(names)} models ({result.arch}) to {args.out}/<camera>: {', '.join(names)}{kept}"
     else:
         text = f"wrote {args.out} ({result.arch}, {', '.join(result.cameras)})"
+    models = getattr(result, "models", None) or {args.out: result}  # several cameras, or one model
+    gains = {c: m.gain for c, m in models.items() if m.gain is not None}
+    if gains:
+        text += ("\npredictions times the gain fitted on the validation poses (--no-gain: off): "
+                 + ", ".join(f"{c} {g:.2f}" for c, g in gains.items()))
     emit(args, result, text)
 
 
