@@ -17,7 +17,8 @@ class Samples:
     """Targets of (pose, camera) samples of one split, as tensors on the training device.
 
     Attributes:
-        x: (S,P) pose vectors. d: (S,n',2) targets. w: (S,n') loss weights.
+        x: (S,P) pose vectors. d: (S,n',2) targets. w: (S,n') loss weights. assigned:
+            (S,n') bool, where d came from the ray (the vertices the camera sees).
         pose_row: (S,) index of the sample's pose in `poses` (and in `geometry`).
         camera: (S,) index of the sample's camera in the trainer's camera list.
         geometry: (K,G,R,R) geometry images of `poses` (unet only) or None.
@@ -47,6 +48,7 @@ class Samples:
         self.camera = torch.from_numpy(np.array([c for _, c in pairs], dtype=np.int64)).to(device)
         self.d = torch.from_numpy(d).to(device)
         self.w = torch.from_numpy(np.where(a, weight_assigned, 1.0).astype(np.float32)).to(device)
+        self.assigned = torch.from_numpy(a).to(device)
         self.geometry = None if geometry is None else torch.from_numpy(geometry).to(device)
 
     def __len__(self) -> int:
@@ -74,9 +76,10 @@ def weighted_mse(pred, target, weight):
 
 def sample_losses(predict, data: Samples, batch_size: int) -> dict[str, float]:
     """Weighted MSE ("loss"), unweighted RMSE ("rmse") and the zero predictor's weighted MSE
-    ("zero_loss") over a sample set, and the gain g ≥ 0 of the predictions that minimises the
-    weighted MSE of g times them ("gain": Σ w p·d / Σ w p·p, 1 where every prediction is 0;
-    `TrainOptions.gain`) with that MSE ("gain_loss").
+    ("zero_loss") over a sample set; and over the vertices the camera sees (`Samples.assigned`,
+    every vertex where it sees none) the gain g ≥ 0 of the predictions that minimises the
+    squared error of g times them ("gain": Σ p·d / Σ p·p, 1 where every prediction is 0;
+    `TrainOptions.gain`) and that mean squared error per vertex ("gain_loss").
 
     Args:
         predict: (data, idx) -> (len(idx),n',2) per-vertex d of those samples (model in eval mode).
@@ -85,7 +88,9 @@ def sample_losses(predict, data: Samples, batch_size: int) -> dict[str, float]:
 
     if len(data) == 0:
         return {}
-    se_w = w_sum = se = zero_w = cross_w = pred_w = 0.0
+    se_w = w_sum = se = zero_w = 0.0
+    seen = data.assigned if bool(data.assigned.any()) else torch.ones_like(data.assigned)
+    cross = square = target = 0.0  # Σ p·d, Σ p·p, Σ d·d over the vertices seen
     with torch.no_grad():
         for start in range(0, len(data), batch_size):
             idx = torch.arange(start, min(start + batch_size, len(data)), device=data.d.device)
@@ -95,11 +100,13 @@ def sample_losses(predict, data: Samples, batch_size: int) -> dict[str, float]:
             w_sum += float(data.w[idx].sum())
             se += float(e.sum())
             zero_w += float((data.d[idx].square().sum(-1) * data.w[idx]).sum())
-            cross_w += float(((pred * data.d[idx]).sum(-1) * data.w[idx]).sum())
-            pred_w += float((pred.square().sum(-1) * data.w[idx]).sum())
+            mask = seen[idx]
+            cross += float((pred * data.d[idx]).sum(-1)[mask].sum())
+            square += float(pred.square().sum(-1)[mask].sum())
+            target += float(data.d[idx].square().sum(-1)[mask].sum())
     n = len(data) * data.d.shape[1]
-    gain = max(cross_w, 0.0) / pred_w if pred_w > 0 else 1.0
-    gain_loss = (gain * gain * pred_w - 2.0 * gain * cross_w + zero_w) / w_sum
+    gain = max(cross, 0.0) / square if square > 0 else 1.0
+    gain_loss = (gain * gain * square - 2.0 * gain * cross + target) / int(seen.sum())
     return {"loss": se_w / w_sum, "rmse": math.sqrt(se / n), "zero_loss": zero_w / w_sum, "gain": gain,
             "gain_loss": max(gain_loss, 0.0)}
 

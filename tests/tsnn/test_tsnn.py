@@ -746,8 +746,9 @@ def test_unet_predicts_the_same_for_an_inference_set_of_another_rest(rig_data, t
 
 
 def test_gain_is_the_validation_poses_least_squares_factor(field_data, tmp_path):
-    """`TrainOptions.gain`: the recorded gain is Σ p·d / Σ p·p over the validation poses (p
-    the model's prediction without the gain, d the texcoord set's), clipped to [0, 1]; the
+    """`TrainOptions.gain`: the recorded gain is Σ p·d / Σ p·p over the vertices each camera
+    sees in the validation poses (p the model's prediction without the gain, d the texcoord
+    set's, the sum over assigned vertices), clipped to [0, 1]; the
     model's predictions are that factor times the ungained ones. A model of d that is not a
     function of the pose gets a small gain; one of a smooth field keeps nearly all of it."""
     from mvtex.data.texcoords import open_texcoords, save_texcoords
@@ -771,7 +772,8 @@ def test_gain_is_the_validation_poses_least_squares_factor(field_data, tmp_path)
         assert off.gain is None and load_model(tmp_path / f"{name}_off").config.gain is None
         raw = predict_displacements(load_model(tmp_path / f"{name}_off"), dataset.poses[val], tc.uv).astype(np.float64)
         d = np.stack([texcoords.displacement("cam", p) for p in val]).astype(np.float64)
-        expected = float(np.clip(np.sum(raw * d) / np.sum(raw * raw), 0.0, 1.0))
+        seen = np.stack([texcoords.assigned("cam", p) for p in val])
+        expected = float(np.clip(np.sum(raw[seen] * d[seen]) / np.sum(raw[seen] ** 2), 0.0, 1.0))
         assert low <= on.gain <= high
         assert on.gain == pytest.approx(expected, rel=1e-4, abs=1e-6)
         gained = load_model(tmp_path / f"{name}_on")
@@ -797,21 +799,25 @@ def test_gain_defaults_on_for_a_corrected_set_only():
 
 
 def test_sample_losses_gain_minimises_the_weighted_error():
-    """`sample_losses`' gain and gain_loss against the weighted least squares written out."""
+    """`sample_losses`' gain and gain_loss (over the vertices seen) against the least squares
+    written out."""
     from mvtex.tsnn.samples import sample_losses
 
     rng = np.random.default_rng(5)
     d = rng.normal(size=(7, 9, 2))
     w = rng.uniform(0.5, 2.0, size=(7, 9))
+    seen = rng.uniform(size=(7, 9)) < 0.6
     pred = 0.6 * d + 0.3 * rng.normal(size=d.shape)
-    data = type("Samples", (), {"d": torch.from_numpy(d), "w": torch.from_numpy(w), "__len__": lambda self: 7})()
+    pred[~seen] = 2.0 * d[~seen]  # the vertices not seen do not count in the gain
+    data = type("Samples", (), {"d": torch.from_numpy(d), "w": torch.from_numpy(w),
+                                "assigned": torch.from_numpy(seen), "__len__": lambda self: 7})()
     out = sample_losses(lambda _, idx: torch.from_numpy(pred)[idx], data, batch_size=3)
-    g = np.sum(w[..., None] * pred * d) / np.sum(w[..., None] * pred * pred)
+    g = np.sum(pred[seen] * d[seen]) / np.sum(pred[seen] ** 2)
     assert out["gain"] == pytest.approx(g, rel=1e-9)
 
-    def loss(gain):
-        return np.sum(w * np.sum((gain * pred - d) ** 2, -1)) / w.sum()
+    def seen_loss(gain):
+        return np.mean(np.sum((gain * pred[seen] - d[seen]) ** 2, -1))
 
-    assert out["gain_loss"] == pytest.approx(loss(g), rel=1e-9)
-    assert out["loss"] == pytest.approx(loss(1.0), rel=1e-9)
-    assert loss(g) < min(loss(g - 0.01), loss(g + 0.01))
+    assert out["gain_loss"] == pytest.approx(seen_loss(g), rel=1e-9)
+    assert seen_loss(g) < min(seen_loss(g - 0.01), seen_loss(g + 0.01))
+    assert out["loss"] == pytest.approx(np.sum(w * np.sum((pred - d) ** 2, -1)) / w.sum(), rel=1e-9)
