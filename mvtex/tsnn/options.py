@@ -74,7 +74,7 @@ class TrainOptions(Options):
             coordinates). None: on for a corrected set (`mvtex correct`), where what the
             corrector left is mostly not a function of the pose (on the validation poses of
             both built-in garments at 160 and 240 training poses, `gp` models explain
-            -8 % to 12 % of it, and their fitted gains are 0.25-0.8), off otherwise (the same
+            -8 % to 12 % of it, and their fitted gains are 0-0.97), off otherwise (the same
             models on the original sets explain 59-66 %, gains 0.97-1.10).
     """
 
