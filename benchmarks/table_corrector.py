@@ -3,11 +3,13 @@
     python benchmarks/table_corrector.py WORK [--garments shirt,skirt] [--num-poses 300]
         [--split test] [--test-poses N] [--rigs square4,trapezoid12] [--no-stereo]
         [--recon KEY=VALUE ...] [--workers 2] [--json FILE]
+    python benchmarks/table_corrector.py WORK --data DATA [--no-plain] ...   (an existing dataset)
     python benchmarks/table_corrector.py --merge A.json B.json ...    (one table of their rows)
 
 For each built-in garment, a dataset of NUM_POSES poses (`mvtex synth --garment G
 --num-poses N`, 80 % of them training poses) at WORK/data/<garment><N>, and everything
-made from it under WORK/work/<garment><N> (every step is kept and reused by a rerun):
+made from it under WORK/work/<garment><N> (every step is kept and reused by a rerun; with
+--data an existing dataset instead, its work under WORK/work/<its folder name>):
 
     ts_RIG, gp_RIG/<camera>, gp{val,test}_RIG    the plain per-camera path: `slide` (every
                                                  pose), `train` (gp, every camera), `predict`
@@ -15,6 +17,9 @@ made from it under WORK/work/<garment><N> (every step is kept and reused by a re
     cts_RIG, cgp_RIG/<camera>, cgp{val,test}_RIG the same per-camera path on the corrected set
 
 (A rerun reuses the predictions it finds: delete [c]gp{val,test}_RIG to score new models.)
+`slide` runs on the training and validation poses and the poses scored. --no-plain skips the
+plain per-camera path (its slides and models, the `gp` column): at paper scale it is the
+per-camera models' own benchmark (docs/tsnn.md), and sliding the set once more is an hour.
 
 The five columns, on the poses of SPLIT (N evenly spaced ones with --test-poses):
 inferred; the corrector alone (the corrected mesh); per-camera `gp` alone (on the original
@@ -60,26 +65,30 @@ def _rmse(a, b) -> float:
     return float(np.sqrt(np.mean(np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=1))))
 
 
-def prepare(work: Path, garment: str, num_poses: int, rigs: list[str], workers: int) -> tuple[Path, Path]:
+def scored_poses(dataset, split: str, count: int | None) -> list[int]:
+    """The poses of `split`, or `count` evenly spaced ones of them."""
+    poses = [int(k) for k in dataset.split[split]]
+    if count and count < len(poses):
+        poses = [poses[int(i)] for i in np.unique(np.linspace(0, len(poses) - 1, count).round())]
+    return poses
+
+
+def prepare(data: Path, base: Path, rigs: list[str], scored: list[int], workers: int, plain: bool = True) -> None:
     """Every model and texcoord set of one dataset (each step skipped when it is there)."""
-    data = work / "data" / f"{garment}{num_poses}"
-    base = work / "work" / f"{garment}{num_poses}"
     base.mkdir(parents=True, exist_ok=True)
-    if not (data / "dataset.json").exists():
-        write_synth(data, SynthOptions(num_poses=num_poses, garment=garment))
     dataset = load_dataset(data)
     if not (base / "geometry" / "config.json").exists():
         train_geometry(dataset, base / "geometry", progress=False)
     if not (base / "corrected" / "dataset.json").exists():
         correct(dataset, base / "geometry", base / "corrected", progress=False)
     corrected = load_dataset(base / "corrected")
-    for prefix, ds in (("", dataset), ("c", corrected)):
+    slid = sorted(set(dataset.split["train"]) | set(dataset.split["val"]) | set(scored))
+    for prefix, ds in (("", dataset), ("c", corrected)) if plain else (("c", corrected),):
         for rig_name in rigs:
             rig = load_rig(builtin_rig_file(rig_name))
             ts = base / f"{prefix}ts_{rig_name}"
             if not (ts / "texcoords.json").exists():
-                slide_dataset(ds, rig, ts, poses=ds.select("all"), options=SlideOptions(), workers=workers,
-                              progress=False)
+                slide_dataset(ds, rig, ts, poses=slid, options=SlideOptions(), workers=workers, progress=False)
             models = base / f"{prefix}gp_{rig_name}"
             outs = {split: base / f"{prefix}gp{split}_{rig_name}" for split in ("val", "test")}
             if all((out / "texcoords.json").exists() for out in outs.values()):
@@ -91,7 +100,6 @@ def prepare(work: Path, garment: str, num_poses: int, rigs: list[str], workers: 
             for split, out in outs.items():
                 if not (out / "texcoords.json").exists():
                     predict(ds, [models / c for c in rig.names], out, poses=ds.split[split], progress=False)
-    return data, base
 
 
 def _ratios(values: list[float]) -> dict:
@@ -100,13 +108,13 @@ def _ratios(values: list[float]) -> dict:
 
 
 def reconstruction(dataset, corrected, base: Path, rig_name: str, poses: list[int], options: ReconOptions,
-                   ctx, fused_only: bool = False) -> dict:
+                   ctx, fused_only: bool = False, plain: bool = True) -> dict:
     """All-vertex RMSE ratios (original inferred / method) per pose, four methods (the fused
-    one alone with `fused_only`: a study of its options)."""
+    one alone with `fused_only`: a study of its options; no `gp` column without `plain`)."""
     rig = load_rig(builtin_rig_file(rig_name))
     split = "val" if set(poses) <= set(dataset.split["val"]) else "test"
     out = {"corrector": [], "gp": [], "corrector + gp, fused": [], "TS from gt on the corrected mesh": []}
-    gp = open_texcoords(base / f"gp{split}_{rig_name}", dataset.num_vertices)
+    gp = open_texcoords(base / f"gp{split}_{rig_name}", dataset.num_vertices) if plain else None
     cgp = open_texcoords(base / f"cgp{split}_{rig_name}", dataset.num_vertices)
     cts = open_texcoords(base / f"cts_{rig_name}", dataset.num_vertices)
     extra: dict[str, list] = {"mean_trust": [], "prior_outliers": [], "triangulated_share": []}
@@ -114,9 +122,10 @@ def reconstruction(dataset, corrected, base: Path, rig_name: str, poses: list[in
         gt = dataset.gt[k]
         original = _rmse(dataset.inferred[k], gt)
         out["corrector"].append(original / _rmse(corrected.inferred[k], gt))
-        if not fused_only:
+        if not fused_only and plain:
             r = triangulate_pose(dataset, rig, gp, k, None, options, progress=False, ctx=ctx)
             out["gp"].append(r.rmse_m.inferred / r.rmse_m.reconstructed)
+        if not fused_only:
             r = triangulate_pose(corrected, rig, cts, k, None, options, progress=False, ctx=ctx)
             out["TS from gt on the corrected mesh"].append(r.ratio_original)
         r = triangulate_pose(corrected, rig, cgp, k, None, options, progress=False, ctx=ctx)
@@ -183,6 +192,9 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("work", type=Path)
     p.add_argument("--garments", default="shirt,skirt")
+    p.add_argument("--data", type=Path, help="score this existing dataset instead of the built-in garments")
+    p.add_argument("--plain", action=argparse.BooleanOptionalAction, default=True,
+                   help="the plain per-camera path on the original mesh (the `gp` column)")
     p.add_argument("--num-poses", type=int, default=300, help="poses of each dataset (80 %% training poses)")
     p.add_argument("--split", default="test", choices=("val", "test"), help="the poses scored (val to choose defaults)")
     p.add_argument("--test-poses", type=int, help="score only this many poses of the split, evenly spaced")
@@ -194,26 +206,34 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--json", type=Path, help="write every number here")
     args = p.parse_args(argv)
+    if args.stereo and not args.plain:
+        p.error("--no-plain needs --no-stereo (the stereo row's inferred column comes from the plain path)")
     options = ReconOptions(**_typed(ReconOptions, args.recon))
     rigs = [r for r in args.rigs.split(",") if r]
     rows = []
     with GLContext() as ctx:
-        for garment in args.garments.split(","):
-            data, base = prepare(args.work, garment, args.num_poses, rigs + (["stereo"] if args.stereo else []),
-                                 args.workers)
+        for garment in [None] if args.data else args.garments.split(","):
+            if args.data:
+                data, base = args.data, args.work / "work" / args.data.resolve().name
+            else:
+                data = args.work / "data" / f"{garment}{args.num_poses}"
+                base = args.work / "work" / f"{garment}{args.num_poses}"
+                if not (data / "dataset.json").exists():
+                    write_synth(data, SynthOptions(num_poses=args.num_poses, garment=garment))
+            dataset = load_dataset(data)
+            garment = garment or dataset.name
+            poses = scored_poses(dataset, args.split, args.test_poses)
+            prepare(data, base, rigs + (["stereo"] if args.stereo else []), poses, args.workers, args.plain)
             if args.prepare_only:
                 continue
-            dataset, corrected = load_dataset(data), load_dataset(base / "corrected")
-            poses = [int(k) for k in dataset.split[args.split]]
-            if args.test_poses and args.test_poses < len(poses):
-                poses = [poses[int(i)] for i in np.unique(np.linspace(0, len(poses) - 1, args.test_poses).round())]
+            corrected = load_dataset(base / "corrected")
             row = {"garment": garment, "num_poses": dataset.num_poses, "train_poses": len(dataset.split["train"]),
                    "split": args.split, "poses": poses, "rigs": {}}
             if args.stereo:
                 row["stereo"] = rendering(dataset, corrected, base, poses, ctx)
             for rig_name in rigs:
                 row["rigs"][rig_name] = reconstruction(dataset, corrected, base, rig_name, poses, options, ctx,
-                                                       args.fused_only)
+                                                       args.fused_only, args.plain)
             rows.append(row)
             print(markdown(rows[-1:]), file=sys.stderr, flush=True)
     table = markdown(rows)
