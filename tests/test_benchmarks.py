@@ -104,3 +104,12 @@ def test_table_corrector_small(tmp_path):
     expected = [rmse(source.inferred[k], source.gt[k]) / rmse(fixed.inferred[k], source.gt[k]) for k in row["poses"]]
     assert rec["corrector"]["per_pose"] == pytest.approx(expected, rel=1e-9)
     assert table.merge([tmp_path / "out.json"]) == summary["table"]
+    # The same set through --data, without the plain path: the same numbers, no gp column.
+    again = table.main([str(tmp_path), "--data", str(tmp_path / "data" / "shirt14"), "--no-plain", "--no-stereo",
+                        "--rigs", "stereo"])
+    (other,) = again["rows"]
+    assert other["garment"] == "shirt" and other["poses"] == row["poses"]
+    assert "gp" not in other["rigs"]["stereo"]
+    for column in table.COLUMNS[1:]:
+        if column != "gp":
+            assert other["rigs"]["stereo"][column]["per_pose"] == rec[column]["per_pose"]
