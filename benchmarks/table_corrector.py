@@ -17,7 +17,8 @@ made from it under WORK/work/<garment><N> (every step is kept and reused by a re
     cts_RIG, cgp_RIG/<camera>, cgp{val,test}_RIG the same per-camera path on the corrected set
 
 (A rerun reuses the predictions it finds: delete [c]gp{val,test}_RIG to score new models.)
-`slide` runs on the training and validation poses and the poses scored. --no-plain skips the
+`slide` runs on the training and validation poses and the poses scored (a later run that
+scores other test poses needs [c]ts_RIG deleted first). --no-plain skips the
 plain per-camera path (its slides and models, the `gp` column): at paper scale it is the
 per-camera models' own benchmark (docs/tsnn.md), and sliding the set once more is an hour.
 
