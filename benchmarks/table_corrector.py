@@ -11,8 +11,8 @@ For each built-in garment, a dataset of NUM_POSES poses (`mvtex synth --garment 
 made from it under WORK/work/<garment><N> (every step is kept and reused by a rerun; with
 --data an existing dataset instead, its work under WORK/work/<its folder name>):
 
-    ts_RIG, gp_RIG/<camera>, gp{val,test}_RIG    the plain per-camera path: `slide` (every
-                                                 pose), `train` (gp, every camera), `predict`
+    ts_RIG, gp_RIG/<camera>, gp{val,test}_RIG    the plain per-camera path: `slide` (below),
+                                                 `train` (gp, every camera), `predict`
     geometry, corrected                          `train --geometry`, `correct` (every pose)
     cts_RIG, cgp_RIG/<camera>, cgp{val,test}_RIG the same per-camera path on the corrected set
 
@@ -44,6 +44,7 @@ import numpy as np
 from table_recon import _typed
 
 from mvtex.data.dataset import load_dataset
+from mvtex.data.mesh import rms_distance
 from mvtex.data.rig import builtin_rig_file, load_rig
 from mvtex.data.texcoords import open_texcoords
 from mvtex.evaluation.evaluate import evaluate
@@ -62,10 +63,6 @@ from mvtex.tsnn.train import TrainOptions
 COLUMNS = ("inferred", "corrector", "gp", "corrector + gp, fused", "TS from gt on the corrected mesh")
 
 
-def _rmse(a, b) -> float:
-    return float(np.sqrt(np.mean(np.sum((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2, axis=1))))
-
-
 def scored_poses(dataset, split: str, count: int | None) -> list[int]:
     """The poses of `split`, or `count` evenly spaced ones of them."""
     poses = [int(k) for k in dataset.split[split]]
@@ -74,10 +71,9 @@ def scored_poses(dataset, split: str, count: int | None) -> list[int]:
     return poses
 
 
-def prepare(data: Path, base: Path, rigs: list[str], scored: list[int], workers: int, plain: bool = True) -> None:
+def prepare(dataset, base: Path, rigs: list[str], scored: list[int], workers: int, plain: bool = True) -> None:
     """Every model and texcoord set of one dataset (each step skipped when it is there)."""
     base.mkdir(parents=True, exist_ok=True)
-    dataset = load_dataset(data)
     if not (base / "geometry" / "config.json").exists():
         train_geometry(dataset, base / "geometry", progress=False)
     if not (base / "corrected" / "dataset.json").exists():
@@ -121,8 +117,8 @@ def reconstruction(dataset, corrected, base: Path, rig_name: str, poses: list[in
     extra: dict[str, list] = {"mean_trust": [], "prior_outliers": [], "triangulated_share": []}
     for k in poses:
         gt = dataset.gt[k]
-        original = _rmse(dataset.inferred[k], gt)
-        out["corrector"].append(original / _rmse(corrected.inferred[k], gt))
+        original = rms_distance(dataset.inferred[k], gt)
+        out["corrector"].append(original / rms_distance(corrected.inferred[k], gt))
         if not fused_only and plain:
             r = triangulate_pose(dataset, rig, gp, k, None, options, progress=False, ctx=ctx)
             out["gp"].append(r.rmse_m.inferred / r.rmse_m.reconstructed)
@@ -224,7 +220,7 @@ def main(argv: list[str] | None = None) -> dict:
             dataset = load_dataset(data)
             garment = garment or dataset.name
             poses = scored_poses(dataset, args.split, args.test_poses)
-            prepare(data, base, rigs + (["stereo"] if args.stereo else []), poses, args.workers, args.plain)
+            prepare(dataset, base, rigs + (["stereo"] if args.stereo else []), poses, args.workers, args.plain)
             if args.prepare_only:
                 continue
             corrected = load_dataset(base / "corrected")
