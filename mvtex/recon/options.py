@@ -97,6 +97,10 @@ class ReconOptions(Options):
             corrected mesh is treated as any inferred mesh.
         prior_gate: g: with a prior, a point whose displacement δ from it has
             ‖δ‖² > g² (σ_p² + κσ²) is an outlier and the prior stands there (None: no gate).
+            2: with κ = 1, a gate of 3 let enough of a garbage field that reports a small
+            uncertainty through to move 13 % of tests/recon/test_fusion.py's vertices by
+            more than σ_p / 10, 2 keeps it to 0.5 %; on the validation poses of the κ
+            study neither rejects a point.
         prior_fill: with a prior, extend the fused displacement harmonically to the
             vertices no camera triangulates, as without one (False: the prior stands there).
             On the validation poses of both built-in garments (`square4`, 240 training
