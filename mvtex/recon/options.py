@@ -118,7 +118,7 @@ class ReconOptions(Options):
     consensus_px: float = knob(0.5, "the cameras' vote: an observation agrees with a point within this", unit="px",
                                low=0, low_open=True)
     consensus_scale: float | None = knob(None, "grow the vote's threshold to this times the pose's median "
-                                         "reprojection error", low=0, auto="4 for predicted texcoords, 0 for slid ones",
+                                         "reprojection error", low=0, auto=f"{PREDICTED_CONSENSUS_SCALE:g} for predicted texcoords, 0 for slid ones",
                                          metavar="S")
     fill_shape: Literal["rest", "inferred"] = knob("rest", "the shape the displacement of untriangulated vertices "
                                                   "is extended on")
@@ -141,8 +141,9 @@ class ReconOptions(Options):
                                  "where it has one (off: by the cameras' disagreement)")
     shrink: float | None = knob(None, "trust in each point: keep tau2/(tau2 + K sigma2) of its displacement, sigma "
                                 "its standard deviation, tau2 the pose's mean squared displacement; 0 takes every "
-                                "point", low=0, auto="0.2 for predicted texcoords (1 on a corrected set), 0 for slid ones",
-                                metavar="K")
+                                "point", low=0, metavar="K",
+                                auto=f"{PREDICTED_SHRINK:g} for predicted texcoords ({FUSED_SHRINK:g} on a corrected "
+                                     "set), 0 for slid ones")
     use_prior: bool = knob(True, "on a corrected set (mvtex correct), fuse each point with the corrected mesh and "
                            "its sigma")
     prior_gate: float | None = knob(2.0, "with the prior, a point farther from it than G times their combined sigma "
